@@ -1,0 +1,222 @@
+//! Pinhole cameras and rays in the NeRF-synthetic / Blender convention.
+//!
+//! The camera-to-world matrix maps camera space (looking down −z, +y up, +x right) to the world.
+//! The focal length comes from `camera_angle_x`: f = 0.5·W / tan(0.5·camera_angle_x). Pixel
+//! (row j, column i) shoots along ((i − W/2)/f, −(j − H/2)/f, −1) with **no** half-pixel offset,
+//! rotated by the upper 3×3 block of c2w and normalised to unit length, so a c2w that carries a
+//! uniform scale (as NeuroFluid's released cameras do) still gives unit directions.
+
+/// A pinhole camera.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Camera {
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+    /// Focal length in pixels.
+    pub focal: f32,
+    /// Camera-to-world transform, row-major (`c2w[row][col]`), translation in the last column.
+    pub c2w: [[f32; 4]; 4],
+}
+
+/// A batch of rays: one origin and one unit direction per ray.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Rays {
+    /// Ray origins (the camera centre for every ray of a pinhole camera).
+    pub origins: Vec<[f32; 3]>,
+    /// Unit ray directions.
+    pub dirs: Vec<[f32; 3]>,
+}
+
+impl Rays {
+    /// Number of rays.
+    pub fn len(&self) -> usize {
+        self.dirs.len()
+    }
+
+    /// True when there are no rays.
+    pub fn is_empty(&self) -> bool {
+        self.dirs.is_empty()
+    }
+}
+
+/// Focal length in pixels from the horizontal field of view (radians).
+pub fn focal_from_angle_x(width: u32, camera_angle_x: f32) -> f32 {
+    0.5 * width as f32 / (0.5 * camera_angle_x).tan()
+}
+
+impl Camera {
+    /// A camera whose focal length is derived from `camera_angle_x` (radians).
+    pub fn from_angle_x(width: u32, height: u32, camera_angle_x: f32, c2w: [[f32; 4]; 4]) -> Self {
+        Self {
+            width,
+            height,
+            focal: focal_from_angle_x(width, camera_angle_x),
+            c2w,
+        }
+    }
+
+    /// The camera centre in world coordinates (the translation column of c2w).
+    pub fn origin(&self) -> [f32; 3] {
+        [self.c2w[0][3], self.c2w[1][3], self.c2w[2][3]]
+    }
+
+    /// Number of pixels, the number of rays of a full image.
+    pub fn num_pixels(&self) -> usize {
+        self.width as usize * self.height as usize
+    }
+
+    /// Unit world direction of the ray through pixel (row, col).
+    pub fn ray_dir(&self, row: u32, col: u32) -> [f32; 3] {
+        let half_w = self.width as f32 / 2.0;
+        let half_h = self.height as f32 / 2.0;
+        let d_cam = [
+            (col as f32 - half_w) / self.focal,
+            -(row as f32 - half_h) / self.focal,
+            -1.0f32,
+        ];
+        let r = &self.c2w;
+        let mut d = [0.0f32; 3];
+        for (a, out) in d.iter_mut().enumerate() {
+            *out = d_cam[0] * r[a][0] + d_cam[1] * r[a][1] + d_cam[2] * r[a][2];
+        }
+        let norm = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        [d[0] / norm, d[1] / norm, d[2] / norm]
+    }
+
+    /// Rays for the given pixels, each indexed row-major as `row·W + col`.
+    ///
+    /// # Panics
+    /// When a pixel index lies outside the image.
+    pub fn rays(&self, pixels: &[u32]) -> Rays {
+        let o = self.origin();
+        let n = self.num_pixels();
+        let dirs = pixels
+            .iter()
+            .map(|&p| {
+                assert!(
+                    (p as usize) < n,
+                    "pixel {p} outside a {}×{} image",
+                    self.width,
+                    self.height
+                );
+                self.ray_dir(p / self.width, p % self.width)
+            })
+            .collect::<Vec<_>>();
+        Rays {
+            origins: vec![o; dirs.len()],
+            dirs,
+        }
+    }
+
+    /// Rays for every pixel, row-major.
+    pub fn all_rays(&self) -> Rays {
+        let pixels: Vec<u32> = (0..self.num_pixels() as u32).collect();
+        self.rays(&pixels)
+    }
+
+    /// A camera at `eye` looking at `target` with world `up`, in the Blender convention
+    /// (the camera's −z axis points at the target).
+    pub fn look_at(
+        width: u32,
+        height: u32,
+        camera_angle_x: f32,
+        eye: [f32; 3],
+        target: [f32; 3],
+        up: [f32; 3],
+    ) -> Self {
+        let eye_v = glam::Vec3::from(eye);
+        let back = (eye_v - glam::Vec3::from(target)).normalize();
+        let right = glam::Vec3::from(up).cross(back).normalize();
+        let cam_up = back.cross(right);
+        let c2w = [
+            [right.x, cam_up.x, back.x, eye_v.x],
+            [right.y, cam_up.y, back.y, eye_v.y],
+            [right.z, cam_up.z, back.z, eye_v.z],
+            [0.0, 0.0, 0.0, 1.0],
+        ];
+        Self::from_angle_x(width, height, camera_angle_x, c2w)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn close(a: [f32; 3], b: [f32; 3], tol: f32) -> bool {
+        a.iter().zip(b).all(|(x, y)| (x - y).abs() <= tol)
+    }
+
+    #[test]
+    fn focal_matches_the_released_watercube_camera() {
+        // spec: focal 1225.86 px at 400 px for camera_angle_x ≈ 0.3235 rad
+        let f = focal_from_angle_x(400, 0.3235);
+        assert!((f - 1225.9).abs() < 1.0, "{f}");
+        // 90° field of view: f = W/2
+        assert!((focal_from_angle_x(64, std::f32::consts::FRAC_PI_2) - 32.0).abs() < 1e-4);
+    }
+
+    #[test]
+    fn identity_camera_rays_by_hand() {
+        let id = [
+            [1.0, 0.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 0.0],
+            [0.0, 0.0, 0.0, 1.0],
+        ];
+        let cam = Camera {
+            width: 4,
+            height: 2,
+            focal: 2.0,
+            c2w: id,
+        };
+        // pixel (row 1, col 2) is the image centre W/2, H/2: straight down −z, no half-pixel offset
+        assert!(close(cam.ray_dir(1, 2), [0.0, 0.0, -1.0], 1e-7));
+        // pixel (row 0, col 0): ((0 − 2)/2, −(0 − 1)/2, −1) = (−1, 0.5, −1) / 1.5
+        assert!(close(
+            cam.ray_dir(0, 0),
+            [-1.0 / 1.5, 0.5 / 1.5, -1.0 / 1.5],
+            1e-6
+        ));
+        let rays = cam.rays(&[0, 6]);
+        assert_eq!(rays.origins, vec![[0.0; 3]; 2]);
+        assert!(close(rays.dirs[1], cam.ray_dir(1, 2), 0.0));
+    }
+
+    #[test]
+    fn scaled_rotated_camera_gives_unit_directions() {
+        // rotation of 90° about z, scaled by 0.4155 (the released cameras carry a scale), translated
+        let s = 0.4155f32;
+        let c2w = [
+            [0.0, -s, 0.0, 1.0],
+            [s, 0.0, 0.0, 2.0],
+            [0.0, 0.0, s, 3.0],
+            [0.0, 0.0, 0.0, 1.0],
+        ];
+        let cam = Camera {
+            width: 10,
+            height: 10,
+            focal: 5.0,
+            c2w,
+        };
+        assert_eq!(cam.origin(), [1.0, 2.0, 3.0]);
+        // pixel (0, 0): d_cam = (−1, 1, −1); R·d = s·(−1, −1, −1) → unit (−1,−1,−1)/√3
+        let inv = 1.0 / 3f32.sqrt();
+        assert!(close(cam.ray_dir(0, 0), [-inv, -inv, -inv], 1e-6));
+        for p in 0..100u32 {
+            let d = cam.ray_dir(p / 10, p % 10);
+            let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            assert!((n - 1.0).abs() < 1e-6);
+        }
+    }
+
+    #[test]
+    fn look_at_points_the_centre_ray_at_the_target() {
+        let cam = Camera::look_at(8, 8, 0.6, [3.0, 1.0, 2.0], [0.0, 0.5, 0.0], [0.0, 1.0, 0.0]);
+        let d = cam.ray_dir(4, 4);
+        let to = glam::Vec3::new(-3.0, -0.5, -2.0).normalize();
+        assert!(close(d, to.into(), 1e-6), "{d:?}");
+        // image-up points to world-up-ish: pixel row 0 looks higher than row 7
+        assert!(cam.ray_dir(0, 4)[1] > cam.ray_dir(7, 4)[1]);
+    }
+}

@@ -1,0 +1,172 @@
+//! Run-time choice of the Burn device from a name (`--device`, the experiment TOML).
+//!
+//! Which backends exist is decided at build time by cargo features; asking for one that is not
+//! compiled in is an error that names the feature to enable.
+
+use burn::prelude::Device;
+
+/// Why a device name could not be turned into a device.
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+pub enum DeviceError {
+    /// The name is not one this program knows.
+    #[error("unknown device `{name}`: expected one of cpu, flex, ndarray, wgpu, cuda or cuda:N")]
+    Unknown {
+        /// The name that was asked for.
+        name: String,
+    },
+    /// The backend exists but this binary was built without it.
+    #[error(
+        "device `{name}` needs the `{feature}` backend, which this build does not include: rebuild with `--features {feature}`"
+    )]
+    NotCompiled {
+        /// The name that was asked for.
+        name: String,
+        /// The cargo feature that compiles the backend in.
+        feature: &'static str,
+    },
+}
+
+/// The backends this binary was compiled with, in the order `cpu` prefers them.
+pub fn compiled_backends() -> Vec<&'static str> {
+    let mut out = Vec::new();
+    if cfg!(feature = "flex") {
+        out.push("flex");
+    }
+    if cfg!(feature = "ndarray") {
+        out.push("ndarray");
+    }
+    if cfg!(feature = "wgpu") {
+        out.push("wgpu");
+    }
+    if cfg!(feature = "cuda") {
+        out.push("cuda");
+    }
+    out
+}
+
+/// Every CPU device compiled in (flex first), for tests that compare backends.
+pub fn cpu_devices() -> Vec<(&'static str, Device)> {
+    let mut out = Vec::new();
+    #[cfg(feature = "flex")]
+    out.push(("flex", Device::flex()));
+    #[cfg(feature = "ndarray")]
+    #[allow(deprecated)]
+    out.push(("ndarray", Device::ndarray()));
+    out
+}
+
+/// The default CPU device: flex when compiled in, else ndarray.
+///
+/// # Panics
+/// When the binary was built without any CPU backend (a build configuration error, not user input).
+pub fn cpu() -> Device {
+    cpu_devices()
+        .into_iter()
+        .next()
+        .map(|(_, d)| d)
+        .expect("no CPU backend compiled in: enable the `flex` or `ndarray` feature")
+}
+
+/// Turns a device name into a device: `cpu` (flex, else ndarray), `flex`, `ndarray`, `wgpu`,
+/// `cuda` or `cuda:N`. Names are case-insensitive.
+pub fn parse_device(name: &str) -> Result<Device, DeviceError> {
+    let lower = name.trim().to_ascii_lowercase();
+    let not_compiled = |feature| DeviceError::NotCompiled {
+        name: name.to_string(),
+        feature,
+    };
+    match lower.as_str() {
+        "cpu" => cpu_devices()
+            .into_iter()
+            .next()
+            .map(|(_, d)| d)
+            .ok_or_else(|| not_compiled("flex")),
+        "flex" => flex().ok_or_else(|| not_compiled("flex")),
+        "ndarray" => ndarray().ok_or_else(|| not_compiled("ndarray")),
+        "wgpu" | "gpu" => wgpu().ok_or_else(|| not_compiled("wgpu")),
+        _ => {
+            if let Some(index) = lower
+                .strip_prefix("cuda")
+                .and_then(|rest| parse_index(rest))
+            {
+                return cuda(index).ok_or_else(|| not_compiled("cuda"));
+            }
+            Err(DeviceError::Unknown {
+                name: name.to_string(),
+            })
+        }
+    }
+}
+
+/// `""` → 0, `":N"` → N.
+fn parse_index(rest: &str) -> Option<usize> {
+    if rest.is_empty() {
+        return Some(0);
+    }
+    rest.strip_prefix(':')?.parse().ok()
+}
+
+fn flex() -> Option<Device> {
+    #[cfg(feature = "flex")]
+    return Some(Device::flex());
+    #[cfg(not(feature = "flex"))]
+    None
+}
+
+fn ndarray() -> Option<Device> {
+    #[cfg(feature = "ndarray")]
+    #[allow(deprecated)]
+    return Some(Device::ndarray());
+    #[cfg(not(feature = "ndarray"))]
+    None
+}
+
+fn wgpu() -> Option<Device> {
+    #[cfg(feature = "wgpu")]
+    return Some(Device::wgpu(burn::prelude::DeviceKind::DefaultDevice));
+    #[cfg(not(feature = "wgpu"))]
+    None
+}
+
+fn cuda(index: usize) -> Option<Device> {
+    #[cfg(feature = "cuda")]
+    return Some(Device::cuda(index));
+    #[cfg(not(feature = "cuda"))]
+    {
+        let _ = index;
+        None
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn unknown_names_are_rejected_with_the_choices() {
+        let err = parse_device("tpu").unwrap_err();
+        assert_eq!(err, DeviceError::Unknown { name: "tpu".into() });
+        assert!(err.to_string().contains("cpu, flex, ndarray, wgpu, cuda"));
+        assert!(parse_device("cuda:x").is_err());
+    }
+
+    #[test]
+    fn missing_backends_name_their_feature() {
+        for (name, feature) in [("wgpu", "wgpu"), ("cuda:1", "cuda"), ("ndarray", "ndarray")] {
+            if compiled_backends().contains(&feature) {
+                continue;
+            }
+            let err = parse_device(name).unwrap_err();
+            assert!(
+                err.to_string().contains(&format!("--features {feature}")),
+                "{err}"
+            );
+        }
+    }
+
+    #[test]
+    fn cpu_is_always_available() {
+        assert!(parse_device("CPU").is_ok());
+        assert!(!cpu_devices().is_empty());
+    }
+}

@@ -1,0 +1,13 @@
+//! Maths, geometry and IO shared by every NeuroFluid-rs crate: device choice, cameras and rays,
+//! uniform-grid neighbour search, particle and image metrics, and `.npz` archives.
+//!
+//! Nothing here knows about the models or the trainer; dependencies point one way
+//! (core ← dlf, physnerf ← train).
+
+pub mod atomic;
+pub mod camera;
+pub mod device;
+pub mod metrics;
+pub mod neighbors;
+pub mod npz;
+pub mod scene;

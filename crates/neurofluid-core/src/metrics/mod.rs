@@ -1,0 +1,7 @@
+//! Evaluation metrics: particle distances (spec §6.1) and image quality (PSNR, SSIM; §6.3).
+
+mod image;
+mod particles;
+
+pub use image::{ImageError, RgbImage, psnr, ssim};
+pub use particles::{ParticleDistance, gt_to_pred_distance, index_matched_distance};

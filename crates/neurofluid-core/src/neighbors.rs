@@ -1,0 +1,577 @@
+//! Neighbour search on a uniform grid, built once per point set.
+//!
+//! The grid is hashed (a cell key maps to one of ~2N buckets), so its memory is O(N) however far
+//! the points spread (escaped particles falling to −50 m do not blow it up). Each bucket lists
+//! its points in ascending index order, which lets the capped ball query stop scanning a bucket as
+//! soon as the indices pass the worst one it keeps.
+//!
+//! Two queries with two semantics:
+//! - [`NeighborGrid::pairs`]: every input point within `radius` (float32 `d² ≤ r²`, inclusive),
+//!   the pair lists of DLF's continuous convolution (Open3D `FixedRadiusSearch`). An input point
+//!   bit-identical to the query is skipped when asked (`radius_search_ignore_query_points`).
+//! - [`NeighborGrid::ball_query`]: at most K points with `d² < r²` (strict), the K lowest-index
+//!   ones (pytorch3d `ball_query`, PhysNeRF's default) or the K nearest; empty slots are flagged.
+
+use rayon::prelude::*;
+
+/// Fixed-radius neighbour lists in compressed-row form.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct PairList {
+    /// Row offsets: the neighbours of query q are `indices[offsets[q]..offsets[q + 1]]`.
+    pub offsets: Vec<usize>,
+    /// Input-point index of every pair, ascending within a row.
+    pub indices: Vec<u32>,
+    /// Squared distance of every pair (float32, `dx² + dy² + dz²`).
+    pub dist2: Vec<f32>,
+}
+
+impl PairList {
+    /// Number of query points (rows).
+    pub fn num_queries(&self) -> usize {
+        self.offsets.len().saturating_sub(1)
+    }
+
+    /// Total number of pairs.
+    pub fn num_pairs(&self) -> usize {
+        self.indices.len()
+    }
+
+    /// Neighbour count of every query.
+    pub fn counts(&self) -> Vec<u32> {
+        self.offsets
+            .windows(2)
+            .map(|w| (w[1] - w[0]) as u32)
+            .collect()
+    }
+
+    /// Query index of every pair (the row each pair belongs to).
+    pub fn query_of_pair(&self) -> Vec<u32> {
+        let mut out = Vec::with_capacity(self.num_pairs());
+        for (q, w) in self.offsets.windows(2).enumerate() {
+            out.extend(std::iter::repeat_n(q as u32, w[1] - w[0]));
+        }
+        out
+    }
+}
+
+/// Which K points a capped ball query keeps when more than K are inside the ball.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum Selection {
+    /// The K lowest particle indices, as pytorch3d's `ball_query` (the reference's behaviour).
+    #[default]
+    LowestIndex,
+    /// The K nearest points (ties broken by index).
+    Nearest,
+}
+
+/// Result of a capped ball query: K slots per query.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct BallQuery {
+    /// Slots per query.
+    pub k: usize,
+    /// `[queries × k]` point indices; `-1` marks an empty slot.
+    pub idx: Vec<i32>,
+    /// `[queries × k]` squared distances; `0` in empty slots.
+    pub dist2: Vec<f32>,
+    /// Filled slots per query (≤ k).
+    pub count: Vec<u32>,
+}
+
+impl BallQuery {
+    /// Number of queries.
+    pub fn num_queries(&self) -> usize {
+        self.count.len()
+    }
+
+    /// The filled slots of query q.
+    pub fn neighbors(&self, q: usize) -> &[i32] {
+        &self.idx[q * self.k..q * self.k + self.count[q] as usize]
+    }
+}
+
+/// A hashed uniform grid over a borrowed point set.
+#[derive(Debug, Clone)]
+pub struct NeighborGrid<'a> {
+    points: &'a [[f32; 3]],
+    inv_cell: f32,
+    /// `buckets + 1` offsets into `order`.
+    starts: Vec<u32>,
+    /// Point indices grouped by bucket, ascending within a bucket.
+    order: Vec<u32>,
+    mask: u64,
+}
+
+/// Cell key of a coordinate triple, or None for non-finite input.
+fn cell_of(p: [f32; 3], inv_cell: f32) -> Option<[i64; 3]> {
+    let mut c = [0i64; 3];
+    for a in 0..3 {
+        let v = (p[a] * inv_cell).floor();
+        if !v.is_finite() {
+            return None;
+        }
+        c[a] = v as i64;
+    }
+    Some(c)
+}
+
+fn hash_cell(c: [i64; 3], mask: u64) -> usize {
+    let h = (c[0] as u64).wrapping_mul(73_856_093)
+        ^ (c[1] as u64).wrapping_mul(19_349_663)
+        ^ (c[2] as u64).wrapping_mul(83_492_791);
+    // mix the high bits in so that small tables see all of the key
+    let h = h ^ (h >> 29);
+    (h & mask) as usize
+}
+
+/// Squared distance in float32, summed as (dx² + dy²) + dz².
+#[inline]
+fn dist2(a: [f32; 3], b: [f32; 3]) -> f32 {
+    let dx = a[0] - b[0];
+    let dy = a[1] - b[1];
+    let dz = a[2] - b[2];
+    dx * dx + dy * dy + dz * dz
+}
+
+/// Queries are split into chunks of this many for the parallel loops.
+const CHUNK: usize = 1024;
+
+impl<'a> NeighborGrid<'a> {
+    /// Builds the grid with the given cell size (usually the search radius).
+    ///
+    /// # Panics
+    /// When `cell_size` is not a positive finite number.
+    pub fn new(points: &'a [[f32; 3]], cell_size: f32) -> Self {
+        assert!(
+            cell_size.is_finite() && cell_size > 0.0,
+            "grid cell size must be positive and finite, got {cell_size}"
+        );
+        let inv_cell = 1.0 / cell_size;
+        let buckets = (2 * points.len()).next_power_of_two().max(16);
+        let mask = buckets as u64 - 1;
+        let keys: Vec<usize> = points
+            .iter()
+            .map(|&p| cell_of(p, inv_cell).map_or(usize::MAX, |c| hash_cell(c, mask)))
+            .collect();
+        let mut starts = vec![0u32; buckets + 1];
+        for &k in &keys {
+            if k != usize::MAX {
+                starts[k + 1] += 1;
+            }
+        }
+        for b in 0..buckets {
+            starts[b + 1] += starts[b];
+        }
+        let mut fill = starts.clone();
+        let mut order = vec![0u32; starts[buckets] as usize];
+        for (i, &k) in keys.iter().enumerate() {
+            if k != usize::MAX {
+                order[fill[k] as usize] = i as u32;
+                fill[k] += 1;
+            }
+        }
+        Self {
+            points,
+            inv_cell,
+            starts,
+            order,
+            mask,
+        }
+    }
+
+    /// The points the grid was built over.
+    pub fn points(&self) -> &'a [[f32; 3]] {
+        self.points
+    }
+
+    /// The distinct buckets whose cells touch the box `q ± radius` (a conservative superset).
+    fn buckets_around(&self, q: [f32; 3], radius: f32, out: &mut Vec<usize>) {
+        out.clear();
+        if self.order.is_empty() {
+            return;
+        }
+        // a margin of a few ulps keeps the cell range conservative under float rounding
+        let scale = q[0].abs().max(q[1].abs()).max(q[2].abs());
+        let r = radius * (1.0 + 1e-4) + 5e-7 * scale;
+        let (Some(lo), Some(hi)) = (
+            cell_of([q[0] - r, q[1] - r, q[2] - r], self.inv_cell),
+            cell_of([q[0] + r, q[1] + r, q[2] + r], self.inv_cell),
+        ) else {
+            return;
+        };
+        let cells = (0..3)
+            .map(|a| (hi[a] - lo[a] + 1) as u128)
+            .product::<u128>();
+        if cells > (self.starts.len() - 1) as u128 {
+            // the box covers more cells than there are buckets: every bucket is a candidate
+            out.extend(
+                (0..self.starts.len() - 1).filter(|&b| self.starts[b] != self.starts[b + 1]),
+            );
+            return;
+        }
+        for x in lo[0]..=hi[0] {
+            for y in lo[1]..=hi[1] {
+                for z in lo[2]..=hi[2] {
+                    let b = hash_cell([x, y, z], self.mask);
+                    if self.starts[b] != self.starts[b + 1] && !out.contains(&b) {
+                        out.push(b);
+                    }
+                }
+            }
+        }
+    }
+
+    fn bucket(&self, b: usize) -> &[u32] {
+        &self.order[self.starts[b] as usize..self.starts[b + 1] as usize]
+    }
+
+    /// All input points with float32 `d² ≤ radius²` of each query, ascending by index.
+    ///
+    /// With `ignore_identical`, an input point whose coordinates are bit-identical to the query's
+    /// is skipped (a coordinate comparison, as Open3D does, not an index comparison).
+    pub fn pairs(&self, queries: &[[f32; 3]], radius: f32, ignore_identical: bool) -> PairList {
+        let r2 = radius * radius;
+        let chunks: Vec<PairList> = queries
+            .par_chunks(CHUNK)
+            .map(|chunk| {
+                let mut part = PairList {
+                    offsets: Vec::with_capacity(chunk.len() + 1),
+                    ..PairList::default()
+                };
+                part.offsets.push(0);
+                let mut buckets = Vec::with_capacity(27);
+                let mut row: Vec<(u32, f32)> = Vec::new();
+                for &q in chunk {
+                    row.clear();
+                    self.buckets_around(q, radius, &mut buckets);
+                    for &b in &buckets {
+                        for &i in self.bucket(b) {
+                            let p = self.points[i as usize];
+                            if ignore_identical && p.map(f32::to_bits) == q.map(f32::to_bits) {
+                                continue;
+                            }
+                            let d2 = dist2(p, q);
+                            if d2 <= r2 {
+                                row.push((i, d2));
+                            }
+                        }
+                    }
+                    row.sort_unstable_by_key(|&(i, _)| i);
+                    part.indices.extend(row.iter().map(|&(i, _)| i));
+                    part.dist2.extend(row.iter().map(|&(_, d)| d));
+                    part.offsets.push(part.indices.len());
+                }
+                part
+            })
+            .collect();
+        let mut out = PairList {
+            offsets: Vec::with_capacity(queries.len() + 1),
+            ..PairList::default()
+        };
+        out.offsets.push(0);
+        for part in chunks {
+            let base = out.indices.len();
+            out.offsets
+                .extend(part.offsets[1..].iter().map(|&o| base + o));
+            out.indices.extend(part.indices);
+            out.dist2.extend(part.dist2);
+        }
+        out
+    }
+
+    /// At most `k` input points with float32 `d² < radius²` per query (see [`Selection`]).
+    ///
+    /// Slots of a query are ordered by ascending index ([`Selection::LowestIndex`]) or by
+    /// ascending distance ([`Selection::Nearest`]); empty slots hold index −1 and distance 0.
+    pub fn ball_query(
+        &self,
+        queries: &[[f32; 3]],
+        radius: f32,
+        k: usize,
+        selection: Selection,
+    ) -> BallQuery {
+        let r2 = radius * radius;
+        let nq = queries.len();
+        let mut idx = vec![-1i32; nq * k];
+        let mut d2 = vec![0f32; nq * k];
+        let mut count = vec![0u32; nq];
+        if k == 0 {
+            return BallQuery {
+                k,
+                idx,
+                dist2: d2,
+                count,
+            };
+        }
+        idx.par_chunks_mut(CHUNK * k)
+            .zip(d2.par_chunks_mut(CHUNK * k))
+            .zip(count.par_chunks_mut(CHUNK))
+            .zip(queries.par_chunks(CHUNK))
+            .for_each(|(((idx, d2), count), chunk)| {
+                let mut buckets = Vec::with_capacity(27);
+                let mut best: Vec<(u32, f32)> = Vec::with_capacity(4 * k);
+                for (qi, &q) in chunk.iter().enumerate() {
+                    self.buckets_around(q, radius, &mut buckets);
+                    best.clear();
+                    match selection {
+                        Selection::LowestIndex => self.lowest_k(q, r2, k, &buckets, &mut best),
+                        Selection::Nearest => self.nearest_k(q, r2, k, &buckets, &mut best),
+                    }
+                    count[qi] = best.len() as u32;
+                    for (s, &(i, d)) in best.iter().enumerate() {
+                        idx[qi * k + s] = i as i32;
+                        d2[qi * k + s] = d;
+                    }
+                }
+            });
+        BallQuery {
+            k,
+            idx,
+            dist2: d2,
+            count,
+        }
+    }
+
+    /// The `k` lowest indices inside the ball, ascending.
+    fn lowest_k(
+        &self,
+        q: [f32; 3],
+        r2: f32,
+        k: usize,
+        buckets: &[usize],
+        best: &mut Vec<(u32, f32)>,
+    ) {
+        // `best` stays sorted by index and holds at most k entries; a bucket is sorted by index, so
+        // once its index passes the k-th best there is nothing more to find in it.
+        for &b in buckets {
+            for &i in self.bucket(b) {
+                if best.len() == k && i > best[k - 1].0 {
+                    break;
+                }
+                let d = dist2(self.points[i as usize], q);
+                if d < r2 {
+                    let pos = best.partition_point(|&(j, _)| j < i);
+                    if best.len() == k {
+                        best.pop();
+                    }
+                    best.insert(pos, (i, d));
+                }
+            }
+        }
+    }
+
+    /// The `k` nearest points inside the ball, by ascending (distance, index).
+    fn nearest_k(
+        &self,
+        q: [f32; 3],
+        r2: f32,
+        k: usize,
+        buckets: &[usize],
+        best: &mut Vec<(u32, f32)>,
+    ) {
+        for &b in buckets {
+            for &i in self.bucket(b) {
+                let d = dist2(self.points[i as usize], q);
+                if d < r2 {
+                    best.push((i, d));
+                }
+            }
+        }
+        let key = |a: &(u32, f32), b: &(u32, f32)| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0));
+        if best.len() > k {
+            best.select_nth_unstable_by(k - 1, key);
+            best.truncate(k);
+        }
+        best.sort_unstable_by(key);
+    }
+}
+
+/// Fixed-radius pairs (DLF semantics) with a grid built for this call; see [`NeighborGrid::pairs`].
+pub fn fixed_radius_pairs(
+    points: &[[f32; 3]],
+    queries: &[[f32; 3]],
+    radius: f32,
+    ignore_identical: bool,
+) -> PairList {
+    NeighborGrid::new(points, radius).pairs(queries, radius, ignore_identical)
+}
+
+/// Capped ball query (PhysNeRF semantics) with a grid built for this call; see
+/// [`NeighborGrid::ball_query`].
+pub fn ball_query(
+    points: &[[f32; 3]],
+    queries: &[[f32; 3]],
+    radius: f32,
+    k: usize,
+    selection: Selection,
+) -> BallQuery {
+    NeighborGrid::new(points, radius).ball_query(queries, radius, k, selection)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    fn cloud(n: usize, extent: f32, seed: u64) -> Vec<[f32; 3]> {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        (0..n)
+            .map(|_| {
+                [
+                    rng.random_range(-extent..extent),
+                    rng.random_range(-extent..extent),
+                    rng.random_range(-extent..extent),
+                ]
+            })
+            .collect()
+    }
+
+    /// All-pairs version of `pairs`.
+    fn brute_pairs(points: &[[f32; 3]], queries: &[[f32; 3]], r: f32, ignore: bool) -> PairList {
+        let mut out = PairList {
+            offsets: vec![0],
+            ..PairList::default()
+        };
+        for &q in queries {
+            for (i, &p) in points.iter().enumerate() {
+                if ignore && p.map(f32::to_bits) == q.map(f32::to_bits) {
+                    continue;
+                }
+                let d = dist2(p, q);
+                if d <= r * r {
+                    out.indices.push(i as u32);
+                    out.dist2.push(d);
+                }
+            }
+            out.offsets.push(out.indices.len());
+        }
+        out
+    }
+
+    /// All-pairs version of `ball_query`.
+    fn brute_ball(
+        points: &[[f32; 3]],
+        queries: &[[f32; 3]],
+        r: f32,
+        k: usize,
+        sel: Selection,
+    ) -> BallQuery {
+        let mut out = BallQuery {
+            k,
+            ..BallQuery::default()
+        };
+        for &q in queries {
+            let mut inside: Vec<(u32, f32)> = points
+                .iter()
+                .enumerate()
+                .map(|(i, &p)| (i as u32, dist2(p, q)))
+                .filter(|&(_, d)| d < r * r)
+                .collect();
+            if sel == Selection::Nearest {
+                inside.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+            }
+            inside.truncate(k);
+            out.count.push(inside.len() as u32);
+            for s in 0..k {
+                let (i, d) = inside.get(s).map_or((-1, 0.0), |&(i, d)| (i as i32, d));
+                out.idx.push(i);
+                out.dist2.push(d);
+            }
+        }
+        out
+    }
+
+    fn check_all(points: &[[f32; 3]], queries: &[[f32; 3]], r: f32, k: usize) {
+        for ignore in [false, true] {
+            assert_eq!(
+                fixed_radius_pairs(points, queries, r, ignore),
+                brute_pairs(points, queries, r, ignore),
+                "pairs, ignore_identical = {ignore}"
+            );
+        }
+        for sel in [Selection::LowestIndex, Selection::Nearest] {
+            assert_eq!(
+                ball_query(points, queries, r, k, sel),
+                brute_ball(points, queries, r, k, sel),
+                "ball query {sel:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn random_clouds_match_brute_force() {
+        let points = cloud(3000, 1.0, 1);
+        let queries = cloud(1500, 1.2, 2);
+        check_all(&points, &queries, 0.1125, 20);
+        check_all(&points, &queries, 0.225, 20);
+        check_all(&points, &queries, 0.3, 5);
+    }
+
+    #[test]
+    fn points_as_their_own_queries() {
+        // the DLF case: fluid→fluid, the particle itself is dropped only with ignore_identical
+        let points = cloud(2000, 0.5, 3);
+        let with_self = fixed_radius_pairs(&points, &points, 0.1125, false);
+        let without = fixed_radius_pairs(&points, &points, 0.1125, true);
+        assert_eq!(with_self.num_pairs(), without.num_pairs() + points.len());
+        check_all(&points, &points, 0.1125, 20);
+    }
+
+    #[test]
+    fn degenerate_inputs() {
+        let q = cloud(50, 1.0, 4);
+        // no particles
+        check_all(&[], &q, 0.2, 20);
+        let empty = ball_query(&[], &q, 0.2, 20, Selection::LowestIndex);
+        assert!(empty.idx.iter().all(|&i| i == -1) && empty.count.iter().all(|&c| c == 0));
+        // no queries
+        check_all(&q, &[], 0.2, 20);
+        // every particle in one cell
+        let tight = cloud(500, 0.01, 5);
+        check_all(&tight, &q, 0.2, 20);
+        check_all(&tight, &tight, 0.2, 20);
+        // queries far outside the cloud, and at huge coordinates
+        let far: Vec<[f32; 3]> = vec![[100.0, 0.0, 0.0], [-1e6, 3.0, 2.0], [0.0, 1e7, -1e7]];
+        check_all(&q, &far, 0.2, 20);
+        // duplicates: identical points are all found, and all dropped by ignore_identical
+        let mut dup = cloud(100, 0.2, 6);
+        dup.extend_from_slice(&dup.clone());
+        dup.push(dup[0]);
+        check_all(&dup, &dup, 0.15, 20);
+        let p = fixed_radius_pairs(&dup, &dup[..1], 0.15, true);
+        assert!(!p.indices.contains(&0) && !p.indices.contains(&100) && !p.indices.contains(&200));
+        // non-finite particles are never neighbours, non-finite queries have none
+        let mut bad = cloud(100, 0.2, 7);
+        bad[3] = [f32::NAN, 0.0, 0.0];
+        bad[4] = [f32::INFINITY, 0.0, 0.0];
+        check_all(&bad, &[[0.0; 3], [f32::NAN, 0.0, 0.0]], 0.3, 20);
+    }
+
+    #[test]
+    fn boundary_inclusion_rules() {
+        // d² = r² exactly: counted by pairs (≤), not by the ball query (<)
+        let r = 0.5f32;
+        let points = [[0.5f32, 0.0, 0.0], [0.0, 0.25, 0.0]];
+        let q = [[0.0f32; 3]];
+        assert_eq!(
+            fixed_radius_pairs(&points, &q, r, false).indices,
+            vec![0, 1]
+        );
+        assert_eq!(
+            ball_query(&points, &q, r, 4, Selection::LowestIndex).neighbors(0),
+            &[1]
+        );
+    }
+
+    #[test]
+    fn lowest_index_differs_from_nearest_and_both_are_capped() {
+        // a line of points, the far ones with low indices
+        let points: Vec<[f32; 3]> = (0..30).map(|i| [0.3 - 0.01 * i as f32, 0.0, 0.0]).collect();
+        let q = [[0.0f32; 3]];
+        let low = ball_query(&points, &q, 0.245, 5, Selection::LowestIndex);
+        let near = ball_query(&points, &q, 0.245, 5, Selection::Nearest);
+        assert_eq!(low.neighbors(0), &[6, 7, 8, 9, 10]);
+        assert_eq!(near.neighbors(0), &[29, 28, 27, 26, 25]);
+        assert_eq!(low.count, vec![5]);
+    }
+}

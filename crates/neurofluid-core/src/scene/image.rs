@@ -1,0 +1,85 @@
+//! RGBA PNG frames: read (composited on white, float32) and written atomically.
+
+use std::path::Path;
+
+use super::atomic::write_atomic;
+use super::error::{Result, SceneError};
+
+/// An image composited on white: `rgb` is row-major H×W×3 in [0, 1]; `alpha` is H×W.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Image {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Colour composited on white, row-major, 3 values per pixel.
+    pub rgb: Vec<f32>,
+    /// Coverage (the PNG's alpha; 1 for images without alpha).
+    pub alpha: Vec<f32>,
+}
+
+impl Image {
+    /// Reads a PNG (any colour type) and composites it on white: c·a + (1 − a).
+    pub fn read(path: &Path) -> Result<Self> {
+        let bytes = std::fs::read(path).map_err(|e| SceneError::io(path, e))?;
+        let img = image::load_from_memory_with_format(&bytes, image::ImageFormat::Png)
+            .map_err(|e| SceneError::Image {
+                path: path.to_path_buf(),
+                message: e.to_string(),
+            })?
+            .into_rgba32f();
+        let (width, height) = img.dimensions();
+        let n = (width * height) as usize;
+        let mut rgb = Vec::with_capacity(n * 3);
+        let mut alpha = Vec::with_capacity(n);
+        for px in img.pixels() {
+            let a = px[3];
+            for c in 0..3 {
+                rgb.push(px[c] * a + (1.0 - a));
+            }
+            alpha.push(a);
+        }
+        Ok(Self {
+            width,
+            height,
+            rgb,
+            alpha,
+        })
+    }
+}
+
+/// Width and height of a PNG, read from its header only.
+pub fn png_size(path: &Path) -> Result<(u32, u32)> {
+    image::image_dimensions(path).map_err(|e| match e {
+        image::ImageError::IoError(io) => SceneError::io(path, io),
+        e => SceneError::Image {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        },
+    })
+}
+
+/// Writes an 8-bit RGBA image (row-major, 4 bytes per pixel) as PNG, atomically.
+pub fn write_png_rgba(path: &Path, width: u32, height: u32, rgba: &[u8]) -> Result<()> {
+    if rgba.len() != width as usize * height as usize * 4 {
+        return Err(SceneError::Image {
+            path: path.to_path_buf(),
+            message: format!(
+                "{} bytes given for a {width}×{height} RGBA image (expected {})",
+                rgba.len(),
+                width as usize * height as usize * 4
+            ),
+        });
+    }
+    let mut buf = Vec::new();
+    {
+        use image::ImageEncoder;
+        let enc = image::codecs::png::PngEncoder::new(&mut buf);
+        enc.write_image(rgba, width, height, image::ExtendedColorType::Rgba8)
+            .map_err(|e| SceneError::Image {
+                path: path.to_path_buf(),
+                message: e.to_string(),
+            })?;
+    }
+    write_atomic(path, &buf)
+}

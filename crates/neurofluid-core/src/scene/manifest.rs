@@ -1,0 +1,263 @@
+//! The scene manifest (`scene.json`): which views and frames serve warm-up, training and
+//! testing, the up axis, the particle radius, the box interior and the ray bounds.
+//!
+//! NeuroFluid's released scenes have no manifest; [`SceneManifest::released`] gives the
+//! defaults of their layout (spec §5.1): views 1–4 warm-up at frame 0, `view_1` trains on
+//! frames 0–49 of split `train`, `view_5` tests on frames 0–59 of split `test`, z up,
+//! box interior x, y ∈ [−0.975, 0.975], z ∈ [−0.975, 2.4302], near/far 9/13.
+
+use std::ops::Range;
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use super::atomic::write_atomic;
+use super::error::{Result, SceneError};
+
+/// File name of the manifest inside a scene directory.
+pub const MANIFEST_FILE: &str = "scene.json";
+
+/// Which world axis points up (against gravity).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum UpAxis {
+    /// +y up, gravity (0, −9.81, 0): the built-in scenes and DLF's public weights.
+    Y,
+    /// +z up, gravity (0, 0, −9.81): NeuroFluid's released scenes.
+    Z,
+}
+
+impl UpAxis {
+    /// Index of the up axis (1 for y, 2 for z).
+    pub fn index(self) -> usize {
+        match self {
+            UpAxis::Y => 1,
+            UpAxis::Z => 2,
+        }
+    }
+
+    /// Gravity vector of this frame (9.81 m/s² down the up axis).
+    pub fn gravity(self) -> [f32; 3] {
+        let mut g = [0.0; 3];
+        g[self.index()] = -9.81;
+        g
+    }
+}
+
+/// A half-open range `[start, end)` of positions in a transforms file's `frames` list.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct FrameRange {
+    /// First frame (inclusive).
+    pub start: usize,
+    /// One past the last frame.
+    pub end: usize,
+}
+
+impl FrameRange {
+    /// The range as a `Range<usize>`.
+    pub fn range(&self) -> Range<usize> {
+        self.start..self.end
+    }
+
+    /// Number of frames.
+    pub fn len(&self) -> usize {
+        self.end.saturating_sub(self.start)
+    }
+
+    /// True when the range holds no frame.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// The views, split and frames of one role (warm-up, training or testing).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ViewSet {
+    /// View directory names, e.g. `["view_1", "view_2"]`; particles come from the first.
+    pub views: Vec<String>,
+    /// Split name: the transforms file is `transforms_<split>.json`.
+    pub split: String,
+    /// Frames used, as positions in the transforms file's `frames` list.
+    pub frames: FrameRange,
+}
+
+/// An axis-aligned box.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Aabb {
+    /// Lower corner.
+    pub min: [f32; 3],
+    /// Upper corner.
+    pub max: [f32; 3],
+}
+
+impl Aabb {
+    /// True when `p` lies inside (boundary included).
+    pub fn contains(&self, p: [f32; 3]) -> bool {
+        (0..3).all(|a| p[a] >= self.min[a] && p[a] <= self.max[a])
+    }
+}
+
+/// The role a view plays.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Role {
+    /// Renderer warm-up (several views, usually frame 0 only).
+    Warmup,
+    /// Joint training (one view, a frame sequence).
+    Train,
+    /// Held-out evaluation.
+    Test,
+}
+
+/// Contents of `scene.json`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SceneManifest {
+    /// Scene name.
+    pub name: String,
+    /// The up axis.
+    pub up_axis: UpAxis,
+    /// Fluid particle radius in metres.
+    pub particle_radius: f32,
+    /// Frames per second of the particle sequences.
+    pub fps: f32,
+    /// Warm-up views and frames.
+    pub warmup: ViewSet,
+    /// Training view(s) and frames.
+    pub train: ViewSet,
+    /// Test views and frames.
+    pub test: ViewSet,
+    /// Box particle file relative to the scene root (`box.npz`, or the released `box.pt`).
+    pub box_file: String,
+    /// The box interior the fluid must stay in (for the boundary loss and clipped metrics).
+    pub box_interior: Aabb,
+    /// Near ray bound (world units).
+    pub near: f32,
+    /// Far ray bound (world units).
+    pub far: f32,
+    /// Free-form provenance (the generator's settings), if any.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub generator: Option<serde_json::Value>,
+}
+
+fn views(ids: &[u32]) -> Vec<String> {
+    ids.iter().map(|k| format!("view_{k}")).collect()
+}
+
+impl SceneManifest {
+    /// The defaults for a scene in NeuroFluid's released layout, named `name`
+    /// (`honeycone` trains on frames 15–64, as in the released configuration).
+    pub fn released(name: &str) -> Self {
+        let train_start = if name.to_ascii_lowercase().contains("honeycone") {
+            15
+        } else {
+            0
+        };
+        Self {
+            name: name.to_string(),
+            up_axis: UpAxis::Z,
+            particle_radius: 0.025,
+            fps: 50.0,
+            warmup: ViewSet {
+                views: views(&[1, 2, 3, 4]),
+                split: "train".into(),
+                frames: FrameRange { start: 0, end: 1 },
+            },
+            train: ViewSet {
+                views: views(&[1]),
+                split: "train".into(),
+                frames: FrameRange {
+                    start: train_start,
+                    end: train_start + 50,
+                },
+            },
+            test: ViewSet {
+                views: views(&[5]),
+                split: "test".into(),
+                frames: FrameRange { start: 0, end: 60 },
+            },
+            box_file: "box.pt".into(),
+            box_interior: Aabb {
+                min: [-0.975, -0.975, -0.975],
+                max: [0.975, 0.975, 2.4302],
+            },
+            near: 9.0,
+            far: 13.0,
+            generator: None,
+        }
+    }
+
+    /// The view set of a role.
+    pub fn role(&self, role: Role) -> &ViewSet {
+        match role {
+            Role::Warmup => &self.warmup,
+            Role::Train => &self.train,
+            Role::Test => &self.test,
+        }
+    }
+
+    /// Reads `path`.
+    pub fn read(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).map_err(|e| SceneError::io(path, e))?;
+        let m: Self = serde_json::from_str(&text).map_err(|e| SceneError::Parse {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })?;
+        m.validate(path)?;
+        Ok(m)
+    }
+
+    /// Checks the values a parser cannot: non-empty view lists, positive radius and fps,
+    /// ordered frame ranges and bounds.
+    pub fn validate(&self, path: &Path) -> Result<()> {
+        for (name, set) in [
+            ("warmup", &self.warmup),
+            ("train", &self.train),
+            ("test", &self.test),
+        ] {
+            if set.views.is_empty() {
+                return Err(SceneError::field(
+                    path,
+                    format!("{name}.views"),
+                    "at least one view",
+                ));
+            }
+            if set.frames.start >= set.frames.end {
+                return Err(SceneError::field(
+                    path,
+                    format!("{name}.frames"),
+                    format!("start < end, got {}..{}", set.frames.start, set.frames.end),
+                ));
+            }
+        }
+        if !(self.particle_radius > 0.0) {
+            return Err(SceneError::field(
+                path,
+                "particle_radius",
+                "a positive radius",
+            ));
+        }
+        if !(self.fps > 0.0) {
+            return Err(SceneError::field(path, "fps", "a positive frame rate"));
+        }
+        if !(self.near >= 0.0 && self.far > self.near) {
+            return Err(SceneError::field(path, "near/far", "0 ≤ near < far"));
+        }
+        if (0..3).any(|a| !(self.box_interior.min[a] < self.box_interior.max[a])) {
+            return Err(SceneError::field(
+                path,
+                "box_interior",
+                "min < max on every axis",
+            ));
+        }
+        Ok(())
+    }
+
+    /// Writes the manifest to `path` atomically (pretty JSON).
+    pub fn write(&self, path: &Path) -> Result<()> {
+        let mut text = serde_json::to_string_pretty(self).map_err(|e| SceneError::Parse {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })?;
+        text.push('\n');
+        write_atomic(path, text.as_bytes())
+    }
+}

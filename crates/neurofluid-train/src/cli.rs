@@ -1,0 +1,40 @@
+//! Command-line surface: the stages of the pipeline as subcommands.
+
+use clap::{Parser, Subcommand};
+
+use crate::commands;
+
+/// NeuroFluid-rs: learn fluid dynamics from images with DLF + PhysNeRF.
+#[derive(Debug, Parser)]
+#[command(name = "neurofluid-train", version, about, long_about = None)]
+pub struct Cli {
+    /// More log output (-v debug, -vv trace). `RUST_LOG` overrides it.
+    #[arg(short, long, action = clap::ArgAction::Count, global = true)]
+    pub verbose: u8,
+    /// The stage to run.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// The stages of the pipeline; each can run alone.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Print the compiled-in backends and the devices they offer.
+    Devices(commands::devices::Args),
+}
+
+/// Sets up `tracing` on stderr at the level chosen by `-v` (or `RUST_LOG`).
+pub fn init_logging(verbose: u8) {
+    let default = match verbose {
+        0 => "info",
+        1 => "debug",
+        _ => "trace",
+    };
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        .try_init();
+}

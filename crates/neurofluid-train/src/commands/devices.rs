@@ -1,0 +1,31 @@
+//! `devices`: which backends this build holds, and whether a device comes up.
+
+use burn::prelude::Tensor;
+use neurofluid_core::device::{compiled_backends, parse_device};
+
+/// Arguments of `devices`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Also run a tiny computation on this device (cpu, flex, ndarray, wgpu, cuda, cuda:N).
+    #[arg(long)]
+    pub probe: Option<String>,
+}
+
+/// Lists the compiled-in backends; with `--probe`, checks that a device computes.
+pub fn run(args: Args) -> anyhow::Result<()> {
+    println!("compiled-in backends: {}", compiled_backends().join(", "));
+    println!(
+        "choose one with --device (or `device = \"...\"` in the experiment TOML): cpu is the first CPU backend"
+    );
+    if let Some(name) = args.probe {
+        let device = parse_device(&name)?;
+        let x = Tensor::<1>::from_floats([1.0, 2.0, 3.0], &device);
+        let s: f32 = x.clone().mul(x).sum().into_scalar();
+        anyhow::ensure!(
+            (s - 14.0).abs() < 1e-5,
+            "device {name} computed 1²+2²+3² = {s}"
+        );
+        println!("device {name}: {device:?} works (1²+2²+3² = {s})");
+    }
+    Ok(())
+}
