@@ -1,0 +1,117 @@
+//! Differentiable geometry: the pair-corner weights recomputed from position tensors with Burn
+//! ops, so gradients flow through positions into the mapping, the trilinear weights and the
+//! window. The discrete choices (pairs, mapping branches, cells) come from the host geometry and
+//! are piecewise constant in the positions.
+
+use burn::prelude::*;
+
+use crate::geometry::{CORNERS, HostGeometry, search_radius};
+use crate::mapping::KERNEL_SIZE;
+
+fn column(v: &[f32], device: &Device, dtype: burn::tensor::DType) -> Tensor<2> {
+    Tensor::<2>::from_data(TensorData::new(v.to_vec(), [v.len(), 1]), device).cast(dtype)
+}
+
+fn mask(v: Vec<bool>, device: &Device) -> Tensor<2, Bool> {
+    let n = v.len();
+    Tensor::<2, Bool>::from_data(TensorData::new(v, [n, 1]), device)
+}
+
+/// Weights `[8P, 1]` of `host`'s pair corners as a function of the input and output positions
+/// (`[N_in, 3]`, `[M, 3]`, any float dtype, possibly tracked). Equal to `host.weights` in value.
+pub fn differentiable_weights(
+    host: &HostGeometry,
+    inputs: Tensor<2>,
+    outputs: Tensor<2>,
+    extent: f32,
+) -> Tensor<2> {
+    let device = inputs.device();
+    let dtype = inputs.dtype();
+    let p = host.num_pairs();
+    let idx = |v: Vec<i64>| Tensor::<1, Int>::from_data(TensorData::new(v, [p]), &device);
+    let cols = idx(host.pairs.indices.iter().map(|&i| i as i64).collect());
+    let rows = idx(host.query_of_pair.iter().map(|&i| i as i64).collect());
+    let rel = inputs.select(0, cols) - outputs.select(0, rows);
+    let radius = search_radius(extent);
+    // window on the squared distance
+    let r2 = (rel.clone() * rel.clone()).sum_dim(1) / (radius * radius);
+    let t = r2.neg() + 1.0;
+    let window = (t.clone() * t.clone() * t).clamp(0.0, 1.0);
+
+    let br = &host.branches;
+    let zero = mask(br.iter().map(|b| b.zero).collect(), &device);
+    let cap = mask(br.iter().map(|b| b.cap).collect(), &device);
+    let side_ok = mask(br.iter().map(|b| !b.cap && !b.zero).collect(), &device);
+    let zero_xy = mask(br.iter().map(|b| b.zero_xy).collect(), &device);
+    let xdom = mask(br.iter().map(|b| b.x_dominant).collect(), &device);
+    let x_ok = mask(
+        br.iter().map(|b| b.x_dominant && !b.zero_xy).collect(),
+        &device,
+    );
+    let y_ok = mask(
+        br.iter().map(|b| !b.x_dominant && !b.zero_xy).collect(),
+        &device,
+    );
+    let sign_x = column(
+        &br.iter().map(|b| b.sign_x).collect::<Vec<_>>(),
+        &device,
+        dtype,
+    );
+    let sign_y = column(
+        &br.iter().map(|b| b.sign_y).collect::<Vec<_>>(),
+        &device,
+        dtype,
+    );
+    let ones = Tensor::<2>::ones([p, 1], (&device, dtype));
+    let zeros = Tensor::<2>::zeros([p, 1], (&device, dtype));
+
+    let q = rel * (2.0 * (1.0f32 / extent));
+    let x = q.clone().narrow(1, 0, 1);
+    let y = q.clone().narrow(1, 1, 1);
+    let z = q.narrow(1, 2, 1);
+    let sq_xy = x.clone() * x.clone() + y.clone() * y.clone();
+    let sq = sq_xy.clone() + z.clone() * z.clone();
+    let norm = sq.mask_where(zero.clone(), ones.clone()).sqrt();
+    let abs_z = z.clone().abs();
+    let s_cap = ((norm.clone() * 3.0) / (norm.clone() + abs_z)).sqrt();
+    let s_side = norm.clone() / sq_xy.mask_where(side_ok.bool_not(), ones.clone()).sqrt();
+    let s = s_side.mask_where(cap.clone(), s_cap);
+    let x1 = (x * s.clone()).mask_where(zero.clone(), zeros.clone());
+    let y1 = (y * s).mask_where(zero.clone(), zeros.clone());
+    let z1 = (z.clone() * 1.5)
+        .mask_where(cap, z.sign() * norm)
+        .mask_where(zero, zeros.clone());
+
+    let sq_xy1 = x1.clone() * x1.clone() + y1.clone() * y1.clone();
+    let nxy = sq_xy1.mask_where(zero_xy.clone(), ones.clone()).sqrt();
+    let four_over_pi = 4.0 / std::f32::consts::PI;
+    let safe_x = x1.clone().mask_where(x_ok.bool_not(), ones.clone());
+    let safe_y = y1.clone().mask_where(y_ok.bool_not(), ones.clone());
+    let tx = sign_x * nxy.clone();
+    let ty = sign_y * nxy;
+    let x_from_y = ty.clone() * four_over_pi * (x1 / safe_y).atan();
+    let y_from_x = tx.clone() * four_over_pi * (y1 / safe_x).atan();
+    let x2 = x_from_y
+        .mask_where(xdom.clone(), tx)
+        .mask_where(zero_xy.clone(), zeros.clone());
+    let y2 = ty.mask_where(xdom, y_from_x).mask_where(zero_xy, zeros);
+
+    let k1 = (KERNEL_SIZE - 1) as f32;
+    let frac = |c: Tensor<2>, axis: usize| {
+        let u = (c * 0.5 + 0.5) * k1;
+        let lower: Vec<f32> = host.lower.iter().map(|l| l[axis] as f32).collect();
+        (u - column(&lower, &device, dtype)).clamp(0.0, 1.0)
+    };
+    let a = frac(x2, 0);
+    let b = frac(y2, 1);
+    let c = frac(z1, 2);
+    let mut corners = Vec::with_capacity(CORNERS);
+    for wz in [c.clone().neg() + 1.0, c] {
+        for wy in [b.clone().neg() + 1.0, b.clone()] {
+            for wx in [a.clone().neg() + 1.0, a.clone()] {
+                corners.push(wx.clone() * wy.clone() * wz.clone());
+            }
+        }
+    }
+    (Tensor::cat(corners, 1) * window).reshape([p * CORNERS, 1])
+}

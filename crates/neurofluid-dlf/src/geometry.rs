@@ -1,0 +1,191 @@
+//! The position-dependent part of a continuous convolution, built once per step on the host and
+//! shared by every conv over the same point sets (the four fluid→fluid convs of DLF share one,
+//! the obstacle conv has its own).
+//!
+//! Per neighbour pair p = (query m, input i) and trilinear corner c it holds the kernel cell
+//! `cell[p,c]` and the weight `window(p) · w_c(Λ(x_i − x_m))`; the convolution is then
+//! `out[m] = bias + Σ_p Σ_c weight[p,c] · f_i · K[cell[p,c]]` (spec/dlf.md §2.1).
+
+use burn::prelude::*;
+use neurofluid_core::neighbors::{NeighborGrid, PairList};
+use rayon::prelude::*;
+
+use crate::mapping::{
+    KERNEL_CELLS, MappingBranches, filter_coordinates, trilinear_corners, window_poly6,
+};
+
+/// Corners per pair (trilinear interpolation).
+pub const CORNERS: usize = 8;
+
+/// Filter extent (support diameter) of the published DLF model: float32(1.5 · 6 · 0.025).
+pub const FILTER_EXTENT: f32 = 0.225;
+
+/// Search radius of a conv with the given extent: 0.5 · extent in float32.
+pub fn search_radius(extent: f32) -> f32 {
+    0.5 * extent
+}
+
+/// Host arrays of a geometry (pair-major: entry `p·8 + c`).
+#[derive(Debug, Clone)]
+pub struct HostGeometry {
+    /// Output (query) points.
+    pub num_out: usize,
+    /// Input points.
+    pub num_in: usize,
+    /// Compressed-row pair lists (query → input indices, ascending).
+    pub pairs: PairList,
+    /// Query index of every pair.
+    pub query_of_pair: Vec<u32>,
+    /// Flat kernel cell of every pair corner.
+    pub cells: Vec<u8>,
+    /// Window × trilinear weight of every pair corner.
+    pub weights: Vec<f32>,
+    /// Mapping branches of every pair (kept for the differentiable geometry).
+    pub branches: Vec<MappingBranches>,
+    /// Lower trilinear index (x, y, z) of every pair (kept for the differentiable geometry).
+    pub lower: Vec<[u8; 3]>,
+}
+
+impl HostGeometry {
+    /// Neighbour count of every output point.
+    pub fn counts(&self) -> Vec<u32> {
+        self.pairs.counts()
+    }
+
+    /// Number of pairs.
+    pub fn num_pairs(&self) -> usize {
+        self.pairs.num_pairs()
+    }
+}
+
+/// Builds the host geometry: fixed-radius search (float32 `d² ≤ R²`, bit-identical points skipped
+/// when `ignore_identical`), then per pair the mapping, the corners and the window.
+pub fn build_host_geometry(
+    inputs: &[[f32; 3]],
+    outputs: &[[f32; 3]],
+    extent: f32,
+    ignore_identical: bool,
+    grid: Option<&NeighborGrid<'_>>,
+) -> HostGeometry {
+    let radius = search_radius(extent);
+    let pairs = match grid {
+        Some(g) => g.pairs(outputs, radius, ignore_identical),
+        None => NeighborGrid::new(inputs, radius).pairs(outputs, radius, ignore_identical),
+    };
+    let query_of_pair = pairs.query_of_pair();
+    let n = pairs.num_pairs();
+    let r_sq = radius * radius;
+    let two_over_extent = 2.0 * (1.0f32 / extent);
+    let mut cells = vec![0u8; n * CORNERS];
+    let mut weights = vec![0f32; n * CORNERS];
+    let mut branches = vec![MappingBranches::default(); n];
+    let mut lower = vec![[0u8; 3]; n];
+    const CHUNK: usize = 4096;
+    cells
+        .par_chunks_mut(CHUNK * CORNERS)
+        .zip(weights.par_chunks_mut(CHUNK * CORNERS))
+        .zip(branches.par_chunks_mut(CHUNK))
+        .zip(lower.par_chunks_mut(CHUNK))
+        .enumerate()
+        .for_each(|(chunk, (((cells, weights), branches), lower))| {
+            let start = chunk * CHUNK;
+            for k in 0..branches.len() {
+                let p = start + k;
+                let q = outputs[query_of_pair[p] as usize];
+                let x = inputs[pairs.indices[p] as usize];
+                let rel = [x[0] - q[0], x[1] - q[1], x[2] - q[2]];
+                let (u, br) = filter_coordinates(rel, two_over_extent);
+                let win = window_poly6(pairs.dist2[p] / r_sq);
+                for (c, (cell, w)) in trilinear_corners(u).into_iter().enumerate() {
+                    cells[k * CORNERS + c] = cell;
+                    weights[k * CORNERS + c] = w * win;
+                }
+                branches[k] = br;
+                lower[k] = u.map(|c| crate::mapping::axis_interp(c).0 as u8);
+            }
+        });
+    HostGeometry {
+        num_out: outputs.len(),
+        num_in: inputs.len(),
+        pairs,
+        query_of_pair,
+        cells,
+        weights,
+        branches,
+        lower,
+    }
+}
+
+/// A geometry with its index and weight tensors on a device, ready for [`crate::ContinuousConv`].
+#[derive(Debug, Clone)]
+pub struct ConvGeometry {
+    /// The host arrays it was built from.
+    pub host: HostGeometry,
+    /// Input index of every pair corner `[8P]`.
+    pub in_rows: Tensor<1, Int>,
+    /// `query·64 + cell` of every pair corner `[8P]` (rows of G viewed as `[M·64, Cin]`).
+    pub out_cell_rows: Tensor<1, Int>,
+    /// `input·64 + cell` of every pair corner `[8P]` (rows of `F·K` viewed as `[N·64, Cout]`).
+    pub in_cell_rows: Tensor<1, Int>,
+    /// Query index of every pair corner `[8P]`.
+    pub out_rows: Tensor<1, Int>,
+    /// Weight of every pair corner `[8P, 1]`; tracked when the geometry is differentiable.
+    pub weights: Tensor<2>,
+}
+
+impl ConvGeometry {
+    /// Uploads a host geometry; `weights` overrides the host weights (the differentiable path).
+    pub fn new(host: HostGeometry, weights: Option<Tensor<2>>, device: &Device) -> Self {
+        let n8 = host.cells.len();
+        let mut in_rows = Vec::with_capacity(n8);
+        let mut out_cell_rows = Vec::with_capacity(n8);
+        let mut in_cell_rows = Vec::with_capacity(n8);
+        let mut out_rows = Vec::with_capacity(n8);
+        for (p, (&q, &i)) in host
+            .query_of_pair
+            .iter()
+            .zip(&host.pairs.indices)
+            .enumerate()
+        {
+            for c in 0..CORNERS {
+                let cell = host.cells[p * CORNERS + c] as i64;
+                in_rows.push(i as i64);
+                out_rows.push(q as i64);
+                out_cell_rows.push(q as i64 * KERNEL_CELLS as i64 + cell);
+                in_cell_rows.push(i as i64 * KERNEL_CELLS as i64 + cell);
+            }
+        }
+        let int = |v: Vec<i64>| Tensor::<1, Int>::from_data(TensorData::new(v, [n8]), device);
+        let weights = weights.unwrap_or_else(|| {
+            Tensor::<2>::from_data(TensorData::new(host.weights.clone(), [n8, 1]), device)
+        });
+        Self {
+            in_rows: int(in_rows),
+            out_cell_rows: int(out_cell_rows),
+            in_cell_rows: int(in_cell_rows),
+            out_rows: int(out_rows),
+            weights,
+            host,
+        }
+    }
+
+    /// Output points.
+    pub fn num_out(&self) -> usize {
+        self.host.num_out
+    }
+
+    /// Input points.
+    pub fn num_in(&self) -> usize {
+        self.host.num_in
+    }
+
+    /// Pair corners (8 per pair).
+    pub fn num_entries(&self) -> usize {
+        self.host.cells.len()
+    }
+}
+
+/// Converts a `[N, 3]` float slice into points.
+pub fn as_points(flat: &[f32]) -> Vec<[f32; 3]> {
+    flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()
+}

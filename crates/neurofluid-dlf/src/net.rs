@@ -1,0 +1,272 @@
+//! The DLF network (spec/dlf.md §3) and its integrator (§4).
+
+use burn::nn::{Linear, LinearConfig};
+use burn::prelude::*;
+use burn::tensor::activation::relu;
+
+use crate::config::{DlfConfig, GeometryMode};
+use crate::conv::ContinuousConv;
+use crate::diff_geometry::differentiable_weights;
+use crate::geometry::{ConvGeometry, as_points, build_host_geometry};
+
+/// Channel widths of the published model: layer 0 branches, layers 1, 2, 3.
+pub const LAYER_CHANNELS: [usize; 4] = [32, 64, 64, 3];
+
+/// The DLF network: parameter names match the upstream PyTorch state dict.
+#[derive(Module, Debug)]
+pub struct DlfNet {
+    /// Fluid→fluid conv on `[1, v]` (4 → 32).
+    pub conv0_fluid: ContinuousConv,
+    /// Box→fluid conv on the box normals (3 → 32).
+    pub conv0_obstacle: ContinuousConv,
+    /// Dense layer on `[1, v]` (4 → 32).
+    pub dense0_fluid: Linear,
+    /// Layer 1 conv (96 → 64).
+    pub conv1: ContinuousConv,
+    /// Layer 1 dense (96 → 64).
+    pub dense1: Linear,
+    /// Layer 2 conv (64 → 64).
+    pub conv2: ContinuousConv,
+    /// Layer 2 dense (64 → 64).
+    pub dense2: Linear,
+    /// Layer 3 conv (64 → 3).
+    pub conv3: ContinuousConv,
+    /// Layer 3 dense (64 → 3).
+    pub dense3: Linear,
+    /// Gravity, time step, frame and geometry mode.
+    #[module(skip)]
+    pub config: DlfConfig,
+}
+
+/// Static boundary particles (the box) in the model frame.
+#[derive(Debug, Clone)]
+pub struct Boundary {
+    /// Positions in the model frame (host copy, for the neighbour search).
+    pub points: Vec<[f32; 3]>,
+    /// Positions `[M, 3]` in the model frame.
+    pub points_tensor: Tensor<2>,
+    /// Unit normals `[M, 3]` in the model frame, pointing into the fluid region.
+    pub normals: Tensor<2>,
+}
+
+/// Outputs of one network step.
+#[derive(Debug, Clone)]
+pub struct StepOutput {
+    /// New positions `[N, 3]` (scene frame).
+    pub pos: Tensor<2>,
+    /// New velocities `[N, 3]` (scene frame).
+    pub vel: Tensor<2>,
+    /// Fluid neighbours of every particle at x* (self excluded), as used by the loss.
+    pub num_fluid_neighbors: Vec<u32>,
+    /// Raw network output h3 `[N, 3]` (model frame, before the 1/128 scale).
+    pub raw_output: Tensor<2>,
+    /// x* after the gravity pre-step (model frame).
+    pub pos_pred: Tensor<2>,
+    /// v* after the gravity pre-step (model frame).
+    pub vel_pred: Tensor<2>,
+    /// Layer outputs (model frame): conv0_obstacle, conv0_fluid, dense0_fluid, h1, h2.
+    pub features: LayerFeatures,
+}
+
+/// Intermediate features of one step (for parity checks).
+#[derive(Debug, Clone)]
+pub struct LayerFeatures {
+    /// conv0_obstacle output `[N, 32]`.
+    pub conv0_obstacle: Tensor<2>,
+    /// conv0_fluid output `[N, 32]`.
+    pub conv0_fluid: Tensor<2>,
+    /// dense0_fluid output `[N, 32]`.
+    pub dense0_fluid: Tensor<2>,
+    /// h1 `[N, 64]`.
+    pub layer1: Tensor<2>,
+    /// h2 `[N, 64]` (with the residual).
+    pub layer2: Tensor<2>,
+}
+
+fn linear(d_in: usize, d_out: usize, device: &Device) -> Linear {
+    LinearConfig::new(d_in, d_out)
+        .with_initializer(burn::nn::Initializer::XavierUniform { gain: 1.0 })
+        .init(device)
+}
+
+fn rotation_tensor(r: [[f32; 3]; 3], transpose: bool, device: &Device) -> Tensor<2> {
+    let mut v = Vec::with_capacity(9);
+    for i in 0..3 {
+        for j in 0..3 {
+            v.push(if transpose { r[j][i] } else { r[i][j] });
+        }
+    }
+    Tensor::from_data(TensorData::new(v, [3, 3]), device)
+}
+
+/// Host copy of a `[N, 3]` float tensor as points.
+pub fn tensor_points(t: &Tensor<2>) -> Vec<[f32; 3]> {
+    let v: Vec<f32> = t
+        .to_data()
+        .convert::<f32>()
+        .try_into_vec::<f32>()
+        .expect("float tensor data");
+    as_points(&v)
+}
+
+/// A `[N, 3]` tensor from points.
+pub fn points_tensor(points: &[[f32; 3]], device: &Device) -> Tensor<2> {
+    let flat: Vec<f32> = points.iter().flatten().copied().collect();
+    Tensor::from_data(TensorData::new(flat, [points.len(), 3]), device)
+}
+
+impl DlfNet {
+    /// A freshly initialised network (Open3D/torch initialisers) with the given settings.
+    pub fn new(config: DlfConfig, device: &Device) -> Self {
+        let [c0, c1, c2, c3] = LAYER_CHANNELS;
+        Self {
+            conv0_fluid: ContinuousConv::new(4, c0, device),
+            conv0_obstacle: ContinuousConv::new(3, c0, device),
+            dense0_fluid: linear(4, c0, device),
+            conv1: ContinuousConv::new(3 * c0, c1, device),
+            dense1: linear(3 * c0, c1, device),
+            conv2: ContinuousConv::new(c1, c2, device),
+            dense2: linear(c1, c2, device),
+            conv3: ContinuousConv::new(c2, c3, device),
+            dense3: linear(c2, c3, device),
+            config,
+        }
+    }
+
+    /// The same network with other settings.
+    pub fn with_config(mut self, config: DlfConfig) -> Self {
+        self.config = config;
+        self
+    }
+
+    /// The device of the parameters.
+    pub fn device(&self) -> Device {
+        self.conv1.kernel.val().device()
+    }
+
+    /// Rotates scene rows `[N, 3]` into the model frame.
+    pub fn to_model(&self, t: Tensor<2>) -> Tensor<2> {
+        match self.config.frame.rotation() {
+            None => t,
+            Some(r) => {
+                let rt = rotation_tensor(r, true, &t.device());
+                t.matmul(rt)
+            }
+        }
+    }
+
+    /// Rotates model rows `[N, 3]` back into the scene frame.
+    pub fn to_scene(&self, t: Tensor<2>) -> Tensor<2> {
+        match self.config.frame.rotation() {
+            None => t,
+            Some(r) => {
+                let rr = rotation_tensor(r, false, &t.device());
+                t.matmul(rr)
+            }
+        }
+    }
+
+    /// Prepares the static boundary (scene-frame points and normals) for [`DlfNet::step`].
+    pub fn boundary(&self, points: &[[f32; 3]], normals: &[[f32; 3]], device: &Device) -> Boundary {
+        let frame = self.config.frame;
+        let pts: Vec<[f32; 3]> = points.iter().map(|&p| frame.to_model(p)).collect();
+        let nrm: Vec<[f32; 3]> = normals.iter().map(|&n| frame.to_model(n)).collect();
+        Boundary {
+            points_tensor: points_tensor(&pts, device),
+            normals: points_tensor(&nrm, device),
+            points: pts,
+        }
+    }
+
+    /// Builds the fluid and box geometries at x* (model frame).
+    fn geometries(
+        &self,
+        pos_pred: &Tensor<2>,
+        boundary: &Boundary,
+    ) -> (ConvGeometry, ConvGeometry) {
+        let device = pos_pred.device();
+        let x = tensor_points(pos_pred);
+        let extent = self.config.extent;
+        let fluid = build_host_geometry(&x, &x, extent, true, None);
+        let solid = build_host_geometry(&boundary.points, &x, extent, true, None);
+        match self.config.geometry {
+            GeometryMode::Constant => (
+                ConvGeometry::new(fluid, None, &device),
+                ConvGeometry::new(solid, None, &device),
+            ),
+            GeometryMode::Differentiable => {
+                let wf = differentiable_weights(&fluid, pos_pred.clone(), pos_pred.clone(), extent);
+                let ws = differentiable_weights(
+                    &solid,
+                    boundary.points_tensor.clone(),
+                    pos_pred.clone(),
+                    extent,
+                );
+                (
+                    ConvGeometry::new(fluid, Some(wf), &device),
+                    ConvGeometry::new(solid, Some(ws), &device),
+                )
+            }
+        }
+    }
+
+    /// Raw network output h3 `[N, 3]` at x* with velocities v* (model frame).
+    pub fn correction(
+        &self,
+        vel_pred: Tensor<2>,
+        boundary: &Boundary,
+        fluid: &ConvGeometry,
+        solid: &ConvGeometry,
+    ) -> (Tensor<2>, LayerFeatures) {
+        let [n, _] = vel_pred.dims();
+        let ones = Tensor::<2>::ones([n, 1], &vel_pred.device());
+        let feats = Tensor::cat(vec![ones, vel_pred], 1);
+        let a = self.conv0_obstacle.forward(boundary.normals.clone(), solid);
+        let b = self.conv0_fluid.forward(feats.clone(), fluid);
+        let c = self.dense0_fluid.forward(feats);
+        let h0 = Tensor::cat(vec![a.clone(), b.clone(), c.clone()], 1);
+        let layer = |h: Tensor<2>, conv: &ContinuousConv, dense: &Linear| {
+            let x = relu(h.clone());
+            let y = conv.forward(x.clone(), fluid) + dense.forward(x);
+            if y.dims()[1] == h.dims()[1] { y + h } else { y }
+        };
+        let h1 = layer(h0, &self.conv1, &self.dense1);
+        let h2 = layer(h1.clone(), &self.conv2, &self.dense2);
+        let h3 = layer(h2.clone(), &self.conv3, &self.dense3);
+        let features = LayerFeatures {
+            conv0_obstacle: a,
+            conv0_fluid: b,
+            dense0_fluid: c,
+            layer1: h1,
+            layer2: h2,
+        };
+        (h3, features)
+    }
+
+    /// One step (one frame, dt): gravity pre-step, network correction, velocity from the
+    /// position difference. `pos`, `vel` `[N, 3]` are in the scene frame.
+    pub fn step(&self, pos: Tensor<2>, vel: Tensor<2>, boundary: &Boundary) -> StepOutput {
+        let cfg = self.config;
+        let device = pos.device();
+        let pos = self.to_model(pos);
+        let vel = self.to_model(vel);
+        let g = cfg.model_gravity().map(|c| cfg.dt * c);
+        let g = Tensor::<2>::from_data(TensorData::new(g.to_vec(), [1, 3]), &device);
+        let vel_pred = vel.clone() + g;
+        let pos_pred = pos.clone() + ((vel_pred.clone() + vel) * cfg.dt) / 2.0;
+        let (fluid, solid) = self.geometries(&pos_pred, boundary);
+        let num_fluid_neighbors = fluid.host.counts();
+        let (raw, features) = self.correction(vel_pred.clone(), boundary, &fluid, &solid);
+        let pos_new = pos_pred.clone() + raw.clone() * cfg.output_scale;
+        let vel_new = (pos_new.clone() - pos) / cfg.dt;
+        StepOutput {
+            pos: self.to_scene(pos_new),
+            vel: self.to_scene(vel_new),
+            num_fluid_neighbors,
+            raw_output: raw,
+            pos_pred,
+            vel_pred,
+            features,
+        }
+    }
+}

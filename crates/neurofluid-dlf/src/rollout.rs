@@ -1,0 +1,79 @@
+//! Inference rollouts of the DLF model and the statistics the reference harness reports.
+
+use burn::prelude::*;
+
+use crate::net::{Boundary, DlfNet, points_tensor, tensor_points};
+
+/// A rollout: the state after every step, plus the first step's internals.
+#[derive(Debug, Clone, Default)]
+pub struct Rollout {
+    /// Positions, one entry per state (index 0 = the input).
+    pub pos: Vec<Vec<[f32; 3]>>,
+    /// Velocities, one entry per state.
+    pub vel: Vec<Vec<[f32; 3]>>,
+    /// Raw network output of the first step (model frame), `[N, 3]` flattened.
+    pub raw_output_step0: Vec<f32>,
+    /// Fluid neighbour counts at x* of the first step.
+    pub num_fluid_neighbors_step0: Vec<u32>,
+}
+
+/// Runs `steps` network steps from (`pos`, `vel`), calling `on_step(step)` after each.
+///
+/// Uses the network's device; gradients are not tracked (the network should be a
+/// non-autodiff module, e.g. `net.valid()`).
+pub fn rollout(
+    net: &DlfNet,
+    pos: &[[f32; 3]],
+    vel: &[[f32; 3]],
+    boundary: &Boundary,
+    steps: usize,
+    mut on_step: impl FnMut(usize),
+) -> Rollout {
+    let device = net.device();
+    let mut out = Rollout {
+        pos: vec![pos.to_vec()],
+        vel: vec![vel.to_vec()],
+        ..Rollout::default()
+    };
+    let mut p = points_tensor(pos, &device);
+    let mut v = points_tensor(vel, &device);
+    for step in 1..=steps {
+        let o = net.step(p, v, boundary);
+        if step == 1 {
+            out.raw_output_step0 = o
+                .raw_output
+                .to_data()
+                .convert::<f32>()
+                .try_into_vec::<f32>()
+                .expect("float data");
+            out.num_fluid_neighbors_step0 = o.num_fluid_neighbors.clone();
+        }
+        out.pos.push(tensor_points(&o.pos));
+        out.vel.push(tensor_points(&o.vel));
+        p = o.pos;
+        v = o.vel;
+        on_step(step);
+    }
+    out
+}
+
+/// Mean of coordinate `axis` over the points (the "mean height" with the up axis).
+pub fn mean_coordinate(points: &[[f32; 3]], axis: usize) -> f32 {
+    if points.is_empty() {
+        return f32::NAN;
+    }
+    (points.iter().map(|p| p[axis] as f64).sum::<f64>() / points.len() as f64) as f32
+}
+
+/// Number of points with any coordinate outside the box [lo, hi].
+pub fn count_outside(points: &[[f32; 3]], lo: [f32; 3], hi: [f32; 3]) -> usize {
+    points
+        .iter()
+        .filter(|p| (0..3).any(|k| p[k] < lo[k] || p[k] > hi[k]))
+        .count()
+}
+
+/// Convenience: a `[N, 3]` tensor on `device` from points (re-export of the net helper).
+pub fn to_tensor(points: &[[f32; 3]], device: &Device) -> Tensor<2> {
+    points_tensor(points, device)
+}
