@@ -1,0 +1,17 @@
+//! Built-in benchmark scenes for NeuroFluid-rs: a DFSPH fluid simulation in a closed box
+//! ([`sph`]), DLF-density wall particles ([`walls`]), initial fluid bodies ([`shapes`]), a CPU
+//! surface renderer ([`render`]) and the generator that writes NeuroFluid's scene layout
+//! ([`generate`]) for the paper's scenes ([`presets`]), configured by a `[scene]` TOML table
+//! ([`config`]).
+
+pub mod config;
+pub mod generate;
+pub mod presets;
+pub mod render;
+pub mod shapes;
+pub mod sph;
+pub mod walls;
+
+pub use config::{Scale, SceneConfig, SceneKind};
+pub use generate::{Report, Simulation, generate, simulate};
+pub use presets::Preset;
