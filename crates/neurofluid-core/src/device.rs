@@ -45,6 +45,7 @@ pub fn compiled_backends() -> Vec<&'static str> {
 }
 
 /// Every CPU device compiled in (flex first), for tests that compare backends.
+#[allow(clippy::vec_init_then_push)] // the pushes depend on cfg
 pub fn cpu_devices() -> Vec<(&'static str, Device)> {
     let mut out = Vec::new();
     #[cfg(feature = "flex")]
@@ -85,10 +86,7 @@ pub fn parse_device(name: &str) -> Result<Device, DeviceError> {
         "ndarray" => ndarray().ok_or_else(|| not_compiled("ndarray")),
         "wgpu" | "gpu" => wgpu().ok_or_else(|| not_compiled("wgpu")),
         _ => {
-            if let Some(index) = lower
-                .strip_prefix("cuda")
-                .and_then(|rest| parse_index(rest))
-            {
+            if let Some(index) = lower.strip_prefix("cuda").and_then(parse_index) {
                 return cuda(index).ok_or_else(|| not_compiled("cuda"));
             }
             Err(DeviceError::Unknown {
