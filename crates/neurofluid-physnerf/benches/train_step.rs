@@ -1,0 +1,3 @@
+//! One PhysNeRF training step (placeholder).
+
+fn main() {}

@@ -1,0 +1,252 @@
+//! Renderer configuration: every constant of the reference renderer plus the ablation and
+//! improvement switches. The defaults are the paper code's configuration.
+
+use serde::{Deserialize, Serialize};
+
+/// Which K particles the capped ball query keeps when more than K lie inside the ball.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum NeighborSelection {
+    /// The K lowest particle indices (pytorch3d `ball_query`, the reference behaviour).
+    #[default]
+    LowestIndex,
+    /// The K nearest particles (a behavioural change; breaks released renderer weights).
+    Nearest,
+}
+
+impl From<NeighborSelection> for neurofluid_core::neighbors::Selection {
+    fn from(s: NeighborSelection) -> Self {
+        match s {
+            NeighborSelection::LowestIndex => Self::LowestIndex,
+            NeighborSelection::Nearest => Self::Nearest,
+        }
+    }
+}
+
+/// Which particle-derived encoding terms enter the networks (the paper's Table 5 ablations).
+///
+/// A switched-off term is removed from its input; the other blocks keep their order:
+/// `e_x = [γ(x), γ(σ_p)?, γ(p_c)?, γ(v_d)?]`, `e_d = [γ(d), γ(d_c)?]`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct FeatureFlags {
+    /// γ₁₀(p_c), the fictitious particle centre.
+    pub pc: bool,
+    /// γ₄(σ_p), the particle density.
+    pub sigma_p: bool,
+    /// γ₁₀(v_d), the per-axis variance of the neighbour offsets.
+    pub vd: bool,
+    /// γ₄(d_c), the direction from the camera to p_c (colour branch).
+    pub dc: bool,
+}
+
+impl Default for FeatureFlags {
+    fn default() -> Self {
+        Self::all()
+    }
+}
+
+impl FeatureFlags {
+    /// Every term on (the paper code).
+    pub fn all() -> Self {
+        Self {
+            pc: true,
+            sigma_p: true,
+            vd: true,
+            dc: true,
+        }
+    }
+
+    /// Every particle term off: e_x = γ(x), e_d = γ(d).
+    pub fn none() -> Self {
+        Self {
+            pc: false,
+            sigma_p: false,
+            vd: false,
+            dc: false,
+        }
+    }
+}
+
+/// Positional-encoding frequency counts L of each encoded term.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Frequencies {
+    /// Sample position x (10).
+    pub x: usize,
+    /// Density σ_p (4).
+    pub sigma_p: usize,
+    /// Centre p_c (10).
+    pub pc: usize,
+    /// Variance v_d (10).
+    pub vd: usize,
+    /// Ray direction d (4).
+    pub d: usize,
+    /// Centre direction d_c (4).
+    pub dc: usize,
+}
+
+impl Default for Frequencies {
+    fn default() -> Self {
+        Self {
+            x: 10,
+            sigma_p: 4,
+            pc: 10,
+            vd: 10,
+            d: 4,
+            dc: 4,
+        }
+    }
+}
+
+/// Everything the renderer needs besides its weights. Serde-friendly (TOML/JSON); missing
+/// fields take the defaults of the paper code.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct PhysNerfConfig {
+    /// Near bound of the ray segment (world units; 9.0 in the released scenes).
+    pub near: f64,
+    /// Far bound of the ray segment (13.0 in the released scenes).
+    pub far: f64,
+    /// Coarse samples per ray (64), `z = near·(1−t) + far·t`, `t = linspace(0, 1, n)`.
+    pub n_samples: usize,
+    /// Importance (fine) samples per ray (128); 0 renders coarse only.
+    pub n_importance: usize,
+    /// Ball-query radius r_s (9 × particle radius 0.025 = 0.225).
+    pub search_radius: f64,
+    /// Neighbour slots K (20).
+    pub k: usize,
+    /// Which K particles the ball query keeps.
+    pub selection: NeighborSelection,
+    /// Stratified jitter of the coarse depths and random u in the fine sampling (off in the
+    /// paper code). Needs an RNG at render time.
+    pub stratified: bool,
+    /// Composite on a white background (true in the paper code).
+    pub white_background: bool,
+    /// Encoding-term switches.
+    pub features: FeatureFlags,
+    /// Encoding frequency counts.
+    pub frequencies: Frequencies,
+    /// MLP depth D (8).
+    pub depth: usize,
+    /// MLP width W (256).
+    pub width: usize,
+    /// Layer index whose input is `cat[e_x, h]` (4).
+    pub skip: usize,
+    /// Evaluate the MLPs only on gated samples (all K slots filled). Masked samples contribute
+    /// exactly zero colour, density and gradient, so this gives the same numbers with less work.
+    pub gated_only: bool,
+}
+
+impl Default for PhysNerfConfig {
+    fn default() -> Self {
+        Self {
+            near: 9.0,
+            far: 13.0,
+            n_samples: 64,
+            n_importance: 128,
+            search_radius: 0.225,
+            k: 20,
+            selection: NeighborSelection::LowestIndex,
+            stratified: false,
+            white_background: true,
+            features: FeatureFlags::all(),
+            frequencies: Frequencies::default(),
+            depth: 8,
+            width: 256,
+            skip: 4,
+            gated_only: true,
+        }
+    }
+}
+
+/// Width of γ_L applied to a `c`-channel input: c·(1 + 2L).
+pub fn encoded_width(channels: usize, freqs: usize) -> usize {
+    channels * (1 + 2 * freqs)
+}
+
+impl PhysNerfConfig {
+    /// Width of the position-like network input e_x (198 with every term on).
+    pub fn in_xyz(&self) -> usize {
+        let f = &self.frequencies;
+        let t = &self.features;
+        encoded_width(3, f.x)
+            + usize::from(t.sigma_p) * encoded_width(1, f.sigma_p)
+            + usize::from(t.pc) * encoded_width(3, f.pc)
+            + usize::from(t.vd) * encoded_width(3, f.vd)
+    }
+
+    /// Width of the view-like network input e_d (54 with every term on).
+    pub fn in_dir(&self) -> usize {
+        let f = &self.frequencies;
+        encoded_width(3, f.d) + usize::from(self.features.dc) * encoded_width(3, f.dc)
+    }
+
+    /// Checks the values for consistency.
+    pub fn validate(&self) -> Result<(), String> {
+        if !(self.near.is_finite() && self.far.is_finite() && self.far > self.near) {
+            return Err(format!(
+                "near/far must be finite with far > near, got {}/{}",
+                self.near, self.far
+            ));
+        }
+        if self.n_samples < 3 {
+            return Err(format!(
+                "n_samples must be at least 3, got {}",
+                self.n_samples
+            ));
+        }
+        if !(self.search_radius.is_finite() && self.search_radius > 0.0) {
+            return Err(format!(
+                "search_radius must be positive, got {}",
+                self.search_radius
+            ));
+        }
+        if self.k == 0 {
+            return Err("k must be at least 1".into());
+        }
+        if self.depth == 0 || self.width == 0 || self.skip >= self.depth || self.skip == 0 {
+            return Err(format!(
+                "need depth ≥ 2, width ≥ 1 and 0 < skip < depth, got depth {} width {} skip {}",
+                self.depth, self.width, self.skip
+            ));
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn widths_follow_the_flags() {
+        let mut c = PhysNerfConfig::default();
+        assert_eq!((c.in_xyz(), c.in_dir()), (198, 54));
+        c.features.pc = false;
+        assert_eq!(c.in_xyz(), 135);
+        c.features = FeatureFlags {
+            sigma_p: false,
+            ..FeatureFlags::all()
+        };
+        assert_eq!(c.in_xyz(), 189);
+        c.features = FeatureFlags {
+            dc: false,
+            ..FeatureFlags::all()
+        };
+        assert_eq!((c.in_xyz(), c.in_dir()), (198, 27));
+        c.features = FeatureFlags::none();
+        assert_eq!((c.in_xyz(), c.in_dir()), (63, 27));
+    }
+
+    #[test]
+    fn serde_defaults_fill_missing_fields() {
+        let c: PhysNerfConfig =
+            serde_json::from_str(r#"{"near": 3.0, "far": 5.0, "features": {"vd": false}}"#)
+                .unwrap();
+        assert_eq!(c.near, 3.0);
+        assert_eq!(c.k, 20);
+        assert!(!c.features.vd && c.features.pc);
+        assert!(c.validate().is_ok());
+    }
+}

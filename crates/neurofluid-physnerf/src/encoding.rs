@@ -1,0 +1,47 @@
+//! Positional encodings (spec §2.5) and the assembly of the network inputs e_x and e_d.
+
+use burn::prelude::*;
+
+use crate::config::PhysNerfConfig;
+use crate::features::LocalFeatures;
+
+/// `γ_L(v) = [v, sin(v), cos(v), sin(2v), cos(2v), …, sin(2^{L−1}v), cos(2^{L−1}v)]`:
+/// identity first, no π, for each frequency the sin of every channel then the cos.
+/// `[Q, C] → [Q, C·(1 + 2L)]`.
+pub fn posenc(v: Tensor<2>, freqs: usize) -> Tensor<2> {
+    let mut out = Vec::with_capacity(1 + 2 * freqs);
+    out.push(v.clone());
+    for i in 0..freqs {
+        let fv = v.clone().mul_scalar((1u64 << i) as f64);
+        out.push(fv.clone().sin());
+        out.push(fv.cos());
+    }
+    Tensor::cat(out, 1)
+}
+
+/// `e_x = [γ(x), γ(σ_p)?, γ(p_c)?, γ(v_d)?]` and `e_d = [γ(d), γ(d_c)?]` (switched-off terms
+/// are left out, the others keep their order). `x` and `d` are `[Q, 3]`.
+pub fn encode_inputs(
+    x: Tensor<2>,
+    d: Tensor<2>,
+    feats: &LocalFeatures,
+    config: &PhysNerfConfig,
+) -> (Tensor<2>, Tensor<2>) {
+    let f = &config.frequencies;
+    let t = &config.features;
+    let mut ex = vec![posenc(x, f.x)];
+    if t.sigma_p {
+        ex.push(posenc(feats.sigma_p.clone(), f.sigma_p));
+    }
+    if t.pc {
+        ex.push(posenc(feats.pc.clone(), f.pc));
+    }
+    if t.vd {
+        ex.push(posenc(feats.vd.clone(), f.vd));
+    }
+    let mut ed = vec![posenc(d, f.d)];
+    if t.dc {
+        ed.push(posenc(feats.dc.clone(), f.dc));
+    }
+    (Tensor::cat(ex, 1), Tensor::cat(ed, 1))
+}

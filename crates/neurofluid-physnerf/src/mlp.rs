@@ -1,0 +1,146 @@
+//! The nerf_pl NeRF MLP with widened inputs (spec §2.6): D = 8 layers of width 256 with ReLU,
+//! the input concatenated in front of the hidden state at layer 4, a σ head without
+//! activation, and a colour branch `Linear(256→256) → cat[feat, e_d] → Linear→128 + ReLU →
+//! Linear→3 + sigmoid`.
+
+use burn::nn::{Linear, LinearConfig};
+use burn::prelude::*;
+use burn::tensor::activation::{relu, sigmoid};
+
+use crate::config::PhysNerfConfig;
+
+/// One NeRF network (coarse or fine). Field names follow nerf_pl's parameter names.
+#[derive(Module, Debug)]
+pub struct NerfMlp {
+    /// `xyz_encoding_{1..D}.0`: the trunk layers.
+    pub xyz_encoding: Vec<Linear>,
+    /// `xyz_encoding_final`: 256 → 256, no activation.
+    pub xyz_encoding_final: Linear,
+    /// `sigma`: 256 → 1, raw density.
+    pub sigma: Linear,
+    /// `dir_encoding.0`: (256 + in_dir) → 128, ReLU.
+    pub dir_encoding: Linear,
+    /// `rgb.0`: 128 → 3, sigmoid.
+    pub rgb: Linear,
+    /// Index of the layer whose input is `cat[e_x, h]`.
+    pub skip: usize,
+}
+
+/// Hidden activations of a forward pass (for parity tests).
+#[derive(Debug, Clone)]
+pub struct MlpTrace {
+    /// Post-ReLU output of every trunk layer, `h1 … hD`.
+    pub hidden: Vec<Tensor<2>>,
+    /// Output of `xyz_encoding_final`.
+    pub feat: Tensor<2>,
+    /// Output of `dir_encoding` (post-ReLU).
+    pub hd: Tensor<2>,
+}
+
+/// The shapes `[in, out]` of every layer of a network, keyed by the nerf_pl name (without
+/// the `nerf_coarse.` prefix and the `.weight` suffix).
+pub fn layer_shapes(config: &PhysNerfConfig) -> Vec<(String, [usize; 2])> {
+    let (w, ix, id) = (config.width, config.in_xyz(), config.in_dir());
+    let mut v = Vec::new();
+    for i in 0..config.depth {
+        let d_in = if i == 0 {
+            ix
+        } else if i == config.skip {
+            ix + w
+        } else {
+            w
+        };
+        v.push((format!("xyz_encoding_{}.0", i + 1), [d_in, w]));
+    }
+    v.push(("xyz_encoding_final".into(), [w, w]));
+    v.push(("sigma".into(), [w, 1]));
+    v.push(("dir_encoding.0".into(), [w + id, w / 2]));
+    v.push(("rgb.0".into(), [w / 2, 3]));
+    v
+}
+
+impl NerfMlp {
+    /// A randomly initialised network (PyTorch's default Linear initialisation), f32.
+    pub fn new(config: &PhysNerfConfig, device: &Device) -> Self {
+        let mut layers: Vec<Linear> = layer_shapes(config)
+            .into_iter()
+            .map(|(_, [i, o])| LinearConfig::new(i, o).init(device))
+            .collect();
+        Self::from_layers(&mut layers, config.skip)
+    }
+
+    /// Assembles a network from its layers in the order of [`layer_shapes`].
+    pub fn from_layers(layers: &mut Vec<Linear>, skip: usize) -> Self {
+        let rgb = layers.pop().expect("rgb layer");
+        let dir_encoding = layers.pop().expect("dir layer");
+        let sigma = layers.pop().expect("sigma layer");
+        let xyz_encoding_final = layers.pop().expect("final layer");
+        Self {
+            xyz_encoding: std::mem::take(layers),
+            xyz_encoding_final,
+            sigma,
+            dir_encoding,
+            rgb,
+            skip,
+        }
+    }
+
+    /// Every layer with its nerf_pl name, in the order of [`layer_shapes`].
+    pub fn named_layers(&self) -> Vec<(String, &Linear)> {
+        let mut v: Vec<(String, &Linear)> = self
+            .xyz_encoding
+            .iter()
+            .enumerate()
+            .map(|(i, l)| (format!("xyz_encoding_{}.0", i + 1), l))
+            .collect();
+        v.push(("xyz_encoding_final".into(), &self.xyz_encoding_final));
+        v.push(("sigma".into(), &self.sigma));
+        v.push(("dir_encoding.0".into(), &self.dir_encoding));
+        v.push(("rgb.0".into(), &self.rgb));
+        v
+    }
+
+    /// `(rgb [Q, 3] after the sigmoid, σ_raw [Q, 1] without activation)`.
+    pub fn forward(&self, e_x: Tensor<2>, e_d: Tensor<2>) -> (Tensor<2>, Tensor<2>) {
+        let (rgb, sigma, _) = self.forward_impl(e_x, e_d, false);
+        (rgb, sigma)
+    }
+
+    /// Like [`NerfMlp::forward`], also returning the hidden activations.
+    pub fn forward_traced(
+        &self,
+        e_x: Tensor<2>,
+        e_d: Tensor<2>,
+    ) -> (Tensor<2>, Tensor<2>, MlpTrace) {
+        let (rgb, sigma, trace) = self.forward_impl(e_x, e_d, true);
+        (rgb, sigma, trace.expect("trace requested"))
+    }
+
+    fn forward_impl(
+        &self,
+        e_x: Tensor<2>,
+        e_d: Tensor<2>,
+        trace: bool,
+    ) -> (Tensor<2>, Tensor<2>, Option<MlpTrace>) {
+        let mut hidden = Vec::new();
+        let mut h = e_x.clone();
+        for (i, layer) in self.xyz_encoding.iter().enumerate() {
+            if i == self.skip {
+                h = Tensor::cat(vec![e_x.clone(), h], 1);
+            }
+            h = relu(layer.forward(h));
+            if trace {
+                hidden.push(h.clone());
+            }
+        }
+        let sigma = self.sigma.forward(h.clone());
+        let feat = self.xyz_encoding_final.forward(h);
+        let hd = relu(
+            self.dir_encoding
+                .forward(Tensor::cat(vec![feat.clone(), e_d], 1)),
+        );
+        let rgb = sigmoid(self.rgb.forward(hd.clone()));
+        let t = trace.then(|| MlpTrace { hidden, feat, hd });
+        (rgb, sigma, t)
+    }
+}

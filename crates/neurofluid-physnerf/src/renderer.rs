@@ -1,0 +1,404 @@
+//! The PhysNeRF renderer: coarse pass, importance sampling, fine pass, loss.
+
+use std::time::{Duration, Instant};
+
+use burn::prelude::*;
+use burn::tensor::{DType, IndexingUpdateOp, TensorData};
+use rand::RngCore;
+
+use crate::config::PhysNerfConfig;
+use crate::encoding::encode_inputs;
+use crate::error::{PhysNerfError, Result};
+use crate::features::{gather_neighbors, host_tensor, local_features, rows_tensor, valid_tensor};
+use crate::mlp::NerfMlp;
+use crate::neighbors::{Neighbors, ball_query};
+use crate::real::Real;
+use crate::sampling::{coarse_depths, fine_u, jitter_depths, merge_sorted, midpoints, sample_pdf};
+use crate::volume::{deltas, volume_render};
+
+/// The renderer R_φ: two NeRF networks and the configuration.
+#[derive(Module, Debug)]
+pub struct PhysNerf {
+    /// Coarse network (64 depths).
+    pub coarse: NerfMlp,
+    /// Fine network (the sorted 64 + 128 depths).
+    pub fine: NerfMlp,
+    /// Constants and switches.
+    #[module(skip)]
+    pub config: PhysNerfConfig,
+}
+
+/// A batch of rays in world units. Kept in f64 on the host; the renderer rounds them to the
+/// precision of the particle tensor (exact for rays that came from f32).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct RayBatch {
+    /// Ray origins (the camera centre; also used for d_c).
+    pub origins: Vec<[f64; 3]>,
+    /// Unit ray directions.
+    pub dirs: Vec<[f64; 3]>,
+}
+
+impl RayBatch {
+    /// Number of rays.
+    pub fn len(&self) -> usize {
+        self.dirs.len()
+    }
+
+    /// True when there are no rays.
+    pub fn is_empty(&self) -> bool {
+        self.dirs.is_empty()
+    }
+
+    /// The rays `start..end`.
+    pub fn slice(&self, start: usize, end: usize) -> Self {
+        Self {
+            origins: self.origins[start..end].to_vec(),
+            dirs: self.dirs[start..end].to_vec(),
+        }
+    }
+}
+
+impl From<&neurofluid_core::camera::Rays> for RayBatch {
+    fn from(r: &neurofluid_core::camera::Rays) -> Self {
+        Self {
+            origins: r.origins.iter().map(|v| v.map(f64::from)).collect(),
+            dirs: r.dirs.iter().map(|v| v.map(f64::from)).collect(),
+        }
+    }
+}
+
+/// What one pass (coarse or fine) produced.
+#[derive(Debug, Clone)]
+pub struct PassOutput {
+    /// Samples per ray S.
+    pub samples: usize,
+    /// `[R·S]` sorted depths of every ray (host, f64).
+    pub z: Vec<f64>,
+    /// `[R, 3]` colours on the background.
+    pub rgb_map: Tensor<2>,
+    /// `[R, S]` compositing weights.
+    pub weights: Tensor<2>,
+    /// `[R, S]` opacities.
+    pub alpha: Tensor<2>,
+    /// `[R, 1]` accumulated opacity.
+    pub acc: Tensor<2>,
+    /// `[R·S]` filled neighbour slots (0…K).
+    pub num_nn: Vec<u8>,
+    /// `[R·S]` occupancy gate (all K slots filled).
+    pub mask: Vec<bool>,
+    /// `[R·S]` sum of the neighbour indices (empty slots count 0).
+    pub nbr_idx_sum: Vec<u32>,
+    /// Samples that went through the MLP.
+    pub evaluated: usize,
+}
+
+/// Wall-clock time of the forward stages (host-synchronous CPU backends).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Timings {
+    /// Sample positions and ball queries (host).
+    pub neighbors: Duration,
+    /// Gather, features and encodings (tensor ops).
+    pub encoding: Duration,
+    /// MLP forward passes.
+    pub mlp: Duration,
+    /// Scatter of the gated samples, compositing and importance sampling.
+    pub composite: Duration,
+}
+
+/// Output of [`PhysNerf::render_rays`].
+#[derive(Debug, Clone)]
+pub struct RenderOutput {
+    /// The coarse pass.
+    pub coarse: PassOutput,
+    /// The fine pass (absent when `n_importance == 0`).
+    pub fine: Option<PassOutput>,
+    /// `[R·n_importance]` importance depths in u order (unsorted), host f64.
+    pub z_importance: Vec<f64>,
+    /// Stage timings of this call.
+    pub timings: Timings,
+}
+
+impl RenderOutput {
+    /// The fine colours when there is a fine pass, else the coarse ones (`[R, 3]`).
+    pub fn final_rgb(&self) -> Tensor<2> {
+        self.fine.as_ref().unwrap_or(&self.coarse).rgb_map.clone()
+    }
+}
+
+/// The image loss: `MSE(coarse) + MSE(fine)` (means over rays × 3).
+#[derive(Debug, Clone)]
+pub struct Loss {
+    /// coarse + fine (scalar tensor `[1]`).
+    pub total: Tensor<1>,
+    /// MSE of the coarse colours.
+    pub coarse: Tensor<1>,
+    /// MSE of the fine colours (0 without a fine pass).
+    pub fine: Tensor<1>,
+}
+
+/// `mean((rgb − target)²)` over all entries.
+pub fn mse(rgb: Tensor<2>, target: Tensor<2>) -> Tensor<1> {
+    let d = rgb - target;
+    (d.clone() * d).mean()
+}
+
+fn read<T: Real, const D: usize>(t: Tensor<D>) -> Result<Vec<T>> {
+    t.try_into_vec_as::<T>()
+        .map_err(|e| PhysNerfError::Readback(format!("{e:?}")))
+}
+
+impl PhysNerf {
+    /// A randomly initialised renderer (f32) on `device`.
+    pub fn new(config: PhysNerfConfig, device: &Device) -> Result<Self> {
+        config.validate().map_err(PhysNerfError::Invalid)?;
+        Ok(Self {
+            coarse: NerfMlp::new(&config, device),
+            fine: NerfMlp::new(&config, device),
+            config,
+        })
+    }
+
+    /// The float dtype of the weights.
+    pub fn dtype(&self) -> DType {
+        self.coarse.sigma.weight.val().dtype()
+    }
+
+    /// The MSE loss of a render against `target [R, 3]` (the same rays, same order).
+    pub fn loss(&self, out: &RenderOutput, target: Tensor<2>) -> Loss {
+        let coarse = mse(out.coarse.rgb_map.clone(), target.clone());
+        let fine = match &out.fine {
+            Some(f) => mse(f.rgb_map.clone(), target),
+            None => coarse.zeros_like(),
+        };
+        Loss {
+            total: coarse.clone() + fine.clone(),
+            coarse,
+            fine,
+        }
+    }
+
+    /// Renders a batch of rays through `particles [N, 3]` (same device and dtype as the
+    /// weights; put it on an autodiff device with `require_grad` to get d loss / d positions).
+    ///
+    /// Deterministic unless `config.stratified` is set, in which case `rng` must be given.
+    /// The neighbour indices, the gate and the fine depths are constants of the graph.
+    pub fn render_rays(
+        &self,
+        particles: &Tensor<2>,
+        rays: &RayBatch,
+        rng: Option<&mut dyn RngCore>,
+    ) -> Result<RenderOutput> {
+        if rays.origins.len() != rays.dirs.len() {
+            return Err(PhysNerfError::Invalid(format!(
+                "ray batch has {} origins but {} directions",
+                rays.origins.len(),
+                rays.dirs.len()
+            )));
+        }
+        if particles.dims()[1] != 3 {
+            return Err(PhysNerfError::Invalid(format!(
+                "particles must be [N, 3], got {:?}",
+                particles.dims()
+            )));
+        }
+        if self.config.stratified && rng.is_none() {
+            return Err(PhysNerfError::Invalid(
+                "config.stratified needs an RNG".into(),
+            ));
+        }
+        let rng = if self.config.stratified { rng } else { None };
+        if particles.dtype() != self.dtype() {
+            return Err(PhysNerfError::Invalid(format!(
+                "particles are {:?} but the weights are {:?}",
+                particles.dtype(),
+                self.dtype()
+            )));
+        }
+        match particles.dtype() {
+            DType::F32 => self.render_impl::<f32>(particles, rays, rng),
+            DType::F64 => self.render_impl::<f64>(particles, rays, rng),
+            other => Err(PhysNerfError::Invalid(format!(
+                "particles must be F32 or F64, got {other:?}"
+            ))),
+        }
+    }
+
+    fn render_impl<T: Real>(
+        &self,
+        particles: &Tensor<2>,
+        rays: &RayBatch,
+        mut rng: Option<&mut dyn RngCore>,
+    ) -> Result<RenderOutput> {
+        let cfg = &self.config;
+        let mut timings = Timings::default();
+        let flat: Vec<T> = read(particles.clone().detach())?;
+        let p_host: Vec<[T; 3]> = flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        let origins: Vec<[T; 3]> = rays.origins.iter().map(|v| v.map(T::of)).collect();
+        let dirs: Vec<[T; 3]> = rays.dirs.iter().map(|v| v.map(T::of)).collect();
+        let r = rays.len();
+        let s = cfg.n_samples;
+        let z0: Vec<T> = coarse_depths(cfg.near, cfg.far, s);
+        let mut z_c = Vec::with_capacity(r * s);
+        for _ in 0..r {
+            match rng.as_deref_mut() {
+                Some(g) => z_c.extend(jitter_depths(&z0, g)),
+                None => z_c.extend_from_slice(&z0),
+            }
+        }
+        let coarse = self.run_pass(
+            &self.coarse,
+            particles,
+            &p_host,
+            &origins,
+            &dirs,
+            &z_c,
+            s,
+            &mut timings,
+        )?;
+        let mut z_importance = Vec::new();
+        let fine = if cfg.n_importance > 0 && r > 0 {
+            let t0 = Instant::now();
+            let w: Vec<T> = read(coarse.weights.clone().detach())?;
+            let n = cfg.n_importance;
+            let mut z_f = Vec::with_capacity(r * (s + n));
+            let u_det: Vec<T> = fine_u(n, None);
+            for ray in 0..r {
+                let zr = &z_c[ray * s..(ray + 1) * s];
+                let u = match rng.as_deref_mut() {
+                    Some(g) => fine_u(n, Some(g)),
+                    None => u_det.clone(),
+                };
+                let zi = sample_pdf(&midpoints(zr), &w[ray * s + 1..(ray + 1) * s - 1], &u);
+                z_importance.extend(zi.iter().map(|v| v.f64()));
+                z_f.extend(merge_sorted(zr, &zi));
+            }
+            timings.composite += t0.elapsed();
+            Some(self.run_pass(
+                &self.fine,
+                particles,
+                &p_host,
+                &origins,
+                &dirs,
+                &z_f,
+                s + n,
+                &mut timings,
+            )?)
+        } else {
+            None
+        };
+        Ok(RenderOutput {
+            coarse,
+            fine,
+            z_importance,
+            timings,
+        })
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn run_pass<T: Real>(
+        &self,
+        net: &NerfMlp,
+        particles: &Tensor<2>,
+        p_host: &[[T; 3]],
+        origins: &[[T; 3]],
+        dirs: &[[T; 3]],
+        z: &[T],
+        s: usize,
+        timings: &mut Timings,
+    ) -> Result<PassOutput> {
+        let cfg = &self.config;
+        let device = particles.device();
+        let r = dirs.len();
+        let k = cfg.k;
+        let t0 = Instant::now();
+        let mut x = Vec::with_capacity(r * s);
+        for ray in 0..r {
+            let (o, d) = (origins[ray], dirs[ray]);
+            for &zi in &z[ray * s..(ray + 1) * s] {
+                x.push([o[0] + d[0] * zi, o[1] + d[1] * zi, o[2] + d[2] * zi]);
+            }
+        }
+        let nb: Neighbors<T> = ball_query(p_host, &x, cfg.search_radius, k, cfg.selection);
+        let q_all = r * s;
+        let num_nn: Vec<u8> = (0..q_all).map(|q| nb.num_valid(q) as u8).collect();
+        let mask: Vec<bool> = num_nn.iter().map(|&n| n as usize == k).collect();
+        let nbr_idx_sum: Vec<u32> = (0..q_all).map(|q| nb.index_sum(q) as u32).collect();
+        let selected: Vec<usize> = if cfg.gated_only {
+            (0..q_all).filter(|&q| mask[q]).collect()
+        } else {
+            (0..q_all).collect()
+        };
+        timings.neighbors += t0.elapsed();
+
+        let g = selected.len();
+        let (rgb, sigma) = if g == 0 {
+            (
+                Tensor::<2>::zeros([q_all, 3], (&device, T::DTYPE)),
+                Tensor::<2>::zeros([q_all, 1], (&device, T::DTYPE)),
+            )
+        } else {
+            let t1 = Instant::now();
+            let xs: Vec<[T; 3]> = selected.iter().map(|&q| x[q]).collect();
+            let os: Vec<[T; 3]> = selected.iter().map(|&q| origins[q / s]).collect();
+            let ds: Vec<[T; 3]> = selected.iter().map(|&q| dirs[q / s]).collect();
+            let mut idx = Vec::with_capacity(g * k);
+            let mut d2 = Vec::with_capacity(g * k);
+            for &q in &selected {
+                idx.extend_from_slice(&nb.idx[q * k..(q + 1) * k]);
+                d2.extend_from_slice(&nb.dist2[q * k..(q + 1) * k]);
+            }
+            let x_t = rows_tensor(&xs, &device);
+            let nbr = gather_neighbors(particles, &idx, k);
+            let feats = local_features(
+                x_t.clone(),
+                nbr,
+                valid_tensor(&d2, k, &device),
+                rows_tensor(&os, &device),
+                cfg.search_radius,
+            );
+            let (e_x, e_d) = encode_inputs(x_t, rows_tensor(&ds, &device), &feats, cfg);
+            timings.encoding += t1.elapsed();
+            let t2 = Instant::now();
+            let (rgb_g, sigma_g) = net.forward(e_x, e_d);
+            timings.mlp += t2.elapsed();
+            if cfg.gated_only {
+                let ids: Vec<i32> = selected.iter().map(|&q| q as i32).collect();
+                let ids = Tensor::<1, Int>::from_data(TensorData::new(ids, [g]), &device);
+                let zeros3 = Tensor::<2>::zeros([q_all, 3], (&device, T::DTYPE));
+                let zeros1 = Tensor::<2>::zeros([q_all, 1], (&device, T::DTYPE));
+                (
+                    zeros3.select_assign(0, ids.clone(), rgb_g, IndexingUpdateOp::Add),
+                    zeros1.select_assign(0, ids, sigma_g, IndexingUpdateOp::Add),
+                )
+            } else {
+                let m: Vec<T> = mask
+                    .iter()
+                    .map(|&b| if b { T::one() } else { T::zero() })
+                    .collect();
+                let m = host_tensor(m, [q_all, 1], &device);
+                (rgb_g * m.clone(), sigma_g * m)
+            }
+        };
+        let t3 = Instant::now();
+        let dl = host_tensor(deltas(z, s, dirs), [r, s], &device);
+        let comp = volume_render(
+            rgb.reshape([r, s, 3]),
+            sigma.reshape([r, s]),
+            dl,
+            cfg.white_background,
+        );
+        timings.composite += t3.elapsed();
+        Ok(PassOutput {
+            samples: s,
+            z: z.iter().map(|v| v.f64()).collect(),
+            rgb_map: comp.rgb_map,
+            weights: comp.weights,
+            alpha: comp.alpha,
+            acc: comp.acc,
+            num_nn,
+            mask,
+            nbr_idx_sum,
+            evaluated: g,
+        })
+    }
+}
