@@ -1,1 +1,132 @@
-fn main() {}
+//! One DLF step on the CPU: forward, and forward+backward of DLF's loss, at 2k/8k/32k fluid
+//! particles (the reference harness's `bench` scenes: a lattice block 5 cm above the floor of a
+//! closed box with DLF-density walls, v = (0.3, 0, 0.2), jitter 2 mm). One warm-up, then the
+//! median of `--repeats` runs; a per-phase breakdown of one forward step follows.
+//!
+//! `cargo bench -p neurofluid-dlf --bench dlf_step -- [--repeats 5] [--sizes 2000 8000 32000]`
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use burn::prelude::*;
+use neurofluid_dlf::geometry::{ConvGeometry, build_host_geometry};
+use neurofluid_dlf::net::{points_tensor, tensor_points};
+use neurofluid_dlf::scene::{block_in_box, dlf_wall_spacing};
+use neurofluid_dlf::{DlfConfig, DlfNet, dlf_step_loss, load_dlf};
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn time<T>(f: impl FnOnce() -> T) -> (T, f64) {
+    let t = Instant::now();
+    let out = f();
+    (out, t.elapsed().as_secs_f64())
+}
+
+fn sync(t: &Tensor<2>) {
+    let _ = t.to_data();
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let mut repeats = 5usize;
+    let mut sizes = vec![2000usize, 8000, 32000];
+    let mut i = 0;
+    while i < args.len() {
+        match args[i].as_str() {
+            "--repeats" => {
+                repeats = args[i + 1].parse().expect("--repeats N");
+                i += 2;
+            }
+            "--sizes" => {
+                sizes.clear();
+                i += 1;
+                while i < args.len() && !args[i].starts_with("--") {
+                    sizes.push(args[i].parse().expect("size"));
+                    i += 1;
+                }
+            }
+            _ => i += 1, // cargo's own flags (--bench)
+        }
+    }
+    let weights = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../assets/dlf_pretrained/pretrained_model_weights.pt");
+    let device = neurofluid_core::device::cpu();
+    let ad = device.clone().autodiff();
+    let net = load_dlf(&weights, DlfConfig::default(), &device).expect("weights");
+    let net_ad: DlfNet = load_dlf(&weights, DlfConfig::default(), &ad).expect("weights");
+    println!(
+        "| N fluid | N wall | neighbours | forward median s | fwd+bwd median s |\n| --- | --- | --- | --- | --- |"
+    );
+    for &n in &sizes {
+        let scene = block_in_box(n, dlf_wall_spacing(), [0.3, 0.0, 0.2], 0.002, 1, 0.05);
+        let boundary = net.boundary(&scene.box_points, &scene.box_normals, &device);
+        let boundary_ad = net_ad.boundary(&scene.box_points, &scene.box_normals, &ad);
+        let pos = points_tensor(&scene.pos, &device);
+        let vel = points_tensor(&scene.vel, &device);
+        let fwd = || {
+            let o = net.step(pos.clone(), vel.clone(), &boundary);
+            sync(&o.pos);
+            o.num_fluid_neighbors
+        };
+        let counts = fwd();
+        let mean_nb = counts.iter().map(|&c| c as f64).sum::<f64>() / n as f64;
+        let tf = median((0..repeats).map(|_| time(fwd).1).collect());
+        let pos_ad = points_tensor(&scene.pos, &ad);
+        let vel_ad = points_tensor(&scene.vel, &ad);
+        let target = pos_ad.clone() + 0.01;
+        let fwd_bwd = || {
+            let o = net_ad.step(pos_ad.clone(), vel_ad.clone(), &boundary_ad);
+            let loss = dlf_step_loss(o.pos, target.clone(), &o.num_fluid_neighbors);
+            let grads = loss.backward();
+            let g = net_ad.conv1.kernel.val().grad(&grads).expect("grad");
+            let _ = g.into_data();
+        };
+        fwd_bwd();
+        let tb = median((0..repeats).map(|_| time(fwd_bwd).1).collect());
+        println!(
+            "| {n} | {} | {mean_nb:.1} | {tf:.3} | {tb:.3} |",
+            scene.box_points.len()
+        );
+    }
+    // Where the time of one forward step goes (largest size).
+    let n = *sizes.last().expect("a size");
+    let scene = block_in_box(n, dlf_wall_spacing(), [0.3, 0.0, 0.2], 0.002, 1, 0.05);
+    let boundary = net.boundary(&scene.box_points, &scene.box_normals, &device);
+    let pos = points_tensor(&scene.pos, &device);
+    let x = tensor_points(&pos);
+    let (fluid, t_geo) = time(|| build_host_geometry(&x, &x, 0.225, true, None));
+    let (solid, t_geo_b) = time(|| build_host_geometry(&boundary.points, &x, 0.225, true, None));
+    let (fluid, t_up) = time(|| ConvGeometry::new(fluid, None, &device));
+    let solid = ConvGeometry::new(solid, None, &device);
+    println!(
+        "\nphases at N = {n}: fluid geometry {t_geo:.3} s ({} pairs), box geometry {t_geo_b:.3} s, upload {t_up:.3} s",
+        fluid.host.num_pairs()
+    );
+    let feats = |c: usize| {
+        Tensor::<2>::random(
+            [n, c],
+            burn::tensor::Distribution::Normal(0.0, 1.0),
+            &device,
+        )
+    };
+    for (name, conv, geo, input) in [
+        (
+            "conv0_obstacle",
+            &net.conv0_obstacle,
+            &solid,
+            boundary.normals.clone(),
+        ),
+        ("conv0_fluid", &net.conv0_fluid, &fluid, feats(4)),
+        ("conv1", &net.conv1, &fluid, feats(96)),
+        ("conv2", &net.conv2, &fluid, feats(64)),
+        ("conv3", &net.conv3, &fluid, feats(64)),
+    ] {
+        let run = || sync(&conv.forward(input.clone(), geo));
+        run();
+        let t = median((0..repeats).map(|_| time(run).1).collect());
+        println!("  {name}: {t:.3} s");
+    }
+}

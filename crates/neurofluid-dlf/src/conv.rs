@@ -4,7 +4,9 @@ use burn::module::Param;
 use burn::prelude::*;
 use burn::tensor::{Distribution, IndexingUpdateOp};
 
-use crate::geometry::ConvGeometry;
+use rayon::prelude::*;
+
+use crate::geometry::{CORNERS, ConvGeometry, HostGeometry};
 use crate::mapping::{KERNEL_CELLS, KERNEL_SIZE};
 
 /// A continuous convolution: kernel `[4, 4, 4, Cin, Cout]` indexed `[z, y, x, ..]`, bias `[Cout]`.
@@ -63,6 +65,12 @@ impl ContinuousConv {
             let zero_kernel = self.kernel.val().sum().reshape([1, 1]) * 0.0;
             return Tensor::<2>::zeros([m, cout], &device) + bias + zero_kernel;
         }
+        let needs_grad = features.is_require_grad()
+            || self.kernel.val().is_require_grad()
+            || geometry.weights.is_require_grad();
+        if !needs_grad {
+            return self.forward_host(features, geometry) + bias;
+        }
         let out = if cout > cin {
             let vals = features.select(0, geometry.in_rows.clone()) * geometry.weights.clone();
             let g = Tensor::<2>::zeros([m * KERNEL_CELLS, cin], &device).select_assign(
@@ -91,4 +99,45 @@ impl ContinuousConv {
         };
         out + bias
     }
+
+    /// Inference path (no gradients needed): `G = S·F` is accumulated on the host (rayon, one
+    /// output row per task), then one matmul `G[M, 64·Cin] · K[64·Cin, Cout]` on the device.
+    fn forward_host(&self, features: Tensor<2>, geometry: &ConvGeometry) -> Tensor<2> {
+        let [_, cin] = features.dims();
+        let cout = self.out_channels();
+        let device = features.device();
+        let feats: Vec<f32> = features
+            .into_data()
+            .convert::<f32>()
+            .try_into_vec::<f32>()
+            .expect("float features");
+        let g = gather_host(&geometry.host, &feats, cin);
+        let m = geometry.num_out();
+        let g = Tensor::<2>::from_data(TensorData::new(g, [m, KERNEL_CELLS * cin]), &device);
+        g.matmul(self.kernel.val().reshape([KERNEL_CELLS * cin, cout]))
+    }
+}
+
+/// `G[m, cell·Cin + c] = Σ_{pairs (m, i)} Σ_corners weight · F[i, c]` on the host.
+pub fn gather_host(host: &HostGeometry, features: &[f32], cin: usize) -> Vec<f32> {
+    let row_len = KERNEL_CELLS * cin;
+    let mut g = vec![0f32; host.num_out * row_len];
+    let offsets = &host.pairs.offsets;
+    let indices = &host.pairs.indices;
+    g.par_chunks_mut(row_len).enumerate().for_each(|(q, row)| {
+        for p in offsets[q]..offsets[q + 1] {
+            let i = indices[p] as usize;
+            let f = &features[i * cin..(i + 1) * cin];
+            for c in 0..CORNERS {
+                let e = p * CORNERS + c;
+                let w = host.weights[e];
+                let cell = host.cells[e] as usize;
+                let dst = &mut row[cell * cin..(cell + 1) * cin];
+                for (d, &x) in dst.iter_mut().zip(f) {
+                    *d += w * x;
+                }
+            }
+        }
+    });
+    g
 }

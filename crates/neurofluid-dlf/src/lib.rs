@@ -14,6 +14,7 @@ pub mod loss;
 pub mod mapping;
 pub mod net;
 pub mod rollout;
+pub mod scene;
 pub mod weights;
 
 pub use config::{DlfConfig, Frame, GeometryMode};
