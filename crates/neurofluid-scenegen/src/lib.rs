@@ -7,6 +7,7 @@
 pub mod config;
 pub mod generate;
 pub mod presets;
+pub mod preview;
 pub mod render;
 pub mod shapes;
 pub mod sph;

@@ -1,0 +1,238 @@
+//! The scene loader on a tiny fixture written in NeuroFluid's released layout (z up, no
+//! manifest, joblib `box.pt`), and its errors on missing files and fields.
+
+use std::path::{Path, PathBuf};
+
+use neurofluid_core::scene::{
+    BoxParticles, FrameEntry, Particles, Role, Scene, SceneError, SceneManifest, TransformsFile,
+    UpAxis, transforms_path, write_png_rgba,
+};
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("nf_layout_{name}_{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn c2w(k: usize) -> [[f32; 4]; 4] {
+    // camera on a ring around the z axis, with the uniform scale the released cameras carry
+    let a = k as f32;
+    let (s, c) = a.sin_cos();
+    let sc = 0.4155;
+    [
+        [c * sc, 0.0, s * sc, 10.0 * s],
+        [s * sc, 0.0, -c * sc, -10.0 * c],
+        [0.0, sc, 0.0, 3.0],
+        [0.0, 0.0, 0.0, 1.0],
+    ]
+}
+
+fn particles(t: usize) -> Particles {
+    Particles {
+        pos: (0..5)
+            .map(|i| [i as f32 * 0.1, 0.0, 1.0 - t as f32 * 0.01])
+            .collect(),
+        vel: (0..5).map(|i| [0.0, i as f32, -(t as f32)]).collect(),
+    }
+}
+
+/// view_1…view_4 `train` (view_1 with 50 frames, the others 1), view_5 `test` with 60 frames.
+fn write_released(root: &Path) {
+    // 2×2 RGBA: transparent, opaque red, half-transparent green, opaque white
+    let rgba = [
+        0, 0, 0, 0, 255, 0, 0, 255, 0, 255, 0, 128, 255, 255, 255, 255,
+    ];
+    for (view, split, n) in [
+        ("view_1", "train", 50),
+        ("view_2", "train", 1),
+        ("view_3", "train", 1),
+        ("view_4", "train", 1),
+        ("view_5", "test", 60),
+    ] {
+        let k: usize = view[5..].parse().unwrap();
+        let mut frames = Vec::new();
+        for t in 0..n {
+            write_png_rgba(
+                &root.join(view).join(split).join(format!("{t:04}.png")),
+                2,
+                2,
+                &rgba,
+            )
+            .unwrap();
+            particles(t)
+                .write(
+                    &root
+                        .join(view)
+                        .join(split)
+                        .join(format!("particles/{t:04}.npz")),
+                )
+                .unwrap();
+            frames.push(FrameEntry {
+                file_path: format!("./{split}/{t:04}"),
+                transform_matrix: c2w(k),
+                particle_path: Some(format!("particles/{t:04}.npz")),
+            });
+        }
+        TransformsFile {
+            camera_angle_x: 0.3235,
+            bounding_box: Some("box.pt".into()),
+            frames,
+        }
+        .write(&transforms_path(root, view, split))
+        .unwrap();
+    }
+}
+
+#[test]
+fn released_layout_loads_with_defaults() {
+    let root = tmp("watercube");
+    write_released(&root);
+    std::fs::write(root.join("box.pt"), b"\x80\x04joblib pickle stand-in").unwrap();
+    let scene = Scene::open(&root).unwrap();
+    assert!(!scene.has_manifest_file());
+    assert_eq!(
+        scene.manifest(),
+        &SceneManifest::released(scene.manifest().name.as_str())
+    );
+    assert_eq!(scene.up_axis(), UpAxis::Z);
+    assert_eq!(scene.up_axis().gravity(), [0.0, 0.0, -9.81]);
+    assert_eq!(
+        scene.views(Role::Warmup),
+        ["view_1", "view_2", "view_3", "view_4"]
+    );
+    assert_eq!(scene.views(Role::Train), ["view_1"]);
+    assert_eq!(scene.views(Role::Test), ["view_5"]);
+    assert_eq!(scene.frames(Role::Train), 0..50);
+    assert_eq!(scene.frames(Role::Test), 0..60);
+    // particles by frame, from the role's first view
+    assert_eq!(scene.particles(Role::Train, 7).unwrap(), particles(7));
+    assert_eq!(scene.particles(Role::Test, 59).unwrap(), particles(59));
+    assert_eq!(scene.particle_sequence(Role::Train).unwrap().len(), 50);
+    // camera: focal from camera_angle_x, transform as written
+    let cam = scene.camera(Role::Test, "view_5", 3).unwrap();
+    assert_eq!(cam.c2w, c2w(5));
+    assert!((cam.focal - 1.0 / (0.5f32 * 0.3235).tan()).abs() < 1e-5);
+    // images composited on white: c·a + (1 − a)
+    let img = scene.image(Role::Warmup, "view_2", 0).unwrap();
+    assert_eq!((img.width, img.height), (2, 2));
+    let a = 128.0 / 255.0;
+    let expect = [
+        1.0,
+        1.0,
+        1.0,
+        1.0,
+        0.0,
+        0.0,
+        1.0 - a,
+        1.0,
+        1.0 - a,
+        1.0,
+        1.0,
+        1.0,
+    ];
+    for (x, e) in img.rgb.iter().zip(expect) {
+        assert!((x - e).abs() < 1e-6, "{:?}", img.rgb);
+    }
+    assert_eq!(img.alpha[0], 0.0);
+    // joblib box.pt: a clear error naming the file and the conversion
+    let err = scene.boundary().unwrap_err().to_string();
+    assert!(
+        err.contains("box.pt") && err.contains("box.npz") && err.contains("joblib"),
+        "{err}"
+    );
+    // a converted box.npz next to it is used
+    let walls = BoxParticles {
+        points: vec![[-1.0, -1.0, -1.0], [1.0, 1.0, 2.455]],
+        normals: vec![[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]],
+    };
+    walls.write(&root.join("box.npz")).unwrap();
+    assert_eq!(scene.boundary().unwrap(), walls);
+    // an unknown view is an error naming the scene's views
+    assert!(matches!(
+        scene.camera(Role::Test, "view_9", 0),
+        Err(SceneError::Lookup(_))
+    ));
+    let _ = std::fs::remove_dir_all(root);
+}
+
+#[test]
+fn released_honeycone_trains_on_frames_15_to_64() {
+    let m = SceneManifest::released("honeycone");
+    assert_eq!(m.train.frames.range(), 15..65);
+    assert_eq!(
+        SceneManifest::released("watersphere").train.frames.range(),
+        0..50
+    );
+}
+
+#[test]
+fn missing_files_and_fields_name_the_path_and_field() {
+    let root = tmp("broken");
+    write_released(&root);
+    // too few frames for the default train range
+    let json = transforms_path(&root, "view_1", "train");
+    let mut t = TransformsFile::read(&json).unwrap();
+    t.frames.truncate(10);
+    t.write(&json).unwrap();
+    let err = Scene::open(&root).unwrap_err().to_string();
+    assert!(
+        err.contains("transforms_train.json") && err.contains("frames"),
+        "{err}"
+    );
+    write_released(&root);
+
+    // a frame without transform_matrix
+    let text = std::fs::read_to_string(&json).unwrap();
+    let mut v: serde_json_value::Value = serde_json_value::from_str(&text);
+    v.remove_first("transform_matrix");
+    std::fs::write(&json, v.0).unwrap();
+    let err = Scene::open(&root).unwrap_err().to_string();
+    assert!(
+        err.contains("view_1") && err.contains("transform_matrix"),
+        "{err}"
+    );
+    write_released(&root);
+
+    // a missing image
+    std::fs::remove_file(root.join("view_5/test/0000.png")).unwrap();
+    let err = Scene::open(&root).unwrap_err().to_string();
+    assert!(err.contains("view_5") && err.contains("0000.png"), "{err}");
+    write_released(&root);
+
+    // a missing particle file, and an array missing from one
+    let scene = Scene::open(&root).unwrap();
+    std::fs::remove_file(root.join("view_1/train/particles/0003.npz")).unwrap();
+    let err = scene.particles(Role::Train, 3).unwrap_err().to_string();
+    assert!(err.contains("particles/0003.npz"), "{err}");
+    BoxParticles::default()
+        .write(&root.join("view_1/train/particles/0004.npz"))
+        .unwrap();
+    let err = scene.particles(Role::Train, 4).unwrap_err().to_string();
+    assert!(err.contains("0004.npz") && err.contains("pos"), "{err}");
+
+    // a bad manifest field
+    std::fs::write(root.join("scene.json"), "{\"name\": \"x\"}").unwrap();
+    let err = Scene::open(&root).unwrap_err().to_string();
+    assert!(
+        err.contains("scene.json") && err.contains("up_axis"),
+        "{err}"
+    );
+    let _ = std::fs::remove_dir_all(root);
+}
+
+/// Minimal text surgery on JSON without a JSON dependency in this test crate.
+mod serde_json_value {
+    pub struct Value(pub String);
+    pub fn from_str(s: &str) -> Value {
+        Value(s.to_string())
+    }
+    impl Value {
+        /// Renames the first occurrence of the key so the field is missing.
+        pub fn remove_first(&mut self, key: &str) {
+            self.0 = self
+                .0
+                .replacen(&format!("\"{key}\""), "\"renamed_away\"", 1);
+        }
+    }
+}
