@@ -19,6 +19,14 @@ pub struct Cli {
 /// The stages of the pipeline; each can run alone.
 #[derive(Debug, Subcommand)]
 pub enum Command {
+    /// The whole pipeline of an experiment: scene (generated if missing), warm-up, joint, eval.
+    Run(commands::run::Args),
+    /// Warm up the renderer on frame 0 from the warm-up views.
+    Warmup(commands::stage_cmds::Args),
+    /// Ground DLF and PhysNeRF jointly on the training view.
+    Joint(commands::stage_cmds::Args),
+    /// Evaluate a grounded model: particle distance, PSNR/SSIM, renders, PLY.
+    Eval(commands::stage_cmds::Args),
     /// Print the compiled-in backends and the devices they offer.
     Devices(commands::devices::Args),
 }
@@ -35,6 +43,7 @@ pub fn init_logging(verbose: u8) {
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .with_target(false)
         .try_init();
 }

@@ -1,9 +1,7 @@
 //! `neurofluid-train`: one binary for every stage of NeuroFluid-rs.
 
-mod cli;
-mod commands;
-
 use clap::Parser;
+use neurofluid_train::{cli, commands};
 
 fn main() -> std::process::ExitCode {
     let cli = cli::Cli::parse();

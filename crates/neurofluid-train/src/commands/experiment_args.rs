@@ -1,0 +1,47 @@
+//! The arguments every training stage shares: the experiment TOML and its overrides.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+
+use crate::config::Experiment;
+
+/// An experiment file plus command-line overrides.
+#[derive(Debug, Clone, clap::Args)]
+pub struct ExperimentArgs {
+    /// The experiment TOML (see experiments/).
+    pub experiment: PathBuf,
+    /// Device to run on (cpu, flex, ndarray, wgpu, cuda, cuda:N); overrides `device` in the TOML.
+    #[arg(long)]
+    pub device: Option<String>,
+    /// Override a key of the experiment, e.g. `--set joint.epochs=2` (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+    /// Start from scratch: delete the run folder's checkpoints instead of resuming from them.
+    #[arg(long)]
+    pub fresh: bool,
+}
+
+impl ExperimentArgs {
+    /// Loads the experiment and applies `--device` and `--set`.
+    pub fn load(&self) -> anyhow::Result<Experiment> {
+        let mut exp = Experiment::load(&self.experiment)?;
+        exp.apply_overrides(&self.set)
+            .with_context(|| format!("applying --set to {}", self.experiment.display()))?;
+        if let Some(d) = &self.device {
+            exp.device = d.clone();
+        }
+        exp.validate(&self.experiment)?;
+        if self.fresh {
+            let dir = exp.out_dir();
+            for stage in ["warmup", "joint", "eval"] {
+                let p = dir.join(stage);
+                if p.exists() {
+                    std::fs::remove_dir_all(&p)
+                        .with_context(|| format!("removing {}", p.display()))?;
+                }
+            }
+        }
+        Ok(exp)
+    }
+}

@@ -1,0 +1,28 @@
+//! `run`: the whole pipeline of an experiment — scene (generated if missing), warm-up, joint
+//! grounding, evaluation — then the summary table.
+
+use crate::metrics_log::MetricsLog;
+use crate::stages::{Run, eval, joint, warmup};
+
+use super::experiment_args::ExperimentArgs;
+
+/// Arguments of `run`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    #[command(flatten)]
+    exp: ExperimentArgs,
+}
+
+/// Runs every stage, resuming from the checkpoints of an interrupted run.
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let run = Run::open(args.exp.load()?)?;
+    tracing::info!("run folder {}", run.dir.display());
+    let mut log = MetricsLog::open(&run.dir)?;
+    warmup::run(&run, &mut log)?;
+    let grounded = joint::run(&run, &mut log)?;
+    let summary = eval::run(&run, &grounded)?;
+    crate::plot::plot_metrics_file(log.jsonl_path(), &run.dir.join("curves.png"))?;
+    println!("{}", summary.markdown());
+    println!("results in {}", run.dir.display());
+    Ok(())
+}

@@ -1,0 +1,46 @@
+//! `warmup`, `joint` and `eval`: the stages of `run`, one at a time.
+
+use crate::metrics_log::MetricsLog;
+use crate::stages::{Run, eval, joint, warmup};
+
+use super::experiment_args::ExperimentArgs;
+
+/// Arguments of the single-stage commands.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    #[command(flatten)]
+    exp: ExperimentArgs,
+}
+
+/// The renderer warm-up on frame 0.
+pub fn run_warmup(args: Args) -> anyhow::Result<()> {
+    let run = Run::open(args.exp.load()?)?;
+    let mut log = MetricsLog::open(&run.dir)?;
+    warmup::run(&run, &mut log)?;
+    println!(
+        "warm-up checkpoint in {}",
+        run.stage_dir(warmup::STAGE).display()
+    );
+    Ok(())
+}
+
+/// Joint grounding (needs a finished warm-up).
+pub fn run_joint(args: Args) -> anyhow::Result<()> {
+    let run = Run::open(args.exp.load()?)?;
+    let mut log = MetricsLog::open(&run.dir)?;
+    joint::run(&run, &mut log)?;
+    println!(
+        "joint checkpoint in {}",
+        run.stage_dir(joint::STAGE).display()
+    );
+    Ok(())
+}
+
+/// Evaluation of a finished joint stage.
+pub fn run_eval(args: Args) -> anyhow::Result<()> {
+    let run = Run::open(args.exp.load()?)?;
+    let grounded = joint::load_trained(&run)?;
+    let summary = eval::run(&run, &grounded)?;
+    println!("{}", summary.markdown());
+    Ok(())
+}

@@ -1,0 +1,14 @@
+//! The NeuroFluid-rs trainer: experiment files, the training and evaluation stages, checkpoints,
+//! metrics, reports and sweeps. The `neurofluid-train` binary is a thin CLI over this library.
+
+pub mod cli;
+pub mod commands;
+pub mod config;
+pub mod metrics_log;
+pub mod plot;
+pub mod ply;
+pub mod report;
+pub mod rng;
+pub mod schedule;
+pub mod stages;
+pub mod sweep;

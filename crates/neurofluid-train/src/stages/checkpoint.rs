@@ -1,0 +1,105 @@
+//! Checkpoints that resume exactly: every file of a checkpoint is written into a fresh temporary
+//! folder that is renamed into place, so a crash never leaves a partial checkpoint behind.
+//!
+//! A checkpoint folder holds the models (burnpack), the optimiser states (burnpack), the carried
+//! particle state where there is one (`.npz`) and `state.json` (stage, step, RNG state, config
+//! digest). The learning-rate schedules are pure functions of the step, so the step restores them.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use burn::module::Module;
+use burn::optim::ModuleOptimizer;
+use serde::{Serialize, de::DeserializeOwned};
+
+/// Name of the current checkpoint folder inside a stage folder.
+const CURRENT: &str = "checkpoint";
+/// Name of the previous checkpoint while a new one replaces it.
+const PREVIOUS: &str = "checkpoint.old";
+
+/// The checkpoint folder of a stage (`<run>/<stage>/checkpoint`), if one is complete.
+///
+/// A crash between the two renames of [`write`] leaves only the previous checkpoint, which is
+/// then the one returned.
+pub fn latest(stage_dir: &Path) -> Option<PathBuf> {
+    [CURRENT, PREVIOUS]
+        .iter()
+        .map(|n| stage_dir.join(n))
+        .find(|p| p.join("state.json").is_file())
+}
+
+/// Writes a checkpoint of a stage: `fill` writes the files into a temporary folder, which then
+/// replaces the stage's checkpoint.
+pub fn write(
+    stage_dir: &Path,
+    fill: impl FnOnce(&Path) -> anyhow::Result<()>,
+) -> anyhow::Result<PathBuf> {
+    std::fs::create_dir_all(stage_dir)
+        .with_context(|| format!("creating {}", stage_dir.display()))?;
+    let tmp = stage_dir.join(format!("{CURRENT}.{}.tmp", std::process::id()));
+    if tmp.exists() {
+        std::fs::remove_dir_all(&tmp)?;
+    }
+    std::fs::create_dir_all(&tmp)?;
+    if let Err(e) = fill(&tmp) {
+        let _ = std::fs::remove_dir_all(&tmp);
+        return Err(e);
+    }
+    let current = stage_dir.join(CURRENT);
+    let previous = stage_dir.join(PREVIOUS);
+    if previous.exists() {
+        std::fs::remove_dir_all(&previous)?;
+    }
+    if current.exists() {
+        std::fs::rename(&current, &previous)?;
+    }
+    std::fs::rename(&tmp, &current)
+        .with_context(|| format!("moving the checkpoint into {}", current.display()))?;
+    if previous.exists() {
+        std::fs::remove_dir_all(&previous)?;
+    }
+    Ok(current)
+}
+
+/// Saves a module's parameters as burnpack.
+pub fn save_module<M: Module>(module: &M, path: &Path) -> anyhow::Result<()> {
+    module
+        .clone()
+        .save_file(path)
+        .map_err(|e| anyhow::anyhow!("{}: {e:?}", path.display()))
+}
+
+/// Loads a module's parameters from burnpack into `module` (same architecture).
+pub fn load_module<M: Module>(module: M, path: &Path) -> anyhow::Result<M> {
+    module
+        .try_load_file(path)
+        .map_err(|e| anyhow::anyhow!("{}: not a checkpoint of this model: {e:?}", path.display()))
+}
+
+/// Saves an optimiser's state (Adam moments and step counts).
+pub fn save_optimizer(opt: &ModuleOptimizer, path: &Path) -> anyhow::Result<()> {
+    opt.save(path)
+        .map_err(|e| anyhow::anyhow!("{}: {e:?}", path.display()))
+}
+
+/// Loads an optimiser's state into a freshly built optimiser of the same kind.
+pub fn load_optimizer(opt: ModuleOptimizer, path: &Path) -> anyhow::Result<ModuleOptimizer> {
+    opt.load(path)
+        .map_err(|e| anyhow::anyhow!("{}: {e:?}", path.display()))
+}
+
+/// Writes `state.json`.
+pub fn save_state<S: Serialize>(state: &S, dir: &Path) -> anyhow::Result<()> {
+    let text = serde_json::to_string_pretty(state)?;
+    std::fs::write(dir.join("state.json"), text)?;
+    Ok(())
+}
+
+/// Reads `state.json`, naming the file on error.
+pub fn load_state<S: DeserializeOwned>(dir: &Path) -> anyhow::Result<S> {
+    let path = dir.join("state.json");
+    let text =
+        std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    serde_json::from_str(&text)
+        .with_context(|| format!("{}: malformed checkpoint state", path.display()))
+}

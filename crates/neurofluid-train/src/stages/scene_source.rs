@@ -1,0 +1,55 @@
+//! Where an experiment's scene comes from: an existing folder, or a built-in scene generated on
+//! first use.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use neurofluid_core::scene::MANIFEST_FILE;
+use neurofluid_scenegen::{Preset, SceneConfig};
+
+use crate::config::Experiment;
+
+/// The generator settings of an experiment's `[scene]` (`None` when it names an existing folder).
+pub fn generator_config(exp: &Experiment) -> anyhow::Result<Option<SceneConfig>> {
+    let Some(table) = exp.scene.generator_table() else {
+        return Ok(None);
+    };
+    let cfg: SceneConfig = toml::Value::Table(table)
+        .try_into()
+        .context("the experiment's [scene] / [scene.generate] settings")?;
+    Ok(Some(cfg))
+}
+
+/// The scene folder of an experiment, generating the built-in scene when its folder holds none.
+pub fn ensure_scene(exp: &Experiment) -> anyhow::Result<PathBuf> {
+    let dir = exp.scene.scene_dir();
+    match generator_config(exp)? {
+        None => {
+            anyhow::ensure!(
+                dir.is_dir(),
+                "scene folder {} (scene.path) does not exist",
+                dir.display()
+            );
+        }
+        Some(cfg) => {
+            if !dir.join(MANIFEST_FILE).is_file() {
+                tracing::info!(
+                    "generating the built-in scene {} ({}) into {}",
+                    cfg.name.name(),
+                    cfg.scale.name(),
+                    dir.display()
+                );
+                let report = neurofluid_scenegen::generate(&Preset::resolve(&cfg), &dir, true)
+                    .with_context(|| format!("generating the scene into {}", dir.display()))?;
+                tracing::info!(
+                    particles = report.particles,
+                    frames = report.frames,
+                    images = report.images,
+                    seconds = report.simulate_s + report.render_s + report.write_s,
+                    "scene generated"
+                );
+            }
+        }
+    }
+    Ok(dir)
+}

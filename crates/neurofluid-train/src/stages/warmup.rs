@@ -1,0 +1,157 @@
+//! Warm-up (spec §4.1): PhysNeRF alone on the first frame, seen from the warm-up views. Every
+//! iteration draws `rays` pixels per view (from the central window during the precrop
+//! iterations), sums the views' coarse + fine MSE and takes one Adam step with the learning rate
+//! lr0·0.1^(s/decay_steps).
+
+use std::time::Instant;
+
+use anyhow::Context;
+use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use burn::prelude::*;
+use neurofluid_core::scene::Role;
+use neurofluid_physnerf::PhysNerf;
+use serde::{Deserialize, Serialize};
+
+use super::checkpoint;
+use super::context::{Run, ViewFrame, check_particles, points_tensor, scalar};
+use super::progress::StageProgress;
+use crate::metrics_log::{MetricsLog, MetricsRow, psnr_from_mse};
+use crate::rng::Rng;
+
+/// Folder of the stage inside the run folder.
+pub const STAGE: &str = "warmup";
+
+/// What `state.json` of a warm-up checkpoint holds.
+#[derive(Debug, Serialize, Deserialize)]
+struct WarmupState {
+    /// Iterations done.
+    step: u64,
+    /// Pixel-sampling RNG state.
+    rng: u64,
+}
+
+/// Adam as the reference configures it (PyTorch's epsilon 1e-8).
+pub fn adam() -> ModuleOptimizer {
+    AdamConfig::new().with_epsilon(1e-8).init()
+}
+
+/// Runs (or resumes) the warm-up and returns the trained renderer.
+pub fn run(run: &Run, log: &mut MetricsLog) -> anyhow::Result<PhysNerf> {
+    let cfg = &run.exp.warmup;
+    let device = &run.device;
+    let scene = &run.scene;
+    let t0 = scene.frames(Role::Warmup).start;
+    let views: Vec<String> = cfg
+        .views
+        .clone()
+        .unwrap_or_else(|| scene.views(Role::Warmup).to_vec());
+    let frames = views
+        .iter()
+        .map(|v| ViewFrame::load(scene, Role::Warmup, v, t0))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let gt = scene.particles(Role::Warmup, t0)?;
+    check_particles(&gt, "warm-up particles")?;
+    let particles = points_tensor(&gt.pos, device);
+
+    let stage_dir = run.stage_dir(STAGE);
+    let mut model = PhysNerf::new(run.renderer_config(), device)
+        .context("building the renderer from [renderer]")?;
+    let mut opt = adam();
+    let mut rng = Rng::stream(run.exp.seed, STAGE);
+    let mut start = 0;
+    if let Some(ckpt) = checkpoint::latest(&stage_dir) {
+        let state: WarmupState = checkpoint::load_state(&ckpt)?;
+        model = checkpoint::load_module(model, &ckpt.join("renderer.bpk"))?;
+        opt = checkpoint::load_optimizer(opt, &ckpt.join("optim.bpk"))?;
+        rng = Rng::from_state(state.rng);
+        start = state.step;
+        tracing::info!(step = start, "resuming the warm-up from {}", ckpt.display());
+    }
+    let save = |model: &PhysNerf, opt: &ModuleOptimizer, rng: &Rng, step: u64| {
+        checkpoint::write(&stage_dir, |dir| {
+            checkpoint::save_module(model, &dir.join("renderer.bpk"))?;
+            checkpoint::save_optimizer(opt, &dir.join("optim.bpk"))?;
+            checkpoint::save_state(
+                &WarmupState {
+                    step,
+                    rng: rng.state(),
+                },
+                dir,
+            )
+        })
+    };
+
+    tracing::info!(
+        views = ?views,
+        frame = t0,
+        iters = cfg.iters,
+        rays = cfg.rays,
+        particles = gt.pos.len(),
+        "warm-up"
+    );
+    let schedule = cfg.lr_schedule();
+    let mut bar = StageProgress::new("warm-up", start, cfg.iters);
+    let mut window = Instant::now();
+    let mut window_rays = 0usize;
+    for step in start..cfg.iters {
+        let lr = schedule.lr_at(step);
+        let mut total: Option<Tensor<1>> = None;
+        let mut fine_mse = 0.0;
+        for view in &frames {
+            let (w, h) = (view.camera.width, view.camera.height);
+            let pixels = rng.sample_pixels(cfg.rays, w, h, cfg.precrop_at(step))?;
+            let (rays, target) = view.batch(&pixels, device);
+            let out = model.render_rays(&particles, &rays, None)?;
+            let loss = model.loss(&out, target);
+            fine_mse += scalar(&loss.fine) / frames.len() as f64;
+            total = Some(match total {
+                None => loss.total,
+                Some(t) => t + loss.total,
+            });
+            window_rays += cfg.rays;
+        }
+        let total = total.context("the warm-up has no views")?;
+        let loss_value = scalar(&total);
+        anyhow::ensure!(
+            loss_value.is_finite(),
+            "warm-up loss is {loss_value} at step {step}"
+        );
+        let grads = GradientsParams::from_grads(total.backward(), &model);
+        model = opt.step(lr, model, grads);
+        let done = step + 1;
+        let psnr = psnr_from_mse(fine_mse);
+        bar.update(done, loss_value, psnr);
+        if done % cfg.log_every.max(1) == 0 || done == cfg.iters {
+            let secs = window.elapsed().as_secs_f64();
+            let mut row = MetricsRow::new(STAGE, done, loss_value, bar.elapsed());
+            row.psnr = Some(psnr);
+            row.lr_renderer = Some(lr);
+            row.rays_per_s = Some(window_rays as f64 / secs.max(1e-9));
+            bar.set_rays_per_s(row.rays_per_s.unwrap_or(0.0));
+            log.append(&row)?;
+            window = Instant::now();
+            window_rays = 0;
+        }
+        if cfg.ckpt_every > 0 && done % cfg.ckpt_every == 0 && done < cfg.iters {
+            save(&model, &opt, &rng, done)?;
+        }
+    }
+    bar.finish();
+    if start < cfg.iters {
+        save(&model, &opt, &rng, cfg.iters)?;
+    }
+    Ok(model)
+}
+
+/// The renderer of a finished warm-up (its last checkpoint).
+pub fn load_trained(run: &Run) -> anyhow::Result<PhysNerf> {
+    let stage_dir = run.stage_dir(STAGE);
+    let ckpt = checkpoint::latest(&stage_dir).with_context(|| {
+        format!(
+            "no warm-up checkpoint in {}: run the `warmup` stage first",
+            stage_dir.display()
+        )
+    })?;
+    let model = PhysNerf::new(run.renderer_config(), &run.device)?;
+    checkpoint::load_module(model, &ckpt.join("renderer.bpk"))
+}
