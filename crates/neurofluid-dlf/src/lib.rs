@@ -13,8 +13,10 @@ pub mod geometry;
 pub mod loss;
 pub mod mapping;
 pub mod net;
+pub mod records;
 pub mod rollout;
 pub mod scene;
+pub mod train;
 pub mod weights;
 
 pub use config::{DlfConfig, Frame, GeometryMode};

@@ -1,0 +1,415 @@
+//! Supervised training of DLF (spec/dlf.md §5): 2-step unrolled loss with γ = 0.5 and
+//! exp(−n/40) weighting, random rotations about the gravity axis, Adam (ε = 1e-6) with DLF's
+//! piecewise learning-rate schedule, and DLF's validation errors (err_n1, err_n2, whole-sequence
+//! nearest-neighbour error). Fine-tuning (the paper's DLF†) is the same loop started from loaded
+//! weights.
+
+use std::path::Path;
+
+use burn::optim::{AdamConfig, GradientsAccumulator, GradientsParams, Optimizer as _};
+use burn::prelude::*;
+use kiddo::{KdTree, SquaredEuclidean};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use crate::loss::{LOSS_SCALE, dlf_step_loss};
+use crate::net::{DlfNet, points_tensor, tensor_points};
+use crate::records::{RecordError, RecordFrame, read_record};
+
+/// Why training data could not be used.
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError {
+    /// A record could not be read.
+    #[error(transparent)]
+    Record(#[from] RecordError),
+    /// The data is unusable for training.
+    #[error("{source_name}: {what}")]
+    Data {
+        /// The sequence (file or scene).
+        source_name: String,
+        /// What is wrong.
+        what: String,
+    },
+}
+
+/// A training sequence: consecutive frames (one network step apart) of one scene with a static
+/// boundary. Generated scenes and DLF records both become this.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrainingSequence {
+    /// Where it came from (file or scene name), for messages.
+    pub name: String,
+    /// Positions per frame.
+    pub pos: Vec<Vec<[f32; 3]>>,
+    /// Velocities per frame.
+    pub vel: Vec<Vec<[f32; 3]>>,
+    /// Boundary points.
+    pub box_points: Vec<[f32; 3]>,
+    /// Boundary normals (unit, pointing into the fluid region).
+    pub box_normals: Vec<[f32; 3]>,
+}
+
+impl TrainingSequence {
+    /// Builds a sequence, checking that frames, velocities and normals line up.
+    pub fn new(
+        name: impl Into<String>,
+        pos: Vec<Vec<[f32; 3]>>,
+        vel: Vec<Vec<[f32; 3]>>,
+        box_points: Vec<[f32; 3]>,
+        box_normals: Vec<[f32; 3]>,
+    ) -> Result<Self, TrainError> {
+        let name = name.into();
+        let err = |what: String| TrainError::Data {
+            source_name: name.clone(),
+            what,
+        };
+        if pos.len() != vel.len() {
+            return Err(err(format!("{} position frames but {} velocity frames", pos.len(), vel.len())));
+        }
+        for (f, (p, v)) in pos.iter().zip(&vel).enumerate() {
+            if p.len() != v.len() {
+                return Err(err(format!("frame {f}: {} positions but {} velocities", p.len(), v.len())));
+            }
+        }
+        if box_points.len() != box_normals.len() {
+            return Err(err(format!(
+                "{} boundary points but {} normals",
+                box_points.len(),
+                box_normals.len()
+            )));
+        }
+        Ok(Self {
+            name,
+            pos,
+            vel,
+            box_points,
+            box_normals,
+        })
+    }
+
+    /// A sequence from the frames of one DLF record (the boundary comes from the first frame).
+    pub fn from_record_frames(name: &str, frames: Vec<RecordFrame>) -> Result<Self, TrainError> {
+        let first = frames.first().ok_or_else(|| TrainError::Data {
+            source_name: name.into(),
+            what: "no frames".into(),
+        })?;
+        let (Some(b), Some(n)) = (first.box_points.clone(), first.box_normals.clone()) else {
+            return Err(TrainError::Data {
+                source_name: name.into(),
+                what: "the first frame has no `box`/`box_normals`".into(),
+            });
+        };
+        let (pos, vel) = frames.into_iter().map(|f| (f.pos, f.vel)).unzip();
+        Self::new(name, pos, vel, b, n)
+    }
+
+    /// Number of frames.
+    pub fn num_frames(&self) -> usize {
+        self.pos.len()
+    }
+
+    /// Start frames t of the 3-frame windows (t, t+1, t+2) with a constant particle count.
+    pub fn windows(&self) -> Vec<usize> {
+        (0..self.num_frames().saturating_sub(2))
+            .filter(|&t| {
+                let n = self.pos[t].len();
+                n > 0 && self.pos[t + 1].len() == n && self.pos[t + 2].len() == n
+            })
+            .collect()
+    }
+}
+
+/// Reads every `*.msgpack.zst` of a folder (sorted by name), one sequence per file.
+pub fn load_record_dir(dir: &Path) -> Result<Vec<TrainingSequence>, TrainError> {
+    let entries = std::fs::read_dir(dir).map_err(|e| {
+        TrainError::Record(RecordError::Io {
+            path: dir.to_path_buf(),
+            source: e,
+        })
+    })?;
+    let mut files: Vec<_> = entries
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.to_string_lossy().ends_with(".msgpack.zst"))
+        .collect();
+    files.sort();
+    if files.is_empty() {
+        return Err(TrainError::Data {
+            source_name: dir.display().to_string(),
+            what: "no *.msgpack.zst files".into(),
+        });
+    }
+    files
+        .iter()
+        .map(|f| {
+            TrainingSequence::from_record_frames(&f.display().to_string(), read_record(f)?)
+        })
+        .collect()
+}
+
+/// Settings of supervised (pre)training.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PretrainConfig {
+    /// Optimiser steps (DLF: 50,000).
+    pub iterations: usize,
+    /// Samples per step (DLF: 16).
+    pub batch_size: usize,
+    /// Base learning rate (DLF: 1e-3).
+    pub base_lr: f64,
+    /// Adam ε (DLF: 1e-6).
+    pub adam_epsilon: f32,
+    /// Rotate each sample by a random angle about the gravity axis (DLF default: on).
+    pub random_rotation: bool,
+    /// Validate every this many steps (DLF: 1000); 0 = only at the end.
+    pub validate_every: usize,
+    /// Frame skip of validation (DLF training: 20, `evaluate_network.py`: 5).
+    pub frame_skip: usize,
+    /// Seed of sample order and rotations.
+    pub seed: u64,
+}
+
+impl Default for PretrainConfig {
+    /// DLF's published settings.
+    fn default() -> Self {
+        Self {
+            iterations: 50_000,
+            batch_size: 16,
+            base_lr: 1e-3,
+            adam_epsilon: 1e-6,
+            random_rotation: true,
+            validate_every: 1000,
+            frame_skip: 20,
+            seed: 0,
+        }
+    }
+}
+
+/// DLF's piecewise learning-rate factor at `step` of a run of `iterations` steps: 1, then
+/// 0.5/0.25/0.125/0.0625/0.03125 after 25k/30k/35k/40k/45k of 50k steps (boundaries scaled
+/// proportionally for other run lengths).
+pub fn dlf_lr_factor(step: usize, iterations: usize) -> f64 {
+    const BOUNDARIES: [f64; 5] = [25_000.0, 30_000.0, 35_000.0, 40_000.0, 45_000.0];
+    const VALUES: [f64; 5] = [0.5, 0.25, 0.125, 0.0625, 0.03125];
+    let scale = iterations as f64 / 50_000.0;
+    let mut factor = 1.0;
+    for (b, v) in BOUNDARIES.iter().zip(VALUES) {
+        if step as f64 > b * scale {
+            factor = v;
+        }
+    }
+    factor
+}
+
+/// Rotation matrix (row-major) by `angle` about the unit `axis` (Rodrigues).
+pub fn rotation_about(axis: [f32; 3], angle: f32) -> [[f32; 3]; 3] {
+    let n = (axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2]).sqrt();
+    let [x, y, z] = axis.map(|c| c / n);
+    let (s, c) = angle.sin_cos();
+    let t = 1.0 - c;
+    [
+        [t * x * x + c, t * x * y - s * z, t * x * z + s * y],
+        [t * x * y + s * z, t * y * y + c, t * y * z - s * x],
+        [t * x * z - s * y, t * y * z + s * x, t * z * z + c],
+    ]
+}
+
+fn rotate(r: &[[f32; 3]; 3], pts: &[[f32; 3]]) -> Vec<[f32; 3]> {
+    pts.iter()
+        .map(|v| std::array::from_fn(|i| r[i][0] * v[0] + r[i][1] * v[1] + r[i][2] * v[2]))
+        .collect()
+}
+
+/// DLF's validation errors (metres).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ValidationMetrics {
+    /// Mean Euclidean error after one step from ground-truth frames (every `frame_skip` frames).
+    pub err_n1: f64,
+    /// Mean Euclidean error after two steps.
+    pub err_n2: f64,
+    /// Mean ground-truth→prediction nearest-neighbour distance along a full rollout from frame 0,
+    /// every `frame_skip` frames (NaN when no sequence has a constant particle count).
+    pub whole_seq_err: f64,
+}
+
+fn mean_distance(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(p, q)| {
+            (0..3)
+                .map(|k| ((p[k] - q[k]) as f64).powi(2))
+                .sum::<f64>()
+                .sqrt()
+        })
+        .sum::<f64>()
+        / a.len().max(1) as f64
+}
+
+fn mean_nn_distance(gt: &[[f32; 3]], pred: &[[f32; 3]]) -> f64 {
+    let mut tree: KdTree<f32, 3> = KdTree::new();
+    for (i, p) in pred.iter().enumerate() {
+        tree.add(p, i as u64);
+    }
+    gt.iter()
+        .map(|q| (tree.nearest_one::<SquaredEuclidean>(q).distance as f64).sqrt())
+        .sum::<f64>()
+        / gt.len().max(1) as f64
+}
+
+/// Evaluates DLF's validation errors of `net` (any device; no gradients are taken).
+pub fn validate(net: &DlfNet, sequences: &[TrainingSequence], frame_skip: usize) -> ValidationMetrics {
+    let device = net.device();
+    let skip = frame_skip.max(1);
+    let (mut e1, mut e2, mut n12) = (0.0, 0.0, 0usize);
+    let (mut ew, mut nw) = (0.0, 0usize);
+    for seq in sequences {
+        let boundary = net.boundary(&seq.box_points, &seq.box_normals, &device);
+        for t in seq.windows().into_iter().filter(|t| t % skip == 0) {
+            let s1 = net.step(
+                points_tensor(&seq.pos[t], &device),
+                points_tensor(&seq.vel[t], &device),
+                &boundary,
+            );
+            let p1 = tensor_points(&s1.pos);
+            let s2 = net.step(s1.pos, s1.vel, &boundary);
+            let p2 = tensor_points(&s2.pos);
+            e1 += mean_distance(&p1, &seq.pos[t + 1]);
+            e2 += mean_distance(&p2, &seq.pos[t + 2]);
+            n12 += 1;
+        }
+        let n = seq.pos[0].len();
+        if n == 0 || seq.pos.iter().any(|p| p.len() != n) {
+            tracing::debug!("{}: particle count changes; no whole-sequence error", seq.name);
+            continue;
+        }
+        let mut pos = points_tensor(&seq.pos[0], &device);
+        let mut vel = points_tensor(&seq.vel[0], &device);
+        for t in 1..seq.num_frames() {
+            let s = net.step(pos, vel, &boundary);
+            if t % skip == 0 {
+                ew += mean_nn_distance(&seq.pos[t], &tensor_points(&s.pos));
+                nw += 1;
+            }
+            pos = s.pos;
+            vel = s.vel;
+        }
+    }
+    let div = |s: f64, n: usize| if n == 0 { f64::NAN } else { s / n as f64 };
+    ValidationMetrics {
+        err_n1: div(e1, n12),
+        err_n2: div(e2, n12),
+        whole_seq_err: div(ew, nw),
+    }
+}
+
+/// What the training loop reports.
+#[derive(Debug, Clone, PartialEq)]
+pub enum TrainEvent {
+    /// One optimiser step: the batch loss `128 · mean_batch(0.5 L1 + 0.5 L2)` and the learning rate.
+    Step {
+        /// Step number (1-based).
+        step: usize,
+        /// Batch loss.
+        loss: f64,
+        /// Learning rate used.
+        lr: f64,
+    },
+    /// A validation (step 0 = before training).
+    Validation {
+        /// Step number.
+        step: usize,
+        /// The errors.
+        metrics: ValidationMetrics,
+    },
+}
+
+/// Loss of one sample (two unrolled steps from frame `t`, rotated by `rot`), in the autodiff graph.
+fn sample_loss(
+    net: &DlfNet,
+    seq: &TrainingSequence,
+    t: usize,
+    rot: Option<[[f32; 3]; 3]>,
+) -> Tensor<1> {
+    let device = net.device();
+    let tr = |p: &[[f32; 3]]| match &rot {
+        Some(r) => rotate(r, p),
+        None => p.to_vec(),
+    };
+    let boundary = net.boundary(&tr(&seq.box_points), &tr(&seq.box_normals), &device);
+    let pos0 = points_tensor(&tr(&seq.pos[t]), &device);
+    let vel0 = points_tensor(&tr(&seq.vel[t]), &device);
+    let gt1 = points_tensor(&tr(&seq.pos[t + 1]), &device);
+    let gt2 = points_tensor(&tr(&seq.pos[t + 2]), &device);
+    let s1 = net.step(pos0, vel0, &boundary);
+    let l1 = dlf_step_loss(s1.pos.clone(), gt1, &s1.num_fluid_neighbors);
+    let s2 = net.step(s1.pos, s1.vel, &boundary);
+    let l2 = dlf_step_loss(s2.pos, gt2, &s2.num_fluid_neighbors);
+    l1 * 0.5 + l2 * 0.5
+}
+
+/// Trains `net` (on an autodiff device) on `train`, validating on `val`; `on_event` sees every
+/// step and validation. Returns the trained network.
+pub fn pretrain(
+    mut net: DlfNet,
+    train: &[TrainingSequence],
+    val: &[TrainingSequence],
+    config: &PretrainConfig,
+    mut on_event: impl FnMut(&TrainEvent, &DlfNet),
+) -> Result<DlfNet, TrainError> {
+    let samples: Vec<(usize, usize)> = train
+        .iter()
+        .enumerate()
+        .flat_map(|(s, seq)| seq.windows().into_iter().map(move |t| (s, t)))
+        .collect();
+    if samples.is_empty() {
+        return Err(TrainError::Data {
+            source_name: "training data".into(),
+            what: "no window of 3 consecutive frames with a constant particle count".into(),
+        });
+    }
+    let gravity_axis = net.config.gravity;
+    let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
+    let mut optim = AdamConfig::new()
+        .with_epsilon(config.adam_epsilon)
+        .init();
+    let run_validation = |net: &DlfNet, step: usize, on_event: &mut dyn FnMut(&TrainEvent, &DlfNet)| {
+        if val.is_empty() {
+            return;
+        }
+        let metrics = validate(&net.valid(), val, config.frame_skip);
+        tracing::info!(
+            "step {step}: err_n1 {:.6} err_n2 {:.6} whole_seq {:.5}",
+            metrics.err_n1,
+            metrics.err_n2,
+            metrics.whole_seq_err
+        );
+        on_event(&TrainEvent::Validation { step, metrics }, net);
+    };
+    run_validation(&net, 0, &mut on_event);
+    for step in 1..=config.iterations {
+        let lr = config.base_lr * dlf_lr_factor(step, config.iterations);
+        let mut accum = GradientsAccumulator::<DlfNet>::new();
+        let mut batch_loss = 0.0;
+        for _ in 0..config.batch_size.max(1) {
+            let (s, t) = samples[rng.random_range(0..samples.len())];
+            let rot = config.random_rotation.then(|| {
+                rotation_about(gravity_axis, rng.random_range(0.0..std::f32::consts::TAU))
+            });
+            let loss = sample_loss(&net, &train[s], t, rot)
+                * (LOSS_SCALE / config.batch_size.max(1) as f32);
+            batch_loss += loss.clone().into_scalar::<f32>() as f64;
+            let grads = GradientsParams::from_grads(loss.backward(), &net);
+            accum.accumulate(&net, grads);
+        }
+        net = optim.step(lr, net, accum.grads());
+        on_event(
+            &TrainEvent::Step {
+                step,
+                loss: batch_loss,
+                lr,
+            },
+            &net,
+        );
+        if (config.validate_every > 0 && step % config.validate_every == 0) || step == config.iterations {
+            run_validation(&net, step, &mut on_event);
+        }
+    }
+    Ok(net)
+}
