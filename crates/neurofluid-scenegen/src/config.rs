@@ -241,3 +241,40 @@ pub enum ConfigError {
         message: String,
     },
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn scene_table_parses_with_defaults_and_overrides() {
+        let p = Path::new("exp.toml");
+        let c = SceneConfig::from_toml_str("[scene]\nname = \"honeycone\"\n", p).unwrap();
+        assert_eq!(c, SceneConfig::new(SceneKind::HoneyCone, Scale::Quick));
+        assert_eq!(c.out_dir(), PathBuf::from("data/honeycone_quick"));
+        let c = SceneConfig::from_toml_str(
+            "[other]\nx = 1\n[scene]\nname = \"waterbunny\"\nscale = \"paper\"\nseed = 3\nout = \"d\"\nimage_size = 64\n",
+            p,
+        )
+        .unwrap();
+        assert_eq!((c.name, c.scale, c.seed, c.image_size), (SceneKind::WaterBunny, Scale::Paper, 3, Some(64)));
+        assert_eq!(c.out_dir(), PathBuf::from("d"));
+    }
+
+    #[test]
+    fn bad_tables_name_the_file_and_field() {
+        let p = Path::new("exp.toml");
+        let e = SceneConfig::from_toml_str("[train]\n", p).unwrap_err().to_string();
+        assert!(e.contains("exp.toml") && e.contains("[scene]"), "{e}");
+        let e = SceneConfig::from_toml_str("[scene]\nname = \"lava\"\n", p).unwrap_err().to_string();
+        assert!(e.contains("lava") || e.contains("name"), "{e}");
+        let e = SceneConfig::from_toml_str("[scene]\nname = \"watercube\"\nimgsize = 3\n", p)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("imgsize"), "{e}");
+        let e = SceneConfig::from_toml_str("[scene]\nname = \"watercube\"\nimage_size = 3\n", p)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("scene.image_size"), "{e}");
+    }
+}

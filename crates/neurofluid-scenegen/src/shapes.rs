@@ -154,7 +154,7 @@ impl Shape {
     pub fn sample(&self, radius: f64, jitter: f64, rng: &mut impl Rng) -> Vec<DVec3> {
         let d = 2.0 * radius;
         let (lo, hi) = self.bounds();
-        let n = ((hi - lo) / d).floor();
+        let n = ((hi - lo) / d + DVec3::splat(1e-6)).floor();
         let (nx, ny, nz) = (n.x as i64 + 1, n.y as i64 + 1, n.z as i64 + 1);
         // centre the lattice inside the bounds
         let start = lo + 0.5 * (hi - lo - n * d);
@@ -205,8 +205,11 @@ mod tests {
             height: 0.8,
         };
         let n = cone.sample(0.025, 0.0, &mut rng).len() as f64;
-        let expect = std::f64::consts::PI * 0.25 * 0.8 / 3.0 / v0;
-        assert!((n - expect).abs() / expect < 0.06, "{n} vs {expect}");
+        // the base layer sits on the base disc, so the lattice represents the cone extended by
+        // half a layer (d/2) below its base
+        let (h, r) = (0.8 + 0.025, 0.5 * (1.0 + 0.025 / 0.8));
+        let expect = std::f64::consts::PI * r * r * h / 3.0 / v0;
+        assert!((n - expect).abs() / expect < 0.03, "{n} vs {expect}");
         // the bunny sits on its base and stays inside its bounds
         let bunny = Shape::Bunny {
             base: [0.0, 0.0, 0.0],

@@ -228,20 +228,23 @@ impl SceneManifest {
                 ));
             }
         }
-        if !(self.particle_radius > 0.0) {
+        if !(self.particle_radius.is_finite() && self.particle_radius > 0.0) {
             return Err(SceneError::field(
                 path,
                 "particle_radius",
                 "a positive radius",
             ));
         }
-        if !(self.fps > 0.0) {
+        if !(self.fps.is_finite() && self.fps > 0.0) {
             return Err(SceneError::field(path, "fps", "a positive frame rate"));
         }
         if !(self.near >= 0.0 && self.far > self.near) {
             return Err(SceneError::field(path, "near/far", "0 ≤ near < far"));
         }
-        if (0..3).any(|a| !(self.box_interior.min[a] < self.box_interior.max[a])) {
+        if (0..3).any(|a| {
+            self.box_interior.min[a].partial_cmp(&self.box_interior.max[a])
+                != Some(std::cmp::Ordering::Less)
+        }) {
             return Err(SceneError::field(
                 path,
                 "box_interior",
