@@ -188,6 +188,43 @@ impl PhysNerf {
         rays: &RayBatch,
         rng: Option<&mut dyn RngCore>,
     ) -> Result<RenderOutput> {
+        if self.config.stratified && rng.is_none() {
+            return Err(PhysNerfError::Invalid(
+                "config.stratified needs an RNG".into(),
+            ));
+        }
+        let rng = if self.config.stratified { rng } else { None };
+        self.dispatch(particles, rays, rng, None)
+    }
+
+    /// Like [`PhysNerf::render_rays`] (deterministic), but the fine pass runs on the given sorted
+    /// depths `[R·(n_samples + n_importance)]` instead of sampling them: finite-difference checks
+    /// hold the (detached) fine depths fixed this way.
+    pub fn render_rays_fixed_fine(
+        &self,
+        particles: &Tensor<2>,
+        rays: &RayBatch,
+        fine_z: &[f64],
+    ) -> Result<RenderOutput> {
+        let per_ray = self.config.n_samples + self.config.n_importance;
+        if self.config.n_importance == 0 || fine_z.len() != rays.len() * per_ray {
+            return Err(PhysNerfError::Invalid(format!(
+                "fixed fine depths: need {} values ({} rays × {per_ray}) and n_importance > 0, got {}",
+                rays.len() * per_ray,
+                rays.len(),
+                fine_z.len()
+            )));
+        }
+        self.dispatch(particles, rays, None, Some(fine_z))
+    }
+
+    fn dispatch(
+        &self,
+        particles: &Tensor<2>,
+        rays: &RayBatch,
+        rng: Option<&mut dyn RngCore>,
+        fine_z: Option<&[f64]>,
+    ) -> Result<RenderOutput> {
         if rays.origins.len() != rays.dirs.len() {
             return Err(PhysNerfError::Invalid(format!(
                 "ray batch has {} origins but {} directions",
@@ -201,12 +238,6 @@ impl PhysNerf {
                 particles.dims()
             )));
         }
-        if self.config.stratified && rng.is_none() {
-            return Err(PhysNerfError::Invalid(
-                "config.stratified needs an RNG".into(),
-            ));
-        }
-        let rng = if self.config.stratified { rng } else { None };
         if particles.dtype() != self.dtype() {
             return Err(PhysNerfError::Invalid(format!(
                 "particles are {:?} but the weights are {:?}",
@@ -215,8 +246,8 @@ impl PhysNerf {
             )));
         }
         match particles.dtype() {
-            DType::F32 => self.render_impl::<f32>(particles, rays, rng),
-            DType::F64 => self.render_impl::<f64>(particles, rays, rng),
+            DType::F32 => self.render_impl::<f32>(particles, rays, rng, fine_z),
+            DType::F64 => self.render_impl::<f64>(particles, rays, rng, fine_z),
             other => Err(PhysNerfError::Invalid(format!(
                 "particles must be F32 or F64, got {other:?}"
             ))),
@@ -228,6 +259,7 @@ impl PhysNerf {
         particles: &Tensor<2>,
         rays: &RayBatch,
         mut rng: Option<&mut dyn RngCore>,
+        fixed_fine: Option<&[f64]>,
     ) -> Result<RenderOutput> {
         let cfg = &self.config;
         let mut timings = Timings::default();
@@ -271,6 +303,12 @@ impl PhysNerf {
                 let zi = sample_pdf(&midpoints(zr), &w[ray * s + 1..(ray + 1) * s - 1], &u);
                 z_importance.extend(zi.iter().map(|v| v.f64()));
                 z_f.extend(merge_sorted(zr, &zi));
+            }
+            if let Some(fixed) = fixed_fine {
+                z_f = fixed.iter().map(|&v| T::of(v)).collect();
+            }
+            if let Some(fixed) = fixed_fine {
+                z_f = fixed.iter().map(|&v| T::of(v)).collect();
             }
             timings.composite += t0.elapsed();
             Some(self.run_pass(
