@@ -27,6 +27,10 @@ pub enum Command {
     Joint(commands::stage_cmds::Args),
     /// Evaluate a grounded model: particle distance, PSNR/SSIM, renders, PLY.
     Eval(commands::stage_cmds::Args),
+    /// Generate a built-in scene (SPH simulation + renders) in NeuroFluid's layout.
+    Generate(commands::generate::Args),
+    /// Summarise a scene directory (generated or released layout).
+    Info(commands::info::Args),
     /// Print the compiled-in backends and the devices they offer.
     Devices(commands::devices::Args),
 }

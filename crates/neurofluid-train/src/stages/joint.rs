@@ -80,6 +80,12 @@ fn load_carried(dir: &std::path::Path, device: &Device) -> anyhow::Result<State>
 
 /// Runs (or resumes) the joint stage and returns the grounded models.
 pub fn run(run: &Run, log: &mut MetricsLog) -> anyhow::Result<Grounded> {
+    run_until(run, log, None)
+}
+
+/// Runs (or resumes) the joint stage up to iteration `stop` (all of it for `None`),
+/// checkpointing there (with the carried particle state when `stop` falls inside an epoch).
+pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::Result<Grounded> {
     let cfg = &run.exp.joint;
     let device = &run.device;
     let scene = &run.scene;
@@ -170,12 +176,13 @@ pub fn run(run: &Run, log: &mut MetricsLog) -> anyhow::Result<Grounded> {
     );
     let sched_r = cfg.renderer_schedule();
     let sched_t = cfg.transition_schedule();
+    let end = stop.map_or(total, |s| s.min(total));
     let mut bar = StageProgress::new("joint", start, total);
     let mut window = Instant::now();
     let mut window_rays = 0usize;
     let mut pending: Option<Tensor<1>> = None;
     let mut pending_mse: f64;
-    for step in start..total {
+    for step in start..end {
         let t = (step % transitions) as usize;
         if t == 0 {
             state = initial();
@@ -197,7 +204,7 @@ pub fn run(run: &Run, log: &mut MetricsLog) -> anyhow::Result<Grounded> {
         window_rays += cfg.rays;
         state = (pred.pos, pred.vel);
         let done = step + 1;
-        let window_end = done % bptt == 0 || (t + 1) as u64 == transitions;
+        let window_end = done % bptt == 0 || (t + 1) as u64 == transitions || done == end;
         if !window_end {
             continue;
         }
@@ -229,13 +236,13 @@ pub fn run(run: &Run, log: &mut MetricsLog) -> anyhow::Result<Grounded> {
             window = Instant::now();
             window_rays = 0;
         }
-        if cfg.ckpt_every > 0 && done % cfg.ckpt_every == 0 && done < total {
+        if cfg.ckpt_every > 0 && done % cfg.ckpt_every == 0 && done < end {
             save(&renderer, &dlf, &opt_r, &opt_t, &rng, &state, done)?;
         }
     }
     bar.finish();
-    if start < total {
-        save(&renderer, &dlf, &opt_r, &opt_t, &rng, &state, total)?;
+    if start < end {
+        save(&renderer, &dlf, &opt_r, &opt_t, &rng, &state, end)?;
     }
     Ok(Grounded { renderer, dlf })
 }

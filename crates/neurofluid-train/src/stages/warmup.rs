@@ -37,6 +37,12 @@ pub fn adam() -> ModuleOptimizer {
 
 /// Runs (or resumes) the warm-up and returns the trained renderer.
 pub fn run(run: &Run, log: &mut MetricsLog) -> anyhow::Result<PhysNerf> {
+    run_until(run, log, None)
+}
+
+/// Runs (or resumes) the warm-up up to iteration `stop` (all of it for `None`), checkpointing
+/// there, so a long warm-up can run in pieces.
+pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::Result<PhysNerf> {
     let cfg = &run.exp.warmup;
     let device = &run.device;
     let scene = &run.scene;
@@ -54,6 +60,8 @@ pub fn run(run: &Run, log: &mut MetricsLog) -> anyhow::Result<PhysNerf> {
     let particles = points_tensor(&gt.pos, device);
 
     let stage_dir = run.stage_dir(STAGE);
+    // the renderer's initial weights follow the experiment's seed
+    device.seed(run.exp.seed);
     let mut model = PhysNerf::new(run.renderer_config(), device)
         .context("building the renderer from [renderer]")?;
     let mut opt = adam();
@@ -90,10 +98,11 @@ pub fn run(run: &Run, log: &mut MetricsLog) -> anyhow::Result<PhysNerf> {
         "warm-up"
     );
     let schedule = cfg.lr_schedule();
+    let end = stop.map_or(cfg.iters, |s| s.min(cfg.iters));
     let mut bar = StageProgress::new("warm-up", start, cfg.iters);
     let mut window = Instant::now();
     let mut window_rays = 0usize;
-    for step in start..cfg.iters {
+    for step in start..end {
         let lr = schedule.lr_at(step);
         let mut total: Option<Tensor<1>> = None;
         let mut fine_mse = 0.0;
@@ -132,13 +141,13 @@ pub fn run(run: &Run, log: &mut MetricsLog) -> anyhow::Result<PhysNerf> {
             window = Instant::now();
             window_rays = 0;
         }
-        if cfg.ckpt_every > 0 && done % cfg.ckpt_every == 0 && done < cfg.iters {
+        if cfg.ckpt_every > 0 && done % cfg.ckpt_every == 0 && done < end {
             save(&model, &opt, &rng, done)?;
         }
     }
     bar.finish();
-    if start < cfg.iters {
-        save(&model, &opt, &rng, cfg.iters)?;
+    if start < end {
+        save(&model, &opt, &rng, end)?;
     }
     Ok(model)
 }
