@@ -67,21 +67,26 @@ impl ContinuousConv {
         }
         let needs_grad = features.is_require_grad()
             || self.kernel.val().is_require_grad()
-            || geometry.weights.is_require_grad();
+            || geometry.weights_tracked();
         if !needs_grad {
             return self.forward_host(features, geometry) + bias;
         }
-        let out = if cout > cin {
-            let vals = features.select(0, geometry.in_rows.clone()) * geometry.weights.clone();
-            let g = Tensor::<2>::zeros([m * KERNEL_CELLS, cin], &device).select_assign(
-                0,
-                geometry.out_cell_rows.clone(),
-                vals,
-                IndexingUpdateOp::Add,
-            );
+        let chunks = geometry.chunks();
+        let outs: Vec<Tensor<2>> = if cout > cin {
+            // gather first: G = S·F per chunk, then G·K
             let k = self.kernel.val().reshape([KERNEL_CELLS * cin, cout]);
-            g.reshape([m, KERNEL_CELLS * cin]).matmul(k)
+            chunks
+                .iter()
+                .map(|ch| {
+                    let vals = features.clone().select(0, ch.in_rows.clone()) * ch.weights.clone();
+                    let g = Tensor::<2>::zeros([ch.out_len * KERNEL_CELLS, cin], &device)
+                        .select_assign(0, ch.out_cell_rows.clone(), vals, IndexingUpdateOp::Add);
+                    g.reshape([ch.out_len, KERNEL_CELLS * cin])
+                        .matmul(k.clone())
+                })
+                .collect()
         } else {
+            // kernel first: H = F·K (all cells), then gather the rows of H
             let kt = self
                 .kernel
                 .val()
@@ -89,13 +94,23 @@ impl ContinuousConv {
                 .swap_dims(0, 1)
                 .reshape([cin, KERNEL_CELLS * cout]);
             let h = features.matmul(kt).reshape([n_in * KERNEL_CELLS, cout]);
-            let vals = h.select(0, geometry.in_cell_rows.clone()) * geometry.weights.clone();
-            Tensor::<2>::zeros([m, cout], &device).select_assign(
-                0,
-                geometry.out_rows.clone(),
-                vals,
-                IndexingUpdateOp::Add,
-            )
+            chunks
+                .iter()
+                .map(|ch| {
+                    let vals = h.clone().select(0, ch.in_cell_rows.clone()) * ch.weights.clone();
+                    Tensor::<2>::zeros([ch.out_len, cout], &device).select_assign(
+                        0,
+                        ch.out_rows.clone(),
+                        vals,
+                        IndexingUpdateOp::Add,
+                    )
+                })
+                .collect()
+        };
+        let out = if outs.len() == 1 {
+            outs.into_iter().next().expect("one chunk")
+        } else {
+            Tensor::cat(outs, 0)
         };
         out + bias
     }

@@ -116,57 +116,113 @@ pub fn build_host_geometry(
     }
 }
 
-/// A geometry with its index and weight tensors on a device, ready for [`crate::ContinuousConv`].
+/// Pair corners per device chunk of the autodiff path: bounds the `[entries, C]` temporaries
+/// of the gather/scatter (about 2^18 · 96 floats = 100 MB for the widest conv).
+pub const CHUNK_ENTRIES: usize = 1 << 18;
+
+/// The device tensors of a run of consecutive output points (the autodiff path).
+#[derive(Debug, Clone)]
+pub struct GeometryChunk {
+    /// First output point of the chunk.
+    pub out_start: usize,
+    /// Output points in the chunk.
+    pub out_len: usize,
+    /// Input index of every pair corner.
+    pub in_rows: Tensor<1, Int>,
+    /// `local query·64 + cell` of every pair corner (rows of G viewed as `[M·64, Cin]`).
+    pub out_cell_rows: Tensor<1, Int>,
+    /// `input·64 + cell` of every pair corner (rows of `F·K` viewed as `[N·64, Cout]`).
+    pub in_cell_rows: Tensor<1, Int>,
+    /// Local query index of every pair corner.
+    pub out_rows: Tensor<1, Int>,
+    /// Weight of every pair corner `[entries, 1]`; tracked when the geometry is differentiable.
+    pub weights: Tensor<2>,
+}
+
+/// A geometry ready for [`crate::ContinuousConv`]: the host arrays (used directly by the
+/// inference path) and, built on first use, the per-chunk index and weight tensors of the
+/// autodiff path.
 #[derive(Debug, Clone)]
 pub struct ConvGeometry {
     /// The host arrays it was built from.
     pub host: HostGeometry,
-    /// Input index of every pair corner `[8P]`.
-    pub in_rows: Tensor<1, Int>,
-    /// `query·64 + cell` of every pair corner `[8P]` (rows of G viewed as `[M·64, Cin]`).
-    pub out_cell_rows: Tensor<1, Int>,
-    /// `input·64 + cell` of every pair corner `[8P]` (rows of `F·K` viewed as `[N·64, Cout]`).
-    pub in_cell_rows: Tensor<1, Int>,
-    /// Query index of every pair corner `[8P]`.
-    pub out_rows: Tensor<1, Int>,
-    /// Weight of every pair corner `[8P, 1]`; tracked when the geometry is differentiable.
-    pub weights: Tensor<2>,
+    /// Differentiable weights `[8P, 1]` (the differentiable-geometry mode), else `None`.
+    pub weights_override: Option<Tensor<2>>,
+    device: Device,
+    chunks: std::sync::OnceLock<Vec<GeometryChunk>>,
 }
 
 impl ConvGeometry {
-    /// Uploads a host geometry; `weights` overrides the host weights (the differentiable path).
+    /// Wraps a host geometry; `weights` overrides the host weights (the differentiable path).
     pub fn new(host: HostGeometry, weights: Option<Tensor<2>>, device: &Device) -> Self {
-        let n8 = host.cells.len();
-        let mut in_rows = Vec::with_capacity(n8);
-        let mut out_cell_rows = Vec::with_capacity(n8);
-        let mut in_cell_rows = Vec::with_capacity(n8);
-        let mut out_rows = Vec::with_capacity(n8);
-        for (p, (&q, &i)) in host
-            .query_of_pair
-            .iter()
-            .zip(&host.pairs.indices)
-            .enumerate()
-        {
-            for c in 0..CORNERS {
-                let cell = host.cells[p * CORNERS + c] as i64;
-                in_rows.push(i as i64);
-                out_rows.push(q as i64);
-                out_cell_rows.push(q as i64 * KERNEL_CELLS as i64 + cell);
-                in_cell_rows.push(i as i64 * KERNEL_CELLS as i64 + cell);
-            }
-        }
-        let int = |v: Vec<i64>| Tensor::<1, Int>::from_data(TensorData::new(v, [n8]), device);
-        let weights = weights.unwrap_or_else(|| {
-            Tensor::<2>::from_data(TensorData::new(host.weights.clone(), [n8, 1]), device)
-        });
         Self {
-            in_rows: int(in_rows),
-            out_cell_rows: int(out_cell_rows),
-            in_cell_rows: int(in_cell_rows),
-            out_rows: int(out_rows),
-            weights,
             host,
+            weights_override: weights,
+            device: device.clone(),
+            chunks: std::sync::OnceLock::new(),
         }
+    }
+
+    /// Whether the weights carry gradients (differentiable geometry on tracked positions).
+    pub fn weights_tracked(&self) -> bool {
+        self.weights_override
+            .as_ref()
+            .is_some_and(|w| w.is_require_grad())
+    }
+
+    /// The device chunks (built on first call).
+    pub fn chunks(&self) -> &[GeometryChunk] {
+        self.chunks.get_or_init(|| self.build_chunks())
+    }
+
+    fn build_chunks(&self) -> Vec<GeometryChunk> {
+        let host = &self.host;
+        let device = &self.device;
+        let offsets = &host.pairs.offsets;
+        let mut chunks = Vec::new();
+        let mut q0 = 0;
+        while q0 < host.num_out {
+            let mut q1 = q0 + 1;
+            while q1 < host.num_out && (offsets[q1 + 1] - offsets[q0]) * CORNERS <= CHUNK_ENTRIES {
+                q1 += 1;
+            }
+            let (p0, p1) = (offsets[q0], offsets[q1]);
+            let n8 = (p1 - p0) * CORNERS;
+            let mut in_rows = Vec::with_capacity(n8);
+            let mut out_cell_rows = Vec::with_capacity(n8);
+            let mut in_cell_rows = Vec::with_capacity(n8);
+            let mut out_rows = Vec::with_capacity(n8);
+            for p in p0..p1 {
+                let q = (host.query_of_pair[p] as usize - q0) as i64;
+                let i = host.pairs.indices[p] as i64;
+                for c in 0..CORNERS {
+                    let cell = host.cells[p * CORNERS + c] as i64;
+                    in_rows.push(i);
+                    out_rows.push(q);
+                    out_cell_rows.push(q * KERNEL_CELLS as i64 + cell);
+                    in_cell_rows.push(i * KERNEL_CELLS as i64 + cell);
+                }
+            }
+            let int = |v: Vec<i64>| Tensor::<1, Int>::from_data(TensorData::new(v, [n8]), device);
+            let weights = match &self.weights_override {
+                Some(w) => w.clone().narrow(0, p0 * CORNERS, n8),
+                None => Tensor::<2>::from_data(
+                    TensorData::new(host.weights[p0 * CORNERS..p1 * CORNERS].to_vec(), [n8, 1]),
+                    device,
+                ),
+            };
+            chunks.push(GeometryChunk {
+                out_start: q0,
+                out_len: q1 - q0,
+                in_rows: int(in_rows),
+                out_cell_rows: int(out_cell_rows),
+                in_cell_rows: int(in_cell_rows),
+                out_rows: int(out_rows),
+                weights,
+            });
+            q0 = q1;
+        }
+        chunks
     }
 
     /// Output points.
@@ -182,6 +238,11 @@ impl ConvGeometry {
     /// Pair corners (8 per pair).
     pub fn num_entries(&self) -> usize {
         self.host.cells.len()
+    }
+
+    /// The device of the tensors.
+    pub fn device(&self) -> &Device {
+        &self.device
     }
 }
 

@@ -109,7 +109,9 @@ fn decode_nd(v: &Value) -> Result<NdArray, String> {
         "<f4" => {
             check(4)?;
             Ok(NdArray::F32(
-                data.chunks_exact(4).map(|c| f32::from_le_bytes(le4(c))).collect(),
+                data.chunks_exact(4)
+                    .map(|c| f32::from_le_bytes(le4(c)))
+                    .collect(),
                 shape,
             ))
         }
@@ -125,7 +127,9 @@ fn decode_nd(v: &Value) -> Result<NdArray, String> {
         "<i8" => {
             check(8)?;
             Ok(NdArray::I64(
-                data.chunks_exact(8).map(|c| i64::from_le_bytes(le8(c))).collect(),
+                data.chunks_exact(8)
+                    .map(|c| i64::from_le_bytes(le8(c)))
+                    .collect(),
                 shape,
             ))
         }
@@ -161,7 +165,10 @@ fn encode_scalar_i64(v: i64) -> Value {
         (Value::Binary(b"nd".to_vec()), Value::Boolean(false)),
         (Value::Binary(b"type".to_vec()), Value::String("<i8".into())),
         (Value::Binary(b"kind".to_vec()), Value::Binary(vec![])),
-        (Value::Binary(b"data".to_vec()), Value::Binary(v.to_le_bytes().to_vec())),
+        (
+            Value::Binary(b"data".to_vec()),
+            Value::Binary(v.to_le_bytes().to_vec()),
+        ),
     ])
 }
 
@@ -272,8 +279,14 @@ pub fn write_record(path: &Path, frames: &[RecordFrame], level: i32) -> Result<(
         .iter()
         .map(|fr| {
             let mut m = vec![
-                (Value::from("pos"), encode_nd_f32(&flat(&fr.pos), &[fr.pos.len(), 3])),
-                (Value::from("vel"), encode_nd_f32(&flat(&fr.vel), &[fr.vel.len(), 3])),
+                (
+                    Value::from("pos"),
+                    encode_nd_f32(&flat(&fr.pos), &[fr.pos.len(), 3]),
+                ),
+                (
+                    Value::from("vel"),
+                    encode_nd_f32(&flat(&fr.vel), &[fr.vel.len(), 3]),
+                ),
             ];
             if let Some(x) = &fr.mass {
                 m.push((Value::from("m"), encode_nd_f32(x, &[x.len()])));
@@ -291,7 +304,10 @@ pub fn write_record(path: &Path, frames: &[RecordFrame], level: i32) -> Result<(
                 m.push((Value::from("box"), encode_nd_f32(&flat(b), &[b.len(), 3])));
             }
             if let Some(b) = &fr.box_normals {
-                m.push((Value::from("box_normals"), encode_nd_f32(&flat(b), &[b.len(), 3])));
+                m.push((
+                    Value::from("box_normals"),
+                    encode_nd_f32(&flat(b), &[b.len(), 3]),
+                ));
             }
             Value::Map(m)
         })
@@ -345,8 +361,13 @@ mod tests {
         ])]);
         let mut bytes = Vec::new();
         rmpv::encode::write_value(&mut bytes, &bad).unwrap();
-        let err = decode_frames(&bytes, Path::new("x.msgpack.zst")).unwrap_err().to_string();
-        assert!(err.contains("frame 0") && err.contains("`pos`") && err.contains("[N, 3]"), "{err}");
+        let err = decode_frames(&bytes, Path::new("x.msgpack.zst"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("frame 0") && err.contains("`pos`") && err.contains("[N, 3]"),
+            "{err}"
+        );
         // missing vel
         let bad = Value::Array(vec![Value::Map(vec![(
             Value::from("pos"),
@@ -354,7 +375,9 @@ mod tests {
         )])]);
         let mut bytes = Vec::new();
         rmpv::encode::write_value(&mut bytes, &bad).unwrap();
-        let err = decode_frames(&bytes, Path::new("x.msgpack.zst")).unwrap_err().to_string();
+        let err = decode_frames(&bytes, Path::new("x.msgpack.zst"))
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("no field `vel`"), "{err}");
     }
 }

@@ -6,7 +6,7 @@
 
 use std::path::Path;
 
-use burn::optim::{AdamConfig, GradientsAccumulator, GradientsParams, Optimizer as _};
+use burn::optim::{AdamConfig, GradientsAccumulator, GradientsParams};
 use burn::prelude::*;
 use kiddo::{KdTree, SquaredEuclidean};
 use rand::{Rng, SeedableRng};
@@ -63,11 +63,19 @@ impl TrainingSequence {
             what,
         };
         if pos.len() != vel.len() {
-            return Err(err(format!("{} position frames but {} velocity frames", pos.len(), vel.len())));
+            return Err(err(format!(
+                "{} position frames but {} velocity frames",
+                pos.len(),
+                vel.len()
+            )));
         }
         for (f, (p, v)) in pos.iter().zip(&vel).enumerate() {
             if p.len() != v.len() {
-                return Err(err(format!("frame {f}: {} positions but {} velocities", p.len(), v.len())));
+                return Err(err(format!(
+                    "frame {f}: {} positions but {} velocities",
+                    p.len(),
+                    v.len()
+                )));
             }
         }
         if box_points.len() != box_normals.len() {
@@ -139,9 +147,7 @@ pub fn load_record_dir(dir: &Path) -> Result<Vec<TrainingSequence>, TrainError> 
     }
     files
         .iter()
-        .map(|f| {
-            TrainingSequence::from_record_frames(&f.display().to_string(), read_record(f)?)
-        })
+        .map(|f| TrainingSequence::from_record_frames(&f.display().to_string(), read_record(f)?))
         .collect()
 }
 
@@ -254,7 +260,11 @@ fn mean_nn_distance(gt: &[[f32; 3]], pred: &[[f32; 3]]) -> f64 {
 }
 
 /// Evaluates DLF's validation errors of `net` (any device; no gradients are taken).
-pub fn validate(net: &DlfNet, sequences: &[TrainingSequence], frame_skip: usize) -> ValidationMetrics {
+pub fn validate(
+    net: &DlfNet,
+    sequences: &[TrainingSequence],
+    frame_skip: usize,
+) -> ValidationMetrics {
     let device = net.device();
     let skip = frame_skip.max(1);
     let (mut e1, mut e2, mut n12) = (0.0, 0.0, 0usize);
@@ -276,7 +286,10 @@ pub fn validate(net: &DlfNet, sequences: &[TrainingSequence], frame_skip: usize)
         }
         let n = seq.pos[0].len();
         if n == 0 || seq.pos.iter().any(|p| p.len() != n) {
-            tracing::debug!("{}: particle count changes; no whole-sequence error", seq.name);
+            tracing::debug!(
+                "{}: particle count changes; no whole-sequence error",
+                seq.name
+            );
             continue;
         }
         let mut pos = points_tensor(&seq.pos[0], &device);
@@ -366,22 +379,21 @@ pub fn pretrain(
     }
     let gravity_axis = net.config.gravity;
     let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
-    let mut optim = AdamConfig::new()
-        .with_epsilon(config.adam_epsilon)
-        .init();
-    let run_validation = |net: &DlfNet, step: usize, on_event: &mut dyn FnMut(&TrainEvent, &DlfNet)| {
-        if val.is_empty() {
-            return;
-        }
-        let metrics = validate(&net.valid(), val, config.frame_skip);
-        tracing::info!(
-            "step {step}: err_n1 {:.6} err_n2 {:.6} whole_seq {:.5}",
-            metrics.err_n1,
-            metrics.err_n2,
-            metrics.whole_seq_err
-        );
-        on_event(&TrainEvent::Validation { step, metrics }, net);
-    };
+    let mut optim = AdamConfig::new().with_epsilon(config.adam_epsilon).init();
+    let run_validation =
+        |net: &DlfNet, step: usize, on_event: &mut dyn FnMut(&TrainEvent, &DlfNet)| {
+            if val.is_empty() {
+                return;
+            }
+            let metrics = validate(&net.valid(), val, config.frame_skip);
+            tracing::info!(
+                "step {step}: err_n1 {:.6} err_n2 {:.6} whole_seq {:.5}",
+                metrics.err_n1,
+                metrics.err_n2,
+                metrics.whole_seq_err
+            );
+            on_event(&TrainEvent::Validation { step, metrics }, net);
+        };
     run_validation(&net, 0, &mut on_event);
     for step in 1..=config.iterations {
         let lr = config.base_lr * dlf_lr_factor(step, config.iterations);
@@ -407,7 +419,9 @@ pub fn pretrain(
             },
             &net,
         );
-        if (config.validate_every > 0 && step % config.validate_every == 0) || step == config.iterations {
+        if (config.validate_every > 0 && step % config.validate_every == 0)
+            || step == config.iterations
+        {
             run_validation(&net, step, &mut on_event);
         }
     }

@@ -1,0 +1,114 @@
+//! `pretrain-dlf`: supervised (pre)training or fine-tuning (the paper's DLF†) of the DLF model on
+//! DLF `.msgpack.zst` records, with DLF's loss, rotations, schedule and validation errors.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use indicatif::{ProgressBar, ProgressStyle};
+use neurofluid_core::device::parse_device;
+use neurofluid_dlf::train::{PretrainConfig, TrainEvent, load_record_dir, pretrain};
+use neurofluid_dlf::{DlfConfig, DlfNet, load_dlf, save_checkpoint};
+
+/// Arguments of `pretrain-dlf`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Folder of training records (`*.msgpack.zst`, DLF's format; one sequence per file).
+    #[arg(long)]
+    pub data: PathBuf,
+    /// Folder of validation records (same format).
+    #[arg(long)]
+    pub val: Option<PathBuf>,
+    /// Start from these weights (`.pt`, `.safetensors`, `.bpk`): fine-tuning. Default: random init.
+    #[arg(long)]
+    pub init: Option<PathBuf>,
+    /// Output checkpoint (burnpack `.bpk`); also written after every validation.
+    #[arg(long)]
+    pub output: PathBuf,
+    /// Optimiser steps (DLF: 50000).
+    #[arg(long, default_value_t = 50_000)]
+    pub iterations: usize,
+    /// Samples per step (DLF: 16).
+    #[arg(long, default_value_t = 16)]
+    pub batch_size: usize,
+    /// Base learning rate (DLF: 1e-3; the piecewise decay is applied on top).
+    #[arg(long, default_value_t = 1e-3)]
+    pub lr: f64,
+    /// Validate (and checkpoint) every this many steps.
+    #[arg(long, default_value_t = 1000)]
+    pub validate_every: usize,
+    /// Frame skip of the validation errors.
+    #[arg(long, default_value_t = 20)]
+    pub frame_skip: usize,
+    /// Turn off the random rotation about the gravity axis (DLF's dambreak setting).
+    #[arg(long)]
+    pub no_rotation: bool,
+    /// Seed of sample order, rotations and initialisation.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Device (cpu, flex, ndarray, wgpu, cuda, cuda:N).
+    #[arg(long, default_value = "cpu")]
+    pub device: String,
+}
+
+/// Runs the training.
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let device = parse_device(&args.device)?.autodiff();
+    device.seed(args.seed);
+    let train = load_record_dir(&args.data)?;
+    let val = match &args.val {
+        Some(dir) => load_record_dir(dir)?,
+        None => Vec::new(),
+    };
+    let config = DlfConfig::default();
+    let net: DlfNet = match &args.init {
+        Some(path) => load_dlf(path, config, &device)?,
+        None => DlfNet::new(config, &device),
+    };
+    let train_config = PretrainConfig {
+        iterations: args.iterations,
+        batch_size: args.batch_size,
+        base_lr: args.lr,
+        random_rotation: !args.no_rotation,
+        validate_every: args.validate_every,
+        frame_skip: args.frame_skip,
+        seed: args.seed,
+        ..PretrainConfig::default()
+    };
+    tracing::info!(
+        "pretrain-dlf: {} training and {} validation sequences, {} steps of batch {}",
+        train.len(),
+        val.len(),
+        args.iterations,
+        args.batch_size
+    );
+    let bar = ProgressBar::new(args.iterations as u64);
+    bar.set_style(
+        ProgressStyle::with_template("{bar:40} {pos}/{len} steps, loss {msg}, eta {eta}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let mut save_error = None;
+    let net = pretrain(net, &train, &val, &train_config, |event, net| match event {
+        TrainEvent::Step { loss, .. } => {
+            bar.set_message(format!("{loss:.4}"));
+            bar.inc(1);
+        }
+        TrainEvent::Validation { step, metrics } => {
+            bar.println(format!(
+                "step {step}: err_n1 {:.6} err_n2 {:.6} whole_seq_err {:.5}",
+                metrics.err_n1, metrics.err_n2, metrics.whole_seq_err
+            ));
+            if *step > 0
+                && let Err(e) = save_checkpoint(net, &args.output)
+            {
+                save_error = Some(e);
+            }
+        }
+    })?;
+    bar.finish_and_clear();
+    if let Some(e) = save_error {
+        return Err(e).context("saving a checkpoint during training");
+    }
+    save_checkpoint(&net, &args.output)?;
+    tracing::info!("wrote {}", args.output.display());
+    Ok(())
+}
