@@ -1,0 +1,450 @@
+//! The evaluation report (spec §6): per-frame particle distance d (GT→pred nearest neighbour
+//! × 1000) of NeuroFluid and of the DLF baseline, the grounding (t = 1–49) and prediction
+//! (t = 50–59) means, and PSNR/SSIM per view; written as JSON, per-frame CSV and markdown,
+//! each atomically.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+/// JSON file name of the report inside an eval folder.
+pub const JSON_FILE: &str = "report.json";
+/// Per-frame CSV file name.
+pub const FRAMES_CSV_FILE: &str = "frames.csv";
+/// Markdown summary file name.
+pub const MARKDOWN_FILE: &str = "report.md";
+
+/// Errors writing or reading a report.
+#[derive(Debug, thiserror::Error)]
+pub enum ReportError {
+    /// A file could not be read or written.
+    #[error("report file {}: {source}", path.display())]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The IO error.
+        source: std::io::Error,
+    },
+    /// A report file is not valid JSON of the expected shape.
+    #[error("report file {}: {message}", path.display())]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+/// The frame windows the means are taken over (inclusive, in rollout steps t from frame 0).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Windows {
+    /// Grounding window (t = 1–49: the frames seen in training).
+    pub grounding: (usize, usize),
+    /// Prediction window (t = 50–59: beyond the training frames).
+    pub prediction: (usize, usize),
+}
+
+impl Windows {
+    /// The paper's windows: grounding t = 1…49, prediction t = 50…59.
+    pub fn paper() -> Self {
+        Self {
+            grounding: (1, 49),
+            prediction: (50, 59),
+        }
+    }
+
+    /// Windows for a scene whose training sequence has `train_frames` frames and whose test
+    /// rollout has `test_frames` frames: grounding 1…train−1, prediction train…test−1
+    /// (50 and 60 give the paper's windows).
+    pub fn from_lengths(train_frames: usize, test_frames: usize) -> Self {
+        Self {
+            grounding: (1, train_frames.saturating_sub(1).max(1)),
+            prediction: (train_frames, test_frames.saturating_sub(1)),
+        }
+    }
+}
+
+/// Particle distance d at one rollout step.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct FrameDistance {
+    /// Rollout step t (prediction of frame t from the GT frame 0).
+    pub t: usize,
+    /// NeuroFluid (the grounded transition model).
+    pub neurofluid: f64,
+    /// The pretrained DLF it started from (the paper's baseline), if evaluated.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dlf: Option<f64>,
+}
+
+/// Image metrics of one rendered test image.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ImageScore {
+    /// Test view (`view_5`).
+    pub view: String,
+    /// Rollout step t.
+    pub t: usize,
+    /// PSNR in dB (8-bit images, spec §6.3).
+    pub psnr: f64,
+    /// SSIM (valid Gaussian window, spec §6.3).
+    pub ssim: f64,
+}
+
+/// Means over a window, `None` where the window holds no value.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct WindowMeans {
+    /// NeuroFluid's mean d.
+    pub neurofluid_d: Option<f64>,
+    /// The DLF baseline's mean d.
+    pub dlf_d: Option<f64>,
+    /// Mean PSNR over views and frames.
+    pub psnr: Option<f64>,
+    /// Mean SSIM over views and frames.
+    pub ssim: Option<f64>,
+}
+
+/// Per-view image means over all evaluated frames.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ViewMeans {
+    /// View name.
+    pub view: String,
+    /// Mean PSNR.
+    pub psnr: f64,
+    /// Mean SSIM.
+    pub ssim: f64,
+    /// Number of images.
+    pub images: usize,
+}
+
+/// The report's summary.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Summary {
+    /// Means over the grounding window.
+    pub grounding: WindowMeans,
+    /// Means over the prediction window.
+    pub prediction: WindowMeans,
+    /// Means over every evaluated frame.
+    pub all: WindowMeans,
+    /// Image means per view.
+    pub views: Vec<ViewMeans>,
+}
+
+/// The whole evaluation of one run.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EvalReport {
+    /// Experiment name.
+    pub experiment: String,
+    /// Scene name or folder.
+    pub scene: String,
+    /// Which checkpoint / stage was evaluated (free text, e.g. `joint step 98`).
+    pub checkpoint: String,
+    /// The averaging windows.
+    pub windows: Windows,
+    /// d per rollout step.
+    pub frames: Vec<FrameDistance>,
+    /// Image metrics per view and step.
+    pub images: Vec<ImageScore>,
+}
+
+fn mean(values: impl Iterator<Item = f64>) -> Option<f64> {
+    let (sum, n) = values.fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
+    (n > 0).then(|| sum / n as f64)
+}
+
+fn fmt_opt(v: Option<f64>, digits: usize) -> String {
+    v.map_or_else(|| "–".into(), |x| format!("{x:.digits$}"))
+}
+
+fn csv_opt(v: Option<f64>) -> String {
+    v.map(|x| x.to_string()).unwrap_or_default()
+}
+
+impl EvalReport {
+    /// An empty report.
+    pub fn new(experiment: &str, scene: &str, checkpoint: &str, windows: Windows) -> Self {
+        Self {
+            experiment: experiment.into(),
+            scene: scene.into(),
+            checkpoint: checkpoint.into(),
+            windows,
+            frames: Vec::new(),
+            images: Vec::new(),
+        }
+    }
+
+    /// Means over the inclusive step window `(a, b)`.
+    pub fn window_means(&self, (a, b): (usize, usize)) -> WindowMeans {
+        let frames = || self.frames.iter().filter(|f| (a..=b).contains(&f.t));
+        let images = || self.images.iter().filter(|i| (a..=b).contains(&i.t));
+        WindowMeans {
+            neurofluid_d: mean(frames().map(|f| f.neurofluid)),
+            dlf_d: mean(frames().filter_map(|f| f.dlf)),
+            psnr: mean(images().map(|i| i.psnr)),
+            ssim: mean(images().map(|i| i.ssim)),
+        }
+    }
+
+    /// The summary: window means and per-view image means (views in first-seen order).
+    pub fn summary(&self) -> Summary {
+        let mut views: Vec<String> = Vec::new();
+        for i in &self.images {
+            if !views.contains(&i.view) {
+                views.push(i.view.clone());
+            }
+        }
+        let views = views
+            .into_iter()
+            .map(|v| {
+                let of = || self.images.iter().filter(|i| i.view == v);
+                ViewMeans {
+                    psnr: mean(of().map(|i| i.psnr)).unwrap_or(f64::NAN),
+                    ssim: mean(of().map(|i| i.ssim)).unwrap_or(f64::NAN),
+                    images: of().count(),
+                    view: v,
+                }
+            })
+            .collect();
+        Summary {
+            grounding: self.window_means(self.windows.grounding),
+            prediction: self.window_means(self.windows.prediction),
+            all: self.window_means((0, usize::MAX)),
+            views,
+        }
+    }
+
+    /// The markdown summary table (the table the trainer prints at the end).
+    pub fn markdown(&self) -> String {
+        let s = self.summary();
+        let (g, p) = (self.windows.grounding, self.windows.prediction);
+        let mut md = String::new();
+        let _ = writeln!(
+            md,
+            "## Evaluation: {} ({}, {})\n",
+            self.experiment, self.scene, self.checkpoint
+        );
+        let _ = writeln!(
+            md,
+            "| model | grounding d (t = {}–{}) | prediction d (t = {}–{}) | PSNR | SSIM |",
+            g.0, g.1, p.0, p.1
+        );
+        let _ = writeln!(md, "|---|---:|---:|---:|---:|");
+        if s.all.dlf_d.is_some() {
+            let _ = writeln!(
+                md,
+                "| DLF (pretrained baseline) | {} | {} | – | – |",
+                fmt_opt(s.grounding.dlf_d, 2),
+                fmt_opt(s.prediction.dlf_d, 2)
+            );
+        }
+        let _ = writeln!(
+            md,
+            "| NeuroFluid | {} | {} | {} | {} |",
+            fmt_opt(s.grounding.neurofluid_d, 2),
+            fmt_opt(s.prediction.neurofluid_d, 2),
+            fmt_opt(s.all.psnr, 2),
+            fmt_opt(s.all.ssim, 4)
+        );
+        let _ = writeln!(
+            md,
+            "\nd = mean distance from each ground-truth particle to the nearest predicted one, × 1000 \
+             (25 = one particle radius); PSNR/SSIM over the test views' renders."
+        );
+        if !s.views.is_empty() {
+            let _ = writeln!(
+                md,
+                "\n| view | images | PSNR | SSIM |\n|---|---:|---:|---:|"
+            );
+            for v in &s.views {
+                let _ = writeln!(
+                    md,
+                    "| {} | {} | {:.2} | {:.4} |",
+                    v.view, v.images, v.psnr, v.ssim
+                );
+            }
+        }
+        md
+    }
+
+    /// The per-frame CSV: `t,neurofluid_d,dlf_d,<view>_psnr,<view>_ssim,…`.
+    pub fn frames_csv(&self) -> String {
+        let views: Vec<String> = self.summary().views.into_iter().map(|v| v.view).collect();
+        let mut ts: Vec<usize> = self
+            .frames
+            .iter()
+            .map(|f| f.t)
+            .chain(self.images.iter().map(|i| i.t))
+            .collect();
+        ts.sort_unstable();
+        ts.dedup();
+        let mut csv = String::from("t,neurofluid_d,dlf_d");
+        for v in &views {
+            let _ = write!(csv, ",{v}_psnr,{v}_ssim");
+        }
+        csv.push('\n');
+        for t in ts {
+            let f = self.frames.iter().find(|f| f.t == t);
+            let _ = write!(
+                csv,
+                "{t},{},{}",
+                csv_opt(f.map(|f| f.neurofluid)),
+                csv_opt(f.and_then(|f| f.dlf))
+            );
+            for v in &views {
+                let i = self.images.iter().find(|i| i.t == t && &i.view == v);
+                let _ = write!(
+                    csv,
+                    ",{},{}",
+                    csv_opt(i.map(|i| i.psnr)),
+                    csv_opt(i.map(|i| i.ssim))
+                );
+            }
+            csv.push('\n');
+        }
+        csv
+    }
+
+    /// The JSON document: the report plus its summary.
+    pub fn to_json(&self) -> String {
+        #[derive(Serialize)]
+        struct Doc<'a> {
+            #[serde(flatten)]
+            report: &'a EvalReport,
+            summary: Summary,
+        }
+        serde_json::to_string_pretty(&Doc {
+            report: self,
+            summary: self.summary(),
+        })
+        .expect("report serialises")
+    }
+
+    /// Writes `report.json`, `frames.csv` and `report.md` into `dir` (atomically each).
+    pub fn write_all(&self, dir: &Path) -> Result<(), ReportError> {
+        write_atomic(&dir.join(JSON_FILE), &self.to_json())?;
+        write_atomic(&dir.join(FRAMES_CSV_FILE), &self.frames_csv())?;
+        write_atomic(&dir.join(MARKDOWN_FILE), &self.markdown())
+    }
+
+    /// Reads a `report.json` written by [`EvalReport::write_all`].
+    pub fn read_json(path: &Path) -> Result<Self, ReportError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ReportError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        serde_json::from_str(&text).map_err(|e| ReportError::Parse {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })
+    }
+}
+
+/// Writes `text` to `path` atomically.
+pub(crate) fn write_atomic(path: &Path, text: &str) -> Result<(), ReportError> {
+    neurofluid_core::atomic::write_bytes(path, text.as_bytes()).map_err(|source| ReportError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use neurofluid_core::metrics::gt_to_pred_distance;
+
+    /// A report whose d values come from the core metric on known point sets: the prediction is
+    /// the GT shifted by δ(t) along x (farther than the GT spacing is not reached), so d = δ·1000.
+    fn sample_report() -> EvalReport {
+        let gt: Vec<[f32; 3]> = (0..20).map(|i| [i as f32, 0.0, 0.0]).collect();
+        let shifted = |d: f32| {
+            gt.iter()
+                .map(|p| [p[0] + d, p[1], p[2]])
+                .collect::<Vec<_>>()
+        };
+        let mut r = EvalReport::new("quick", "watercube", "joint step 98", Windows::paper());
+        for t in 1..=59 {
+            let nf = gt_to_pred_distance(&gt, &shifted(0.001 * t as f32)).mean;
+            let dlf = gt_to_pred_distance(&gt, &shifted(0.002 * t as f32)).mean;
+            r.frames.push(FrameDistance {
+                t,
+                neurofluid: nf,
+                dlf: Some(dlf),
+            });
+            for view in ["view_5", "view_6"] {
+                let bonus = if view == "view_6" { 1.0 } else { 0.0 };
+                r.images.push(ImageScore {
+                    view: view.into(),
+                    t,
+                    psnr: 20.0 + bonus + t as f64 * 0.1,
+                    ssim: 0.9,
+                });
+            }
+        }
+        r
+    }
+
+    #[test]
+    fn window_means_follow_the_papers_windows() {
+        let r = sample_report();
+        let s = r.summary();
+        // NeuroFluid d(t) = t (×1e-3 m × 1000): mean of 1..=49 is 25, of 50..=59 is 54.5
+        assert!((s.grounding.neurofluid_d.unwrap() - 25.0).abs() < 5e-3);
+        assert!((s.prediction.neurofluid_d.unwrap() - 54.5).abs() < 5e-3);
+        assert!((s.grounding.dlf_d.unwrap() - 50.0).abs() < 5e-3);
+        assert!((s.prediction.dlf_d.unwrap() - 109.0).abs() < 5e-3);
+        // PSNR over both views: 20.5 + 0.1·t
+        assert!((s.grounding.psnr.unwrap() - (20.5 + 2.5)).abs() < 1e-9);
+        assert_eq!(s.views.len(), 2);
+        assert_eq!(s.views[0].view, "view_5");
+        assert_eq!(s.views[1].images, 59);
+        assert!((s.views[1].psnr - s.views[0].psnr - 1.0).abs() < 1e-9);
+        assert_eq!(Windows::from_lengths(50, 60), Windows::paper());
+        assert_eq!(
+            Windows::from_lengths(4, 6),
+            Windows {
+                grounding: (1, 3),
+                prediction: (4, 5)
+            }
+        );
+        let empty = EvalReport::new("e", "s", "c", Windows::paper()).summary();
+        assert_eq!(empty.grounding.neurofluid_d, None);
+    }
+
+    #[test]
+    fn writers_produce_json_csv_and_markdown() {
+        let dir = tempfile::tempdir().unwrap();
+        let r = sample_report();
+        r.write_all(dir.path()).unwrap();
+        let back = EvalReport::read_json(&dir.path().join(JSON_FILE)).unwrap();
+        assert_eq!(back, r);
+        let json: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.path().join(JSON_FILE)).unwrap())
+                .unwrap();
+        assert!(
+            (json["summary"]["grounding"]["neurofluid_d"]
+                .as_f64()
+                .unwrap()
+                - 25.0)
+                .abs()
+                < 5e-3
+        );
+        let csv = std::fs::read_to_string(dir.path().join(FRAMES_CSV_FILE)).unwrap();
+        let lines: Vec<&str> = csv.lines().collect();
+        assert_eq!(
+            lines[0],
+            "t,neurofluid_d,dlf_d,view_5_psnr,view_5_ssim,view_6_psnr,view_6_ssim"
+        );
+        assert_eq!(lines.len(), 60);
+        let cells: Vec<&str> = lines[1].split(',').collect();
+        assert_eq!(cells[0], "1");
+        assert!((cells[1].parse::<f64>().unwrap() - 1.0).abs() < 1e-3);
+        let md = std::fs::read_to_string(dir.path().join(MARKDOWN_FILE)).unwrap();
+        assert!(
+            md.contains("| DLF (pretrained baseline) | 50.00 | 109.00 |"),
+            "{md}"
+        );
+        assert!(md.contains("| NeuroFluid | 25.00 | 54.50 |"), "{md}");
+        assert!(md.contains("grounding d (t = 1–49)"));
+        assert!(md.contains("| view_6 | 59 |"));
+        assert!(EvalReport::read_json(&dir.path().join("nope.json")).is_err());
+    }
+}

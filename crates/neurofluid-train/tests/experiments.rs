@@ -1,0 +1,117 @@
+//! The example experiment and sweep files in `experiments/` load, resolve and stay consistent.
+
+use std::path::{Path, PathBuf};
+
+use neurofluid_train::config::{Experiment, RESOLVED_FILE};
+use neurofluid_train::rng::Rng;
+use neurofluid_train::sweep::Sweep;
+
+fn experiments_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../experiments")
+}
+
+fn example(name: &str) -> Experiment {
+    let path = experiments_dir().join(name);
+    Experiment::load(&path).unwrap_or_else(|e| panic!("{e}"))
+}
+
+#[test]
+fn every_example_experiment_loads_and_round_trips() {
+    let mut names = Vec::new();
+    for entry in std::fs::read_dir(experiments_dir()).unwrap() {
+        let path = entry.unwrap().path();
+        let file = path.file_name().unwrap().to_string_lossy().into_owned();
+        if !file.ends_with(".toml") || file.starts_with("sweep") {
+            continue;
+        }
+        let exp = Experiment::load(&path).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(format!("{}.toml", exp.name), file, "name matches the file");
+        let dir = tempfile::tempdir().unwrap();
+        let resolved = exp.save_resolved(dir.path()).unwrap();
+        assert_eq!(resolved, dir.path().join(RESOLVED_FILE));
+        assert_eq!(Experiment::load(&resolved).unwrap(), exp.resolved());
+        names.push(file);
+    }
+    names.sort();
+    for needed in [
+        "paper-watercube.toml",
+        "quick-honeycone.toml",
+        "quick-waterbunny.toml",
+        "quick-watercube.toml",
+        "quick-watersphere.toml",
+        "tiny-ci.toml",
+    ] {
+        assert!(
+            names.iter().any(|n| n == needed),
+            "missing {needed} in {names:?}"
+        );
+    }
+}
+
+#[test]
+fn paper_file_spells_out_the_defaults() {
+    let paper = example("paper-watercube.toml");
+    let defaults = Experiment::from_toml_str(
+        "name = \"paper-watercube\"\n[scene]\nbuiltin = \"watercube\"\nscale = \"paper\"\n",
+        Path::new("defaults"),
+    )
+    .unwrap();
+    assert_eq!(paper, defaults);
+}
+
+#[test]
+fn quick_files_differ_only_in_the_scene() {
+    let base = example("quick-watercube.toml");
+    for scene in ["watersphere", "honeycone", "waterbunny"] {
+        let mut e = example(&format!("quick-{scene}.toml"));
+        assert_eq!(e.scene.builtin.unwrap().name(), scene);
+        e.name = base.name.clone();
+        e.scene = base.scene.clone();
+        assert_eq!(
+            e, base,
+            "quick-{scene}.toml drifted from quick-watercube.toml"
+        );
+    }
+}
+
+#[test]
+fn ci_budget_fits_its_tiny_images() {
+    let e = example("tiny-ci.toml");
+    let size = e.scene.generate["image_size"].as_integer().unwrap() as u32;
+    let mut rng = Rng::new(e.seed);
+    // the precrop window of the tiny image holds enough pixels for a ray batch
+    assert!(e.warmup.precrop_iters > 0);
+    rng.sample_pixels(e.warmup.rays, size, size, Some(e.warmup.precrop_frac))
+        .unwrap();
+    rng.sample_pixels(e.joint.rays, size, size, e.joint.precrop_at(0))
+        .unwrap();
+    assert!(e.warmup.iters <= 10 && e.joint.epochs <= 2);
+}
+
+#[test]
+fn encoding_sweep_expands_to_table5() {
+    let sweep = Sweep::load(&experiments_dir().join("sweep-encodings.toml")).unwrap();
+    assert_eq!(sweep.name, "sweep-encodings");
+    let names: Vec<&str> = sweep.variants.iter().map(|v| v.name.as_str()).collect();
+    assert_eq!(names, ["full", "no_pc", "no_sigma_p", "no_vd", "no_dc"]);
+    let off: Vec<usize> = sweep
+        .variants
+        .iter()
+        .map(|v| {
+            let e = v.experiment.renderer.encoding;
+            [e.pc, e.sigma_p, e.vd, e.dc]
+                .iter()
+                .filter(|on| !**on)
+                .count()
+        })
+        .collect();
+    assert_eq!(off, [0, 1, 1, 1, 1]);
+    let base = example("quick-watercube.toml");
+    for v in &sweep.variants {
+        assert_eq!(
+            v.experiment.out_dir(),
+            Path::new("runs/sweep-encodings").join(&v.name)
+        );
+        assert_eq!(v.experiment.joint, base.joint, "only the encodings vary");
+    }
+}
