@@ -31,6 +31,8 @@ pub enum Command {
     Generate(commands::generate::Args),
     /// Summarise a scene directory (generated or released layout).
     Info(commands::info::Args),
+    /// Run every variant of a sweep file and write a Table-5-shaped table.
+    Sweep(commands::sweep::Args),
     /// Print the compiled-in backends and the devices they offer.
     Devices(commands::devices::Args),
 }

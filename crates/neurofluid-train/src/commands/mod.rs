@@ -2,8 +2,11 @@
 
 pub mod devices;
 pub mod experiment_args;
+pub mod generate;
+pub mod info;
 pub mod run;
 pub mod stage_cmds;
+pub mod sweep;
 
 use crate::cli::Command;
 
@@ -14,6 +17,9 @@ pub fn dispatch(command: Command) -> anyhow::Result<()> {
         Command::Warmup(args) => stage_cmds::run_warmup(args),
         Command::Joint(args) => stage_cmds::run_joint(args),
         Command::Eval(args) => stage_cmds::run_eval(args),
+        Command::Generate(args) => generate::run(args),
+        Command::Info(args) => info::run(args),
+        Command::Sweep(args) => sweep::run(args),
         Command::Devices(args) => devices::run(args),
     }
 }

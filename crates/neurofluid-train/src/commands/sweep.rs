@@ -1,0 +1,63 @@
+//! `sweep`: runs every variant of a sweep file (the four encoding switches by default, the
+//! paper's Table 5) through the whole pipeline, then writes the table (markdown and CSV).
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+
+use crate::metrics_log::MetricsLog;
+use crate::stages::{Run, eval, joint, warmup};
+use crate::sweep::{Sweep, table_rows, write_table};
+
+/// Arguments of `sweep`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// The sweep TOML (see experiments/sweep-encodings.toml).
+    pub sweep: PathBuf,
+    /// Device for every variant; overrides the base experiment's.
+    #[arg(long)]
+    pub device: Option<String>,
+    /// Keep going when a variant fails (its row stays empty); by default the sweep stops.
+    #[arg(long)]
+    pub keep_going: bool,
+}
+
+/// Runs the variants one after another (each resumes from its own checkpoints).
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let sweep = Sweep::load(&args.sweep)?;
+    tracing::info!(
+        variants = sweep.variants.len(),
+        "sweep {} into {}",
+        sweep.name,
+        sweep.out_dir.display()
+    );
+    let mut results = Vec::new();
+    for variant in &sweep.variants {
+        let mut exp = variant.experiment.clone();
+        if let Some(d) = &args.device {
+            exp.device = d.clone();
+        }
+        tracing::info!("variant {} ({})", variant.name, variant.label);
+        let outcome = (|| -> anyhow::Result<_> {
+            let run = Run::open(exp)?;
+            let mut log = MetricsLog::open(&run.dir)?;
+            warmup::run(&run, &mut log)?;
+            let grounded = joint::run(&run, &mut log)?;
+            let report = eval::run(&run, &grounded)?;
+            crate::plot::plot_metrics_file(log.jsonl_path(), &run.dir.join("curves.png"))?;
+            Ok(report)
+        })();
+        match outcome {
+            Ok(report) => results.push((variant.label.clone(), Some(report))),
+            Err(e) if args.keep_going => {
+                tracing::error!("variant {} failed: {e:#}", variant.name);
+                results.push((variant.label.clone(), None));
+            }
+            Err(e) => return Err(e).with_context(|| format!("variant {}", variant.name)),
+        }
+    }
+    let table = write_table(&sweep.out_dir, &sweep.name, &table_rows(&results))?;
+    println!("{table}");
+    println!("table written to {}", sweep.out_dir.display());
+    Ok(())
+}
