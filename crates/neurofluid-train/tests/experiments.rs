@@ -115,3 +115,25 @@ fn encoding_sweep_expands_to_table5() {
         assert_eq!(v.experiment.joint, base.joint, "only the encodings vary");
     }
 }
+
+#[test]
+fn generator_settings_are_accepted_by_the_scene_generator() {
+    for name in [
+        "quick-watercube.toml",
+        "quick-watersphere.toml",
+        "quick-honeycone.toml",
+        "quick-waterbunny.toml",
+        "paper-watercube.toml",
+        "tiny-ci.toml",
+    ] {
+        let e = example(name);
+        let table = e.scene.generator_table().expect("built-in scene");
+        let cfg: neurofluid_scenegen::SceneConfig = toml::Value::Table(table)
+            .try_into()
+            .unwrap_or_else(|err| panic!("{name}: {err}"));
+        cfg.validate(Path::new(name))
+            .unwrap_or_else(|err| panic!("{name}: {err}"));
+        assert_eq!(cfg.name.name(), e.scene.builtin.unwrap().name());
+        assert_eq!(cfg.out_dir(), e.scene.scene_dir());
+    }
+}
