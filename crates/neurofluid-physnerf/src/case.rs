@@ -393,3 +393,56 @@ pub fn run_case(inputs: &CaseInputs, model: &PhysNerf) -> Result<CaseOutputs> {
         .insert("gradnorm/values".into(), (vec![norms.len()], norms));
     Ok(res)
 }
+
+/// Loads the weights for a case: `weights` if given, else the case's
+/// `<stem>_weights.safetensors` sibling. A file written by [`PhysNerf::save`] brings its own
+/// configuration; a plain nerf_pl file is read with the case's configuration.
+pub fn load_case_model(
+    inputs: &CaseInputs,
+    weights: Option<&Path>,
+    device: &Device,
+    dtype: DType,
+) -> Result<PhysNerf> {
+    let path = weights
+        .map(Path::to_path_buf)
+        .unwrap_or_else(|| inputs.weights_path());
+    let has_config = StFile::open(&path)?
+        .metadata()?
+        .contains_key(crate::weights::CONFIG_KEY);
+    if has_config {
+        PhysNerf::load(&path, device, dtype)
+    } else {
+        PhysNerf::from_nerf_pl(&path, inputs.config.clone(), device, dtype)
+    }
+}
+
+/// Renders the case file `case` (weights as in [`load_case_model`]) with loss and gradients on
+/// `device` (made autodiff here) in `dtype`, and writes the outputs to `output`.
+pub fn run_case_file(
+    case: &Path,
+    weights: Option<&Path>,
+    output: &Path,
+    device: &Device,
+    dtype: DType,
+) -> Result<CaseOutputs> {
+    let inputs = CaseInputs::load(case)?;
+    let model = load_case_model(&inputs, weights, &device.clone().autodiff(), dtype)?;
+    let out = run_case(&inputs, &model)?;
+    out.write(output)?;
+    Ok(out)
+}
+
+impl CaseInputs {
+    /// The case's camera, optionally at another resolution `[H, W]` (focal scaled with W, so the
+    /// field of view stays the same).
+    pub fn camera(&self, hw: Option<[u32; 2]>) -> neurofluid_core::camera::Camera {
+        let [h, w] = hw.unwrap_or([self.hw[0] as u32, self.hw[1] as u32]);
+        let focal = self.focal * w as f64 / self.hw[1] as f64;
+        neurofluid_core::camera::Camera {
+            width: w,
+            height: h,
+            focal: focal as f32,
+            c2w: self.c2w.map(|row| row.map(|v| v as f32)),
+        }
+    }
+}

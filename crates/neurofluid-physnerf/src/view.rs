@@ -107,3 +107,19 @@ pub fn save_png(path: impl AsRef<Path>, width: u32, height: u32, rgb: &[f32]) ->
     .map_err(|e| err(e.to_string()))?;
     write_atomic(path, &png)
 }
+
+impl RenderedImage {
+    /// Coarse and fine renders side by side (`[2W wide]`), or the coarse one alone.
+    pub fn side_by_side(&self) -> (u32, u32, Vec<f32>) {
+        if self.fine.is_empty() {
+            return (self.width, self.height, self.coarse.clone());
+        }
+        let w = self.width as usize;
+        let mut out = Vec::with_capacity(self.coarse.len() * 2);
+        for (c, f) in self.coarse.chunks(w * 3).zip(self.fine.chunks(w * 3)) {
+            out.extend_from_slice(c);
+            out.extend_from_slice(f);
+        }
+        (self.width * 2, self.height, out)
+    }
+}

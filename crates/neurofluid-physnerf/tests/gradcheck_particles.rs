@@ -1,4 +1,4 @@
-//! Finite-difference check of d loss / d particle positions in float64 on a tiny case: 16 rays
+//! Finite-difference check of d loss / d particle positions in float64 on a tiny case: 9 rays
 //! of the reference camera through the reference blob, with the case's weights. The fine depths
 //! are held at the autodiff run's values (they are detached in the graph), and a coordinate is
 //! only checked when no neighbour list changes within ±ε. ε = 1e-8 (env `FD_EPS` overrides):
