@@ -257,16 +257,23 @@ mod tests {
             p,
         )
         .unwrap();
-        assert_eq!((c.name, c.scale, c.seed, c.image_size), (SceneKind::WaterBunny, Scale::Paper, 3, Some(64)));
+        assert_eq!(
+            (c.name, c.scale, c.seed, c.image_size),
+            (SceneKind::WaterBunny, Scale::Paper, 3, Some(64))
+        );
         assert_eq!(c.out_dir(), PathBuf::from("d"));
     }
 
     #[test]
     fn bad_tables_name_the_file_and_field() {
         let p = Path::new("exp.toml");
-        let e = SceneConfig::from_toml_str("[train]\n", p).unwrap_err().to_string();
+        let e = SceneConfig::from_toml_str("[train]\n", p)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("exp.toml") && e.contains("[scene]"), "{e}");
-        let e = SceneConfig::from_toml_str("[scene]\nname = \"lava\"\n", p).unwrap_err().to_string();
+        let e = SceneConfig::from_toml_str("[scene]\nname = \"lava\"\n", p)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("lava") || e.contains("name"), "{e}");
         let e = SceneConfig::from_toml_str("[scene]\nname = \"watercube\"\nimgsize = 3\n", p)
             .unwrap_err()

@@ -197,7 +197,11 @@ impl DensityField {
 
 fn block_span(i: usize, nblocks: usize) -> impl Iterator<Item = usize> {
     let b = i / BLOCK;
-    let first = if i.is_multiple_of(BLOCK) && b > 0 { b - 1 } else { b };
+    let first = if i.is_multiple_of(BLOCK) && b > 0 {
+        b - 1
+    } else {
+        b
+    };
     (first..=b).filter(move |&x| x < nblocks)
 }
 
