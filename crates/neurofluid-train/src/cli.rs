@@ -33,6 +33,10 @@ pub enum Command {
     Info(commands::info::Args),
     /// Run every variant of a sweep file and write a Table-5-shaped table.
     Sweep(commands::sweep::Args),
+    /// Render a PhysNeRF reference case file and write the reference's keys (parity check).
+    PhysnerfCase(commands::physnerf_case::Args),
+    /// Render a whole view of a PhysNeRF case in ray chunks and save a PNG.
+    Render(commands::render::Args),
     /// Print the compiled-in backends and the devices they offer.
     Devices(commands::devices::Args),
 }

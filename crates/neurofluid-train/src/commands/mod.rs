@@ -4,6 +4,8 @@ pub mod devices;
 pub mod experiment_args;
 pub mod generate;
 pub mod info;
+pub mod physnerf_case;
+pub mod render;
 pub mod run;
 pub mod stage_cmds;
 pub mod sweep;
@@ -20,6 +22,8 @@ pub fn dispatch(command: Command) -> anyhow::Result<()> {
         Command::Generate(args) => generate::run(args),
         Command::Info(args) => info::run(args),
         Command::Sweep(args) => sweep::run(args),
+        Command::PhysnerfCase(args) => physnerf_case::run(args),
+        Command::Render(args) => render::run(args),
         Command::Devices(args) => devices::run(args),
     }
 }
