@@ -72,7 +72,7 @@ impl ContinuousConv {
             return self.forward_host(features, geometry) + bias;
         }
         let chunks = geometry.chunks();
-        let outs: Vec<Tensor<2>> = if cout > cin {
+        let outs: Vec<Tensor<2>> = if gather_first(cin, cout) {
             // gather first: G = S·F per chunk, then G·K
             let k = self.kernel.val().reshape([KERNEL_CELLS * cin, cout]);
             chunks
@@ -140,13 +140,15 @@ pub fn gather_host(host: &HostGeometry, features: &[f32], cin: usize) -> Vec<f32
     let offsets = &host.pairs.offsets;
     let indices = &host.pairs.indices;
     g.par_chunks_mut(row_len).enumerate().for_each(|(q, row)| {
-        for p in offsets[q]..offsets[q + 1] {
-            let i = indices[p] as usize;
+        let (p0, p1) = (offsets[q], offsets[q + 1]);
+        let corners = host.cells[p0 * CORNERS..p1 * CORNERS]
+            .chunks_exact(CORNERS)
+            .zip(host.weights[p0 * CORNERS..p1 * CORNERS].chunks_exact(CORNERS));
+        for (&i, (cells, weights)) in indices[p0..p1].iter().zip(corners) {
+            let i = i as usize;
             let f = &features[i * cin..(i + 1) * cin];
-            for c in 0..CORNERS {
-                let e = p * CORNERS + c;
-                let w = host.weights[e];
-                let cell = host.cells[e] as usize;
+            for (&cell, &w) in cells.iter().zip(weights) {
+                let cell = cell as usize;
                 let dst = &mut row[cell * cin..(cell + 1) * cin];
                 for (d, &x) in dst.iter_mut().zip(f) {
                     *d += w * x;
@@ -155,4 +157,10 @@ pub fn gather_host(host: &HostGeometry, features: &[f32], cin: usize) -> Vec<f32
         }
     });
     g
+}
+
+/// Evaluation order of the autodiff path: gather first (`G = S·F`, then `G·K`) unless the
+/// output is much narrower than the input (conv3, 64 → 3), where `F·K` first moves less data.
+fn gather_first(cin: usize, cout: usize) -> bool {
+    4 * cout >= cin
 }

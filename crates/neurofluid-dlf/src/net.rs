@@ -90,12 +90,12 @@ fn linear(d_in: usize, d_out: usize, device: &Device) -> Linear {
 }
 
 fn rotation_tensor(r: [[f32; 3]; 3], transpose: bool, device: &Device) -> Tensor<2> {
-    let mut v = Vec::with_capacity(9);
-    for i in 0..3 {
-        for j in 0..3 {
-            v.push(if transpose { r[j][i] } else { r[i][j] });
-        }
-    }
+    let v: Vec<f32> = (0..9)
+        .map(|k| {
+            let (i, j) = (k / 3, k % 3);
+            if transpose { r[j][i] } else { r[i][j] }
+        })
+        .collect();
     Tensor::from_data(TensorData::new(v, [3, 3]), device)
 }
 
