@@ -48,9 +48,13 @@ impl ContinuousConv {
 
     /// Applies the conv: `features` `[N_in, Cin]` at the geometry's input points → `[M, Cout]`.
     ///
-    /// Two equivalent evaluation orders are used, whichever moves less data:
-    /// - Cout > Cin (the layer-0 convs): gather first, `G[M, 64·Cin] = S·F`, then `G·K`;
-    /// - Cout ≤ Cin: kernel first, `H[N, 64·Cout] = F·K`, then gather rows of H.
+    /// Paths, all computing the same sum:
+    /// - features need no gradient (inference, or constant features such as the box normals):
+    ///   `G[M, 64·Cin] = S·F` is accumulated on the host, then one matmul `G·K` on the device
+    ///   (tracked in K when the kernel is trained);
+    /// - features need a gradient: gather/scatter with Burn ops over chunks of output points,
+    ///   gather first (`G = S·F`, then `G·K`) or, for narrow outputs (64 → 3), kernel first
+    ///   (`H[N, 64·Cout] = F·K`, then gather rows of H).
     pub fn forward(&self, features: Tensor<2>, geometry: &ConvGeometry) -> Tensor<2> {
         let [n_in, cin] = features.dims();
         let cout = self.out_channels();
@@ -65,10 +69,7 @@ impl ContinuousConv {
             let zero_kernel = self.kernel.val().sum().reshape([1, 1]) * 0.0;
             return Tensor::<2>::zeros([m, cout], &device) + bias + zero_kernel;
         }
-        let needs_grad = features.is_require_grad()
-            || self.kernel.val().is_require_grad()
-            || geometry.weights_tracked();
-        if !needs_grad {
+        if !features.is_tracked() && !geometry.weights_tracked() {
             return self.forward_host(features, geometry) + bias;
         }
         let chunks = geometry.chunks();
@@ -115,31 +116,97 @@ impl ContinuousConv {
         out + bias
     }
 
-    /// Inference path (no gradients needed): `G = S·F` is accumulated on the host (rayon, one
-    /// output row per task), then one matmul `G[M, 64·Cin] · K[64·Cin, Cout]` on the device.
+    /// Path for features without gradient, by chunks of output points: `G = S·F` accumulated on
+    /// the host (rayon, one output row per task), then one matmul `G[M, 64·Cin] · K[64·Cin, Cout]`
+    /// on the device; for narrow outputs (64 → 3) `H = F·K` on the device, then the host sums
+    /// the weighted rows of H.
     fn forward_host(&self, features: Tensor<2>, geometry: &ConvGeometry) -> Tensor<2> {
-        let [_, cin] = features.dims();
+        let [n_in, cin] = features.dims();
         let cout = self.out_channels();
         let device = features.device();
-        let feats: Vec<f32> = features
-            .into_data()
-            .convert::<f32>()
-            .try_into_vec::<f32>()
-            .expect("float features");
-        let g = gather_host(&geometry.host, &feats, cin);
+        let kernel = self.kernel.val();
+        let kernel_dtype = kernel.dtype();
+        let host = &geometry.host;
         let m = geometry.num_out();
-        let g = Tensor::<2>::from_data(TensorData::new(g, [m, KERNEL_CELLS * cin]), &device);
-        g.matmul(self.kernel.val().reshape([KERNEL_CELLS * cin, cout]))
+        let to_vec = |t: Tensor<2>| -> Vec<f32> {
+            t.into_data()
+                .convert::<f32>()
+                .try_into_vec::<f32>()
+                .expect("float tensor")
+        };
+        if !gather_first(cin, cout) && !kernel.is_tracked() {
+            let kt = kernel
+                .reshape([KERNEL_CELLS, cin, cout])
+                .swap_dims(0, 1)
+                .reshape([cin, KERNEL_CELLS * cout]);
+            let h = to_vec(features.matmul(kt));
+            debug_assert_eq!(h.len(), n_in * KERNEL_CELLS * cout);
+            let out = scatter_rows_host(host, &h, cout);
+            return Tensor::<2>::from_data(TensorData::new(out, [m, cout]), &device)
+                .cast(kernel_dtype);
+        }
+        let feats = to_vec(features);
+        let k = kernel.reshape([KERNEL_CELLS * cin, cout]);
+        // about 64 MB of G per chunk
+        let rows_per_chunk = ((16usize << 20) / (KERNEL_CELLS * cin)).max(1);
+        let mut outs = Vec::new();
+        let mut q0 = 0;
+        while q0 < m {
+            let q1 = (q0 + rows_per_chunk).min(m);
+            let g = gather_host(host, &feats, cin, q0..q1);
+            let g =
+                Tensor::<2>::from_data(TensorData::new(g, [q1 - q0, KERNEL_CELLS * cin]), &device)
+                    .cast(kernel_dtype);
+            outs.push(g.matmul(k.clone()));
+            q0 = q1;
+        }
+        if outs.len() == 1 {
+            outs.pop().expect("one chunk")
+        } else {
+            Tensor::cat(outs, 0)
+        }
     }
 }
 
-/// `G[m, cell·Cin + c] = Σ_{pairs (m, i)} Σ_corners weight · F[i, c]` on the host.
-pub fn gather_host(host: &HostGeometry, features: &[f32], cin: usize) -> Vec<f32> {
-    let row_len = KERNEL_CELLS * cin;
-    let mut g = vec![0f32; host.num_out * row_len];
+/// `out[m, o] = Σ_{pairs (m, i)} Σ_corners weight · H[i, cell, o]` on the host, for `H = F·K`
+/// laid out `[N, 64, Cout]`.
+pub fn scatter_rows_host(host: &HostGeometry, h: &[f32], cout: usize) -> Vec<f32> {
+    let mut out = vec![0f32; host.num_out * cout];
     let offsets = &host.pairs.offsets;
     let indices = &host.pairs.indices;
-    g.par_chunks_mut(row_len).enumerate().for_each(|(q, row)| {
+    out.par_chunks_mut(cout).enumerate().for_each(|(q, row)| {
+        let (p0, p1) = (offsets[q], offsets[q + 1]);
+        let corners = host.cells[p0 * CORNERS..p1 * CORNERS]
+            .chunks_exact(CORNERS)
+            .zip(host.weights[p0 * CORNERS..p1 * CORNERS].chunks_exact(CORNERS));
+        for (&i, (cells, weights)) in indices[p0..p1].iter().zip(corners) {
+            let base = i as usize * KERNEL_CELLS;
+            for (&cell, &w) in cells.iter().zip(weights) {
+                let src = &h[(base + cell as usize) * cout..(base + cell as usize + 1) * cout];
+                for (d, &x) in row.iter_mut().zip(src) {
+                    *d += w * x;
+                }
+            }
+        }
+    });
+    out
+}
+
+/// `G[m, cell·Cin + c] = Σ_{pairs (m, i)} Σ_corners weight · F[i, c]` on the host, for the
+/// output points `rows` (the result has `rows.len()` rows).
+pub fn gather_host(
+    host: &HostGeometry,
+    features: &[f32],
+    cin: usize,
+    rows: std::ops::Range<usize>,
+) -> Vec<f32> {
+    let row_len = KERNEL_CELLS * cin;
+    let mut g = vec![0f32; rows.len() * row_len];
+    let offsets = &host.pairs.offsets;
+    let indices = &host.pairs.indices;
+    let first = rows.start;
+    g.par_chunks_mut(row_len).enumerate().for_each(|(r, row)| {
+        let q = first + r;
         let (p0, p1) = (offsets[q], offsets[q + 1]);
         let corners = host.cells[p0 * CORNERS..p1 * CORNERS]
             .chunks_exact(CORNERS)

@@ -167,7 +167,7 @@ impl ConvGeometry {
     pub fn weights_tracked(&self) -> bool {
         self.weights_override
             .as_ref()
-            .is_some_and(|w| w.is_require_grad())
+            .is_some_and(|w| w.is_tracked())
     }
 
     /// The device chunks (built on first call).
