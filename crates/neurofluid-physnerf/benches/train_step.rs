@@ -1,3 +1,149 @@
-//! One PhysNeRF training step (placeholder).
+//! One PhysNeRF training step (forward + backward, coarse + fine) with 1024 rays, 64 + 128
+//! samples and ~10k particles, on the default CPU device; prints rays/s and where the time goes.
+//!
+//! `cargo bench -p neurofluid-physnerf --bench train_step` (median of 3 steps after a warm-up).
+//! The weights are the reference case's test weights (opaque, textured), the particles a
+//! 22×22×21 lattice (spacing 0.05, jitter ±0.003, randomly permuted: 10,164 particles), the
+//! camera 4 units away (400×400, as in NeuroFluid), the rays 1024 random pixels of the view.
 
-fn main() {}
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use burn::prelude::*;
+use burn::tensor::{DType, Distribution, TensorData};
+use neurofluid_core::camera::Camera;
+use neurofluid_physnerf::{PhysNerf, PhysNerfConfig, RayBatch, Timings};
+use rand::seq::SliceRandom;
+use rand::{Rng, SeedableRng};
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn secs(d: Duration) -> f64 {
+    d.as_secs_f64()
+}
+
+fn main() {
+    let device = Device::flex().autodiff();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
+    let mut particles = Vec::new();
+    for i in 0..22 {
+        for j in 0..22 {
+            for k in 0..21 {
+                let c = [i as f32 - 10.5, j as f32 - 10.5, k as f32 - 10.0];
+                particles.push(c.map(|v| v * 0.05 + rng.random_range(-0.003..0.003)));
+            }
+        }
+    }
+    particles.shuffle(&mut rng);
+    let n = particles.len();
+    let config = PhysNerfConfig {
+        near: 3.0,
+        far: 5.0,
+        ..PhysNerfConfig::default()
+    };
+    let weights = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../tests/data/physnerf/physnerf_cube2197_weights.safetensors");
+    let model = PhysNerf::from_nerf_pl(&weights, config, &device, DType::F32).expect("weights");
+    let camera = Camera::look_at(
+        400,
+        400,
+        0.36,
+        [-2.0, -3.0, 1.9],
+        [0.0, 0.0, 0.0],
+        [0.0, 0.0, 1.0],
+    );
+    let pixels: Vec<u32> = (0..1024).map(|_| rng.random_range(0..400 * 400)).collect();
+    let rays = RayBatch::from(&camera.rays(&pixels));
+    let flat: Vec<f32> = particles.iter().flatten().copied().collect();
+    let target = Tensor::<2>::random([1024, 3], Distribution::Uniform(0.0, 1.0), &device);
+
+    let mut steps = Vec::new();
+    let mut backs = Vec::new();
+    let mut stage = Vec::<Timings>::new();
+    let mut evaluated = (0, 0);
+    for it in 0..4 {
+        let p =
+            Tensor::<2>::from_data(TensorData::new(flat.clone(), [n, 3]), &device).require_grad();
+        let t0 = Instant::now();
+        let out = model.render_rays(&p, &rays, None).expect("render");
+        let loss = model.loss(&out, target.clone());
+        let t1 = Instant::now();
+        let grads = loss.total.backward();
+        let g = p.grad(&grads).expect("particle gradient");
+        let _ = g.sum().into_scalar::<f32>();
+        let t2 = Instant::now();
+        evaluated = (
+            out.coarse.evaluated,
+            out.fine.as_ref().map_or(0, |f| f.evaluated),
+        );
+        if it > 0 {
+            steps.push(secs(t2 - t0));
+            backs.push(secs(t2 - t1));
+            stage.push(out.timings);
+        }
+    }
+    let step = median(steps);
+    let back = median(backs);
+    let pick = |f: fn(&Timings) -> Duration| median(stage.iter().map(|t| secs(f(t))).collect());
+    let (nb, enc, mlp, comp) = (
+        pick(|t| t.neighbors),
+        pick(|t| t.encoding),
+        pick(|t| t.mlp),
+        pick(|t| t.composite),
+    );
+
+    // the MLPs alone, forward + backward, on as many rows as the step evaluated
+    let mlp_fb = {
+        let mut v = Vec::new();
+        for it in 0..3 {
+            let t0 = Instant::now();
+            let mut total = Tensor::<1>::zeros([1], &device);
+            for (net, rows) in [(&model.coarse, evaluated.0), (&model.fine, evaluated.1)] {
+                let ex =
+                    Tensor::<2>::random([rows, 198], Distribution::Uniform(-1.0, 1.0), &device)
+                        .require_grad();
+                let ed = Tensor::<2>::random([rows, 54], Distribution::Uniform(-1.0, 1.0), &device);
+                let (rgb, sigma) = net.forward(ex, ed);
+                total = total + rgb.sum() + sigma.sum();
+            }
+            let _ = total.backward();
+            if it > 0 {
+                v.push(secs(t0.elapsed()));
+            }
+        }
+        median(v)
+    };
+    let fwd = nb + enc + mlp + comp;
+    let other = step - mlp_fb - nb;
+    println!(
+        "PhysNeRF training step: {} rays, 64 + 128 samples, {n} particles",
+        rays.len()
+    );
+    println!(
+        "  samples through the MLPs: coarse {} of {} gated, fine {} of {} gated",
+        evaluated.0,
+        1024 * 64,
+        evaluated.1,
+        1024 * 192
+    );
+    println!(
+        "  step (forward + backward): {step:.3} s  →  {:.0} rays/s",
+        1024.0 / step
+    );
+    println!(
+        "  forward {fwd:.3} s: neighbour search {nb:.3} s, gather + features + encoding {enc:.3} s, MLP {mlp:.3} s, compositing + sampling {comp:.3} s"
+    );
+    println!("  backward {back:.3} s");
+    println!(
+        "  MLPs alone (forward + backward on the same rows): {mlp_fb:.3} s = {:.0} % of the step",
+        100.0 * mlp_fb / step
+    );
+    println!(
+        "  neighbour search {:.0} %, the rest (features, encodings, compositing, their backward) {:.0} %",
+        100.0 * nb / step,
+        100.0 * other / step
+    );
+}
