@@ -7,6 +7,7 @@
 
 use anyhow::Context;
 use burn::module::Module;
+use neurofluid_core::camera::Camera;
 use neurofluid_core::metrics::{RgbImage, gt_to_pred_distance, psnr, ssim};
 use neurofluid_core::scene::Role;
 use neurofluid_dlf::DlfNet;
@@ -44,12 +45,34 @@ fn as_image(width: u32, height: u32, rgb: &[f32]) -> anyhow::Result<RgbImage> {
     Ok(RgbImage::new(width as usize, height as usize, rgb.to_vec())?.quantised())
 }
 
+/// The camera and ground-truth colours of a view at `scale` × its resolution (the ground truth
+/// resampled with a triangle filter; unchanged at scale 1).
+fn scaled_view(view: &ViewFrame, scale: f64) -> (Camera, Vec<f32>) {
+    let cam = view.camera;
+    if (scale - 1.0).abs() < 1e-12 {
+        return (cam, view.image.rgb.clone());
+    }
+    let w = ((cam.width as f64 * scale).round() as u32).max(1);
+    let h = ((cam.height as f64 * scale).round() as u32).max(1);
+    let scaled = Camera {
+        width: w,
+        height: h,
+        focal: cam.focal * w as f32 / cam.width as f32,
+        c2w: cam.c2w,
+    };
+    let full = image::Rgb32FImage::from_raw(cam.width, cam.height, view.image.rgb.clone())
+        .expect("image size matches its camera");
+    let small = image::imageops::resize(&full, w, h, image::imageops::FilterType::Triangle);
+    (scaled, small.into_raw())
+}
+
 /// Renders `particles` from `view`, saves `[render | ground truth]` and scores it.
 fn render_and_score(
     renderer: &PhysNerf,
     view: &ViewFrame,
     particles: &[[f32; 3]],
     chunk: usize,
+    scale: f64,
     png: &std::path::Path,
 ) -> anyhow::Result<(f64, f64)> {
     let device = renderer
@@ -57,7 +80,8 @@ fn render_and_score(
         .into_iter()
         .next()
         .context("renderer has no device")?;
-    let cam = &view.camera;
+    let (cam, gt_rgb) = scaled_view(view, scale);
+    let cam = &cam;
     let image = render_image(
         renderer,
         cam,
@@ -66,7 +90,7 @@ fn render_and_score(
         &mut |_, _| {},
     )?;
     let pred = as_image(cam.width, cam.height, image.best())?;
-    let gt = as_image(cam.width, cam.height, &view.image.rgb)?;
+    let gt = as_image(cam.width, cam.height, &gt_rgb)?;
     let (w, h) = (cam.width as usize, cam.height as usize);
     let mut side = Vec::with_capacity(2 * w * h * 3);
     for row in 0..h {
@@ -155,8 +179,14 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
             for &t in &frames {
                 let vf = ViewFrame::load(scene, Role::Test, view, test.start + t)?;
                 let png = dir.join(format!("renders/{view}/t{t:04}.png"));
-                let (psnr, ssim) =
-                    render_and_score(&renderer, &vf, &grounded[t], run.exp.renderer.chunk, &png)?;
+                let (psnr, ssim) = render_and_score(
+                    &renderer,
+                    &vf,
+                    &grounded[t],
+                    run.exp.renderer.chunk,
+                    cfg.image_scale,
+                    &png,
+                )?;
                 report.images.push(ImageScore {
                     view: view.clone(),
                     t,
