@@ -25,6 +25,43 @@ fn time<T>(f: impl FnOnce() -> T) -> (T, f64) {
     (out, t.elapsed().as_secs_f64())
 }
 
+/// Process CPU time (user + system, all threads) in seconds, from /proc (Linux); NaN elsewhere.
+fn cpu_time() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else {
+        return f64::NAN;
+    };
+    // fields after the ")" of the command name: state is field 3, utime 14, stime 15
+    let rest = stat.rsplit(')').next().unwrap_or("");
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = |i: usize| {
+        f.get(i)
+            .and_then(|v| v.parse::<f64>().ok())
+            .unwrap_or(f64::NAN)
+    };
+    (ticks(11) + ticks(12)) / 100.0
+}
+
+/// Median wall and CPU seconds of `repeats` calls.
+fn measure(repeats: usize, mut f: impl FnMut()) -> (f64, f64) {
+    let mut wall = Vec::new();
+    let mut cpu = Vec::new();
+    for _ in 0..repeats {
+        let c0 = cpu_time();
+        let t = Instant::now();
+        f();
+        wall.push(t.elapsed().as_secs_f64());
+        cpu.push(cpu_time() - c0);
+    }
+    (median(wall), median(cpu))
+}
+
+fn load_average() -> String {
+    std::fs::read_to_string("/proc/loadavg")
+        .ok()
+        .and_then(|s| s.split_whitespace().next().map(str::to_string))
+        .unwrap_or_else(|| "?".into())
+}
+
 fn sync(t: &Tensor<2>) {
     let _ = t.to_data();
 }
@@ -58,7 +95,7 @@ fn main() {
     let net = load_dlf(&weights, DlfConfig::default(), &device).expect("weights");
     let net_ad: DlfNet = load_dlf(&weights, DlfConfig::default(), &ad).expect("weights");
     println!(
-        "| N fluid | N wall | neighbours | forward median s | fwd+bwd median s |\n| --- | --- | --- | --- | --- |"
+        "| N fluid | N wall | neighbours | forward wall s | forward cpu s | fwd+bwd wall s | fwd+bwd cpu s | load avg |\n| --- | --- | --- | --- | --- | --- | --- | --- |"
     );
     for &n in &sizes {
         let scene = block_in_box(n, dlf_wall_spacing(), [0.3, 0.0, 0.2], 0.002, 1, 0.05);
@@ -73,7 +110,9 @@ fn main() {
         };
         let counts = fwd();
         let mean_nb = counts.iter().map(|&c| c as f64).sum::<f64>() / n as f64;
-        let tf = median((0..repeats).map(|_| time(fwd).1).collect());
+        let (tf, cf) = measure(repeats, || {
+            fwd();
+        });
         let pos_ad = points_tensor(&scene.pos, &ad);
         let vel_ad = points_tensor(&scene.vel, &ad);
         let target = pos_ad.clone() + 0.01;
@@ -85,10 +124,11 @@ fn main() {
             let _ = g.into_data();
         };
         fwd_bwd();
-        let tb = median((0..repeats).map(|_| time(fwd_bwd).1).collect());
+        let (tb, cb) = measure(repeats, fwd_bwd);
         println!(
-            "| {n} | {} | {mean_nb:.1} | {tf:.3} | {tb:.3} |",
-            scene.box_points.len()
+            "| {n} | {} | {mean_nb:.1} | {tf:.3} | {cf:.2} | {tb:.3} | {cb:.2} | {} |",
+            scene.box_points.len(),
+            load_average()
         );
     }
     // Where the time of one forward step goes (largest size).

@@ -117,8 +117,9 @@ pub fn build_host_geometry(
 }
 
 /// Pair corners per device chunk of the autodiff path: bounds the `[entries, C]` temporaries
-/// of the gather/scatter (about 2^18 · 96 floats = 100 MB for the widest conv).
-pub const CHUNK_ENTRIES: usize = 1 << 18;
+/// of the gather/scatter (2^16 · 96 floats = 25 MB for the widest conv: below glibc's largest
+/// mmap threshold, so freed blocks are reused instead of page-faulting fresh memory).
+pub const CHUNK_ENTRIES: usize = 1 << 16;
 
 /// The device tensors of a run of consecutive output points (the autodiff path).
 #[derive(Debug, Clone)]

@@ -149,3 +149,73 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     );
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::Path;
+
+    fn repo(rel: &str) -> PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../..")
+            .join(rel)
+    }
+
+    /// The command reproduces the stored Open3D case (5 steps of the cube drop).
+    #[test]
+    fn reproduces_the_stored_cubedrop_case() {
+        let out = std::env::temp_dir().join(format!("nf_dlf_rollout_{}.npz", std::process::id()));
+        run(Args {
+            weights: repo("assets/dlf_pretrained/pretrained_model_weights.safetensors"),
+            input: repo("tests/data/dlf/cubedrop2197_dlfwall_in.npz"),
+            steps: 5,
+            output: out.clone(),
+            device: "cpu".into(),
+            z_up: false,
+        })
+        .unwrap();
+        let mut ours = NpzReader::open(&out).unwrap();
+        let mut reference =
+            NpzReader::open(repo("tests/data/dlf/cubedrop2197_dlfwall_out_open3d.npz")).unwrap();
+        for key in ["pos", "vel", "raw_output_step0", "mean_y"] {
+            let a = ours.f32(key).unwrap();
+            let b = reference.f32(key).unwrap();
+            assert_eq!(a.shape, b.shape, "{key}");
+            let scale = b.data.iter().fold(0f32, |m, v| m.max(v.abs()));
+            let diff = a
+                .data
+                .iter()
+                .zip(&b.data)
+                .fold(0f32, |m, (x, y)| m.max((x - y).abs()));
+            assert!(diff <= 2e-5 * scale, "{key}: {diff} (scale {scale})");
+        }
+        for key in ["num_fluid_neighbors_step0", "n_outside_box"] {
+            assert_eq!(ours.i64(key).unwrap(), reference.i64(key).unwrap(), "{key}");
+        }
+        std::fs::remove_file(out).unwrap();
+    }
+
+    /// Bad input names the file and the array.
+    #[test]
+    fn missing_array_is_named() {
+        let dir = std::env::temp_dir().join(format!("nf_dlf_bad_{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let input = dir.join("bad.npz");
+        let mut w = NpzWriter::new();
+        w.add_f32("pos", &[2, 3], &[0.0; 6]);
+        w.add_f32("vel", &[2, 3], &[0.0; 6]);
+        w.write(&input).unwrap();
+        let err = run(Args {
+            weights: repo("assets/dlf_pretrained/pretrained_model_weights.pt"),
+            input: input.clone(),
+            steps: 1,
+            output: dir.join("out.npz"),
+            device: "cpu".into(),
+            z_up: false,
+        })
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("bad.npz") && err.contains("box"), "{err}");
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+}

@@ -112,3 +112,53 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     tracing::info!("wrote {}", args.output.display());
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use neurofluid_dlf::records::{RecordFrame, write_record};
+    use neurofluid_dlf::rollout::rollout;
+    use neurofluid_dlf::scene::{block_in_box, dlf_wall_spacing};
+
+    /// Fine-tuning on a record made by the pretrained model runs and writes a loadable checkpoint.
+    #[test]
+    fn fine_tunes_on_a_record_folder() {
+        let weights = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../assets/dlf_pretrained/pretrained_model_weights.pt");
+        let device = neurofluid_core::device::cpu();
+        let net = load_dlf(&weights, DlfConfig::default(), &device).unwrap();
+        let s = block_in_box(125, dlf_wall_spacing(), [0.1, 0.0, 0.0], 0.002, 4, 0.02);
+        let boundary = net.boundary(&s.box_points, &s.box_normals, &device);
+        let traj = rollout(&net, &s.pos, &s.vel, &boundary, 3, |_| {});
+        let frames: Vec<RecordFrame> = (0..4)
+            .map(|f| RecordFrame {
+                pos: traj.pos[f].clone(),
+                vel: traj.vel[f].clone(),
+                box_points: (f == 0).then(|| s.box_points.clone()),
+                box_normals: (f == 0).then(|| s.box_normals.clone()),
+                ..RecordFrame::default()
+            })
+            .collect();
+        let dir = std::env::temp_dir().join(format!("nf_pretrain_dlf_{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        write_record(&dir.join("sim_0001_00.msgpack.zst"), &frames, 3).unwrap();
+        let output = dir.join("ft.bpk");
+        run(Args {
+            data: dir.clone(),
+            val: Some(dir.clone()),
+            init: Some(weights),
+            output: output.clone(),
+            iterations: 2,
+            batch_size: 1,
+            lr: 1e-5,
+            validate_every: 1,
+            frame_skip: 1,
+            no_rotation: false,
+            seed: 1,
+            device: "cpu".into(),
+        })
+        .unwrap();
+        load_dlf(&output, DlfConfig::default(), &device).unwrap();
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+}
