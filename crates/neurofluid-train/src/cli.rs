@@ -37,6 +37,10 @@ pub enum Command {
     PhysnerfCase(commands::physnerf_case::Args),
     /// Render a whole view of a PhysNeRF case in ray chunks and save a PNG.
     Render(commands::render::Args),
+    /// Run the DLF model on a scene `.npz` (the DLF reference harness's keys).
+    DlfRollout(commands::dlf_rollout::Args),
+    /// Supervised (pre)training or fine-tuning of DLF on `.msgpack.zst` records.
+    PretrainDlf(commands::pretrain_dlf::Args),
     /// Print the compiled-in backends and the devices they offer.
     Devices(commands::devices::Args),
 }
