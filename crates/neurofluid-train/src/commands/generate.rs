@@ -36,7 +36,16 @@ pub struct Args {
 
 fn configs(args: &Args) -> anyhow::Result<Vec<SceneConfig>> {
     let mut base = match &args.experiment {
-        Some(path) => Some(SceneConfig::from_toml_file(path)?),
+        Some(path) => {
+            let exp = crate::config::Experiment::load(path)?;
+            let cfg = crate::stages::scene_source::generator_config(&exp)?.with_context(|| {
+                format!(
+                    "{}: [scene] names an existing folder (scene.path); there is nothing to generate",
+                    path.display()
+                )
+            })?;
+            Some(cfg)
+        }
         None => None,
     };
     let scale = match &args.scale {
