@@ -170,9 +170,10 @@ fn same_seed_gives_byte_identical_files_and_reads_back() {
         .unwrap();
     let fa = files(&a);
     assert_eq!(fa, files(&b));
-    // 4 warm-up + 2 more train frames + 4 test frames, each with an image and a particle file
+    // 4 warm-up + 2 more train frames + 4 test frames, each with an image and a particle file,
+    // 5 transforms files, box.npz, box.pt and scene.json
     assert_eq!(ra.images, 4 + 2 + 4);
-    assert_eq!(fa.len(), 2 * ra.images + 5 + 1 + 1, "{fa:?}");
+    assert_eq!(fa.len(), 2 * ra.images + 5 + 3, "{fa:?}");
     for f in &fa {
         assert_eq!(
             std::fs::read(a.join(f)).unwrap(),

@@ -295,13 +295,14 @@ pub fn generate(p: &Preset, out: &Path, progress: bool) -> Result<Report, SceneE
         for (v, frames) in specs.iter().zip(frames) {
             TransformsFile {
                 camera_angle_x: p.camera_angle_x,
-                bounding_box: Some("box.npz".into()),
+                bounding_box: Some("box.pt".into()),
                 frames,
             }
             .write(&transforms_path(out, &v.name, split))?;
         }
     }
     sim.walls.write(&out.join("box.npz"))?;
+    sim.walls.write_pickle(&out.join("box.pt"))?;
     let r = p.radius as f32;
     let manifest = SceneManifest {
         name: p.name.clone(),

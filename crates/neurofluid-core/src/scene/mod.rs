@@ -3,6 +3,7 @@
 //! ```text
 //! <scene>/scene.json                        manifest (optional; released-layout defaults)
 //! <scene>/box.npz                           {box, box_normals} (N_b×3, inward unit normals)
+//! <scene>/box.pt                            the same as a plain pickle (the released name; written, not read)
 //! <scene>/view_k/transforms_<split>.json    camera_angle_x, frames[] {file_path, transform_matrix, particle_path}
 //! <scene>/view_k/<split>/NNNN.png           RGBA frames
 //! <scene>/view_k/<split>/particles/NNNN.npz {pos, vel} (N×3, float32 or float64)
@@ -17,6 +18,7 @@ mod error;
 mod image;
 mod manifest;
 mod particles;
+mod pickle;
 mod transforms;
 
 use std::collections::BTreeMap;
@@ -28,6 +30,7 @@ pub use error::{Result, SceneError};
 pub use image::{Image, png_size, write_png_rgba};
 pub use manifest::{Aabb, FrameRange, MANIFEST_FILE, Role, SceneManifest, UpAxis, ViewSet};
 pub use particles::{BoxParticles, Particles};
+pub use pickle::box_pickle;
 pub use transforms::{FrameEntry, TransformsFile, image_path, particle_path};
 
 use crate::camera::Camera;

@@ -125,6 +125,12 @@ impl BoxParticles {
         Ok(Self { points, normals })
     }
 
+    /// Writes the box as a plain Python pickle (`box.pt`, loadable by `joblib.load` and
+    /// `pickle.load`), atomically.
+    pub fn write_pickle(&self, path: &Path) -> Result<()> {
+        super::atomic::write_atomic(path, &super::pickle::box_pickle(self))
+    }
+
     /// Writes `box` and `box_normals` as float32 N×3 arrays, atomically.
     pub fn write(&self, path: &Path) -> Result<()> {
         let mut w = NpzWriter::new();
