@@ -306,6 +306,14 @@ pub fn run_case(inputs: &CaseInputs, model: &PhysNerf) -> Result<CaseOutputs> {
         );
         res.floats
             .insert("fine/z".into(), (vec![r, f.samples], f.z.clone()));
+        let u: Vec<f64> = match dtype {
+            DType::F64 => crate::real::linspace(0.0f64, 1.0, ni),
+            _ => crate::real::linspace(0.0f32, 1.0, ni)
+                .into_iter()
+                .map(f64::from)
+                .collect(),
+        };
+        res.floats.insert("fine/u".into(), (vec![ni], u));
     }
     for (tag, p) in &passes {
         let s = p.samples;

@@ -82,3 +82,64 @@ fn float32_case_matches_reference_statistically() {
     let rn = rel_norm(out.float("gradnorm/values"), &gn);
     assert!(rn <= 0.05, "gradnorm/values: rel norm {rn}");
 }
+
+/// `physnerf-case` (through `run_case_file`) writes every reference key of the per-ray,
+/// loss and gradient groups with the reference's shape, and values that match it.
+#[test]
+fn case_file_runner_writes_the_reference_keys() {
+    let dir = std::env::temp_dir().join(format!("nf_case_{}", std::process::id()));
+    let out_path = dir.join("out.safetensors");
+    let out = neurofluid_physnerf::case::run_case_file(
+        &case_path(),
+        None,
+        &out_path,
+        &Device::flex(),
+        DType::F32,
+    )
+    .expect("run");
+    let written = neurofluid_physnerf::st::StFile::open(&out_path).expect("output file");
+    let (_, reference) = case();
+    let groups = [
+        "rays/",
+        "coarse/",
+        "fine/",
+        "loss/value",
+        "loss/mse",
+        "grad/",
+        "gradnorm/",
+    ];
+    let keys: Vec<String> = reference
+        .names()
+        .into_iter()
+        .filter(|k| groups.iter().any(|g| k.starts_with(g)))
+        .collect();
+    assert!(keys.len() > 30, "{} reference keys", keys.len());
+    for k in &keys {
+        let want = if reference.floats(k, None).is_ok() {
+            reference.floats(k, None).unwrap().0
+        } else {
+            reference.ints(k, None).unwrap().0
+        };
+        let got = if written.floats(k, None).is_ok() {
+            written.floats(k, None).unwrap().0
+        } else {
+            written.ints(k, None).unwrap_or_else(|e| panic!("{e}")).0
+        };
+        assert_eq!(got, want, "{k}: shape");
+    }
+    let names: Vec<String> =
+        serde_json::from_str(&written.metadata().unwrap()["gradnorm_names"]).unwrap();
+    let ref_names: Vec<String> =
+        serde_json::from_str(&reference.metadata().unwrap()["gradnorm_names"]).unwrap();
+    assert_eq!(names, ref_names, "gradnorm/values order");
+    assert_eq!(
+        out.float("loss/value"),
+        written.floats("loss/value", None).unwrap().1.as_slice()
+    );
+    let (l, lr) = (
+        out.float("loss/value")[0],
+        refv(&reference, "loss/value")[0],
+    );
+    assert!(((l - lr) / lr).abs() <= 1e-4);
+    std::fs::remove_dir_all(dir).ok();
+}
