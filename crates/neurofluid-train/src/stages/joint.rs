@@ -22,6 +22,7 @@ use serde::{Deserialize, Serialize};
 
 use super::checkpoint;
 use super::context::{Run, ViewFrame, check_particles, points_tensor, scalar, tensor_points};
+use super::preview;
 use super::progress::StageProgress;
 use super::warmup;
 use crate::metrics_log::{MetricsLog, MetricsRow, psnr_from_mse};
@@ -235,6 +236,22 @@ pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::
             log.append(&row)?;
             window = Instant::now();
             window_rays = 0;
+        }
+        if cfg.eval_every > 0 && done % cfg.eval_every == 0 {
+            // the training view at the frame just predicted, rendered from the prediction
+            let dir = stage_dir.join("previews");
+            let elapsed = bar.elapsed();
+            preview::preview(
+                STAGE,
+                done,
+                &renderer,
+                target,
+                &state.0,
+                run.exp.renderer.chunk,
+                &dir,
+                elapsed,
+                log,
+            )?;
         }
         if cfg.ckpt_every > 0 && done % cfg.ckpt_every == 0 && done < end {
             save(&renderer, &dlf, &opt_r, &opt_t, &rng, &state, done)?;

@@ -4,6 +4,7 @@ pub mod checkpoint;
 pub mod context;
 pub mod eval;
 pub mod joint;
+pub mod preview;
 pub mod progress;
 pub mod scene_source;
 pub mod warmup;

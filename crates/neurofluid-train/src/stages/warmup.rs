@@ -14,6 +14,7 @@ use serde::{Deserialize, Serialize};
 
 use super::checkpoint;
 use super::context::{Run, ViewFrame, check_particles, points_tensor, scalar};
+use super::preview;
 use super::progress::StageProgress;
 use crate::metrics_log::{MetricsLog, MetricsRow, psnr_from_mse};
 use crate::rng::Rng;
@@ -58,6 +59,12 @@ pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::
     let gt = scene.particles(Role::Warmup, t0)?;
     check_particles(&gt, "warm-up particles")?;
     let particles = points_tensor(&gt.pos, device);
+    // the held-out view of the same frame, for the periodic previews
+    let test_view = scene.views(Role::Test).first().cloned();
+    let held_out = match &test_view {
+        Some(v) if cfg.eval_every > 0 => Some(ViewFrame::load(scene, Role::Test, v, t0)?),
+        _ => None,
+    };
 
     let stage_dir = run.stage_dir(STAGE);
     // the renderer's initial weights follow the experiment's seed
@@ -140,6 +147,23 @@ pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::
             log.append(&row)?;
             window = Instant::now();
             window_rays = 0;
+        }
+        if let Some(view) = &held_out
+            && done % cfg.eval_every == 0
+        {
+            let dir = stage_dir.join("previews");
+            let elapsed = bar.elapsed();
+            preview::preview(
+                STAGE,
+                done,
+                &model,
+                view,
+                &particles,
+                run.exp.renderer.chunk,
+                &dir,
+                elapsed,
+                log,
+            )?;
         }
         if cfg.ckpt_every > 0 && done % cfg.ckpt_every == 0 && done < end {
             save(&model, &opt, &rng, done)?;
