@@ -155,6 +155,8 @@ impl SceneConfig {
     }
 
     /// Parses the `[scene]` table of TOML text (`path` only names the source in errors).
+    /// Settings may sit in `[scene]` itself or in its `[scene.generate]` sub-table (the
+    /// experiment shape); `builtin` and `dir` are accepted for `name` and `out`.
     pub fn from_toml_str(text: &str, path: &Path) -> Result<Self, ConfigError> {
         let table: toml::Table = toml::from_str(text).map_err(|e| ConfigError::Parse {
             path: path.to_path_buf(),
@@ -164,14 +166,26 @@ impl SceneConfig {
             path: path.to_path_buf(),
             message: "missing table `[scene]` (with at least `name = \"watercube\"`)".into(),
         })?;
-        let cfg: Self =
-            scene
-                .clone()
-                .try_into()
-                .map_err(|e: toml::de::Error| ConfigError::Parse {
-                    path: path.to_path_buf(),
-                    message: format!("in `[scene]`: {e}"),
-                })?;
+        let mut scene = scene.clone();
+        if let Some(t) = scene.as_table_mut() {
+            // the experiment shape: `[scene]` name/builtin, scale, out/dir + `[scene.generate]`
+            if let Some(toml::Value::Table(generate)) = t.remove("generate") {
+                for (k, v) in generate {
+                    t.entry(k).or_insert(v);
+                }
+            }
+            for (alias, key) in [("builtin", "name"), ("dir", "out")] {
+                if let Some(v) = t.remove(alias) {
+                    t.entry(key).or_insert(v);
+                }
+            }
+        }
+        let cfg: Self = scene
+            .try_into()
+            .map_err(|e: toml::de::Error| ConfigError::Parse {
+                path: path.to_path_buf(),
+                message: format!("in `[scene]`: {e}"),
+            })?;
         cfg.validate(path)?;
         Ok(cfg)
     }
@@ -262,6 +276,13 @@ mod tests {
             (SceneKind::WaterBunny, Scale::Paper, 3, Some(64))
         );
         assert_eq!(c.out_dir(), PathBuf::from("d"));
+        let nested = SceneConfig::from_toml_str(
+            "name = \"run\"\n[scene]\nbuiltin = \"waterbunny\"\nscale = \"paper\"\ndir = \"d\"\n\
+             [scene.generate]\nseed = 3\nimage_size = 64\n",
+            p,
+        )
+        .unwrap();
+        assert_eq!(nested, c);
     }
 
     #[test]
