@@ -79,9 +79,17 @@ impl ContinuousConv {
             chunks
                 .iter()
                 .map(|ch| {
-                    let vals = features.clone().select(0, ch.in_rows.clone()) * ch.weights.clone();
-                    let g = Tensor::<2>::zeros([ch.out_len * KERNEL_CELLS, cin], &device)
-                        .select_assign(0, ch.out_cell_rows.clone(), vals, IndexingUpdateOp::Add);
+                    // one gather per pair, shared by its 8 corners
+                    let fp = features.clone().select(0, ch.pair_in_rows.clone());
+                    let mut g = Tensor::<2>::zeros([ch.out_len * KERNEL_CELLS, cin], &device);
+                    for (rows, w) in ch.corner_out_cell_rows.iter().zip(&ch.corner_weights) {
+                        g = g.select_assign(
+                            0,
+                            rows.clone(),
+                            fp.clone() * w.clone(),
+                            IndexingUpdateOp::Add,
+                        );
+                    }
                     g.reshape([ch.out_len, KERNEL_CELLS * cin])
                         .matmul(k.clone())
                 })

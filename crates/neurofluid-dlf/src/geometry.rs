@@ -128,16 +128,19 @@ pub struct GeometryChunk {
     pub out_start: usize,
     /// Output points in the chunk.
     pub out_len: usize,
-    /// Input index of every pair corner.
-    pub in_rows: Tensor<1, Int>,
-    /// `local query·64 + cell` of every pair corner (rows of G viewed as `[M·64, Cin]`).
-    pub out_cell_rows: Tensor<1, Int>,
     /// `input·64 + cell` of every pair corner (rows of `F·K` viewed as `[N·64, Cout]`).
     pub in_cell_rows: Tensor<1, Int>,
     /// Local query index of every pair corner.
     pub out_rows: Tensor<1, Int>,
     /// Weight of every pair corner `[entries, 1]`; tracked when the geometry is differentiable.
     pub weights: Tensor<2>,
+    /// Input index of every pair `[pairs]`.
+    pub pair_in_rows: Tensor<1, Int>,
+    /// Per corner c: `local query·64 + cell` of every pair `[pairs]` (rows of G viewed as
+    /// `[M·64, Cin]`).
+    pub corner_out_cell_rows: Vec<Tensor<1, Int>>,
+    /// Per corner c: weight of every pair `[pairs, 1]`.
+    pub corner_weights: Vec<Tensor<2>>,
 }
 
 /// A geometry ready for [`crate::ContinuousConv`]: the host arrays (used directly by the
@@ -212,11 +215,32 @@ impl ConvGeometry {
                     device,
                 ),
             };
+            let np = p1 - p0;
+            let pair_int =
+                |v: Vec<i64>| Tensor::<1, Int>::from_data(TensorData::new(v, [np]), device);
+            let pair_in_rows = pair_int(in_rows.iter().step_by(CORNERS).copied().collect());
+            let corner_out_cell_rows = (0..CORNERS)
+                .map(|c| {
+                    pair_int(
+                        out_cell_rows
+                            .iter()
+                            .skip(c)
+                            .step_by(CORNERS)
+                            .copied()
+                            .collect(),
+                    )
+                })
+                .collect();
+            let by_pair = weights.clone().reshape([np, CORNERS]);
+            let corner_weights = (0..CORNERS)
+                .map(|c| by_pair.clone().narrow(1, c, 1))
+                .collect();
             chunks.push(GeometryChunk {
+                pair_in_rows,
+                corner_out_cell_rows,
+                corner_weights,
                 out_start: q0,
                 out_len: q1 - q0,
-                in_rows: int(in_rows),
-                out_cell_rows: int(out_cell_rows),
                 in_cell_rows: int(in_cell_rows),
                 out_rows: int(out_rows),
                 weights,
