@@ -11,3 +11,4 @@ pub mod metrics;
 pub mod neighbors;
 pub mod npz;
 pub mod scene;
+pub mod tensors;

@@ -136,22 +136,7 @@ impl ViewFrame {
     }
 }
 
-/// A `[N, 3]` tensor of points.
-pub fn points_tensor(points: &[[f32; 3]], device: &Device) -> Tensor<2> {
-    Tensor::from_data(
-        TensorData::new(points.as_flattened().to_vec(), [points.len(), 3]),
-        device,
-    )
-}
-
-/// Host copy of a `[N, 3]` tensor.
-pub fn tensor_points(t: &Tensor<2>) -> anyhow::Result<Vec<[f32; 3]>> {
-    let v = t
-        .clone()
-        .try_into_vec_as::<f32>()
-        .map_err(|e| anyhow::anyhow!("reading a tensor back: {e:?}"))?;
-    Ok(v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
-}
+pub use neurofluid_core::tensors::{points_tensor, tensor_points};
 
 /// Checks a particle state read from a scene: finite values, matching lengths.
 pub fn check_particles(p: &Particles, what: &str) -> anyhow::Result<()> {

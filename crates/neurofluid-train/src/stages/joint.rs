@@ -65,8 +65,8 @@ type State = (Tensor<2>, Tensor<2>);
 
 fn save_carried(dir: &std::path::Path, state: &State) -> anyhow::Result<()> {
     let mut w = NpzWriter::new();
-    w.add_points("pos", &tensor_points(&state.0)?);
-    w.add_points("vel", &tensor_points(&state.1)?);
+    w.add_points("pos", &tensor_points(&state.0));
+    w.add_points("vel", &tensor_points(&state.1));
     w.write(dir.join("carried_state.npz"))?;
     Ok(())
 }
