@@ -123,3 +123,15 @@ impl RenderedImage {
         (self.width * 2, self.height, out)
     }
 }
+
+impl PhysNerf {
+    /// Renders every pixel of `camera` in chunks of `chunk` rays; see [`render_image`].
+    pub fn render_image(
+        &self,
+        camera: &Camera,
+        particles: &Tensor<2>,
+        chunk: usize,
+    ) -> Result<RenderedImage> {
+        render_image(self, camera, particles, chunk, &mut |_, _| {})
+    }
+}

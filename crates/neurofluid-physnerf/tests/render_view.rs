@@ -110,3 +110,16 @@ fn blob_is_opaque_on_white_and_png_roundtrips() {
     );
     std::fs::remove_dir_all(dir).ok();
 }
+
+/// A model and particles that live on an autodiff device (as during training) render too.
+#[test]
+fn renders_from_an_autodiff_model() {
+    let (inputs, _) = case();
+    let device = Device::flex().autodiff();
+    let model = model(&inputs, &device, DType::F32);
+    let p = particles(&inputs, &device).require_grad();
+    let cam = inputs.camera(Some([8, 8]));
+    let img = render_image(&model, &cam, &p, 16, &mut |_, _| {}).expect("render");
+    assert_eq!(img.fine.len(), 8 * 8 * 3);
+    assert!(img.fine.iter().any(|&v| v < 0.9), "the blob must show");
+}
