@@ -2,7 +2,8 @@
 //! samples and ~10k particles, on the default CPU device; prints rays/s and where the time goes.
 //!
 //! `cargo bench -p neurofluid-physnerf --bench train_step` (best of 2 steps after a warm-up;
-//! the best rather than the median because the machine is shared).
+//! the best rather than the median because the machine is shared). Without `--bench` (as under
+//! `cargo test --benches`) it runs one 32-ray step as a smoke test.
 //! The weights are the reference case's test weights (opaque, textured), the particles a
 //! 22×22×21 lattice (spacing 0.05, jitter ±0.003, randomly permuted: 10,164 particles), the
 //! camera 4 units away (400×400, as in NeuroFluid), the rays 1024 random pixels of the view.
@@ -26,6 +27,9 @@ fn secs(d: Duration) -> f64 {
 }
 
 fn main() {
+    let full = std::env::args().any(|a| a == "--bench");
+    let n_rays: usize = if full { 1024 } else { 32 };
+    let repeats = if full { 3 } else { 2 };
     let device = Device::flex().autodiff();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
     let mut particles = Vec::new();
@@ -55,16 +59,18 @@ fn main() {
         [0.0, 0.0, 0.0],
         [0.0, 0.0, 1.0],
     );
-    let pixels: Vec<u32> = (0..1024).map(|_| rng.random_range(0..400 * 400)).collect();
+    let pixels: Vec<u32> = (0..n_rays)
+        .map(|_| rng.random_range(0..400 * 400))
+        .collect();
     let rays = RayBatch::from(&camera.rays(&pixels));
     let flat: Vec<f32> = particles.iter().flatten().copied().collect();
-    let target = Tensor::<2>::random([1024, 3], Distribution::Uniform(0.0, 1.0), &device);
+    let target = Tensor::<2>::random([n_rays, 3], Distribution::Uniform(0.0, 1.0), &device);
 
     let mut steps = Vec::new();
     let mut backs = Vec::new();
     let mut stage = Vec::<Timings>::new();
     let mut evaluated = (0, 0);
-    for it in 0..3 {
+    for it in 0..repeats {
         let p =
             Tensor::<2>::from_data(TensorData::new(flat.clone(), [n, 3]), &device).require_grad();
         let t0 = Instant::now();
@@ -98,7 +104,7 @@ fn main() {
     // the MLPs alone, forward + backward, on as many rows as the step evaluated
     let mlp_fb = {
         let mut v = Vec::new();
-        for it in 0..3 {
+        for it in 0..repeats {
             let t0 = Instant::now();
             let mut total = Tensor::<1>::zeros([1], &device);
             for (net, rows) in [(&model.coarse, evaluated.0), (&model.fine, evaluated.1)] {
@@ -125,13 +131,13 @@ fn main() {
     println!(
         "  samples through the MLPs: coarse {} of {} gated, fine {} of {} gated",
         evaluated.0,
-        1024 * 64,
+        n_rays * 64,
         evaluated.1,
-        1024 * 192
+        n_rays * 192
     );
     println!(
         "  step (forward + backward): {step:.3} s  →  {:.0} rays/s",
-        1024.0 / step
+        n_rays as f64 / step
     );
     println!(
         "  forward {fwd:.3} s: neighbour search {nb:.3} s ({:.0} %), gather + features + encoding {enc:.3} s ({:.0} %), MLP {mlp:.3} s ({:.0} %), compositing + sampling {comp:.3} s ({:.0} %)",
