@@ -17,6 +17,7 @@ pub fn generator_config(exp: &Experiment) -> anyhow::Result<Option<SceneConfig>>
     let cfg: SceneConfig = toml::Value::Table(table)
         .try_into()
         .context("the experiment's [scene] / [scene.generate] settings")?;
+    cfg.validate(std::path::Path::new("the experiment's [scene]"))?;
     Ok(Some(cfg))
 }
 
