@@ -1,9 +1,11 @@
 //! One DLF step on the CPU: forward, and forward+backward of DLF's loss, at 2k/8k/32k fluid
 //! particles (the reference harness's `bench` scenes: a lattice block 5 cm above the floor of a
 //! closed box with DLF-density walls, v = (0.3, 0, 0.2), jitter 2 mm). One warm-up, then the
-//! median of `--repeats` runs; a per-phase breakdown of one forward step follows.
+//! median of `--repeats` runs, wall and process CPU time (all threads) with the 1-minute load
+//! average; a per-phase breakdown of one forward step at the largest size follows.
 //!
-//! `cargo bench -p neurofluid-dlf --bench dlf_step -- [--repeats 5] [--sizes 2000 8000 32000]`
+//! `cargo bench --profile dev -p neurofluid-dlf --bench dlf_step -- [--repeats 5] [--sizes 2000 8000 32000]`
+//! (the dev profile builds every dependency at opt-level 3; `cargo bench` alone uses release).
 
 use std::path::PathBuf;
 use std::time::Instant;
