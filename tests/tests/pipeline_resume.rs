@@ -89,3 +89,20 @@ fn resumed_run_matches_uninterrupted_run() {
             || straight.dir.join("eval").read_dir().unwrap().count() > 0
     );
 }
+
+#[test]
+fn stratified_jitter_is_seeded_and_reproducible() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut params_of = Vec::new();
+    for name in ["jitter-a", "jitter-b"] {
+        let mut e = experiment(tmp.path(), name);
+        e.apply_overrides(&["renderer.jitter=true"]).unwrap();
+        let run = Run::open(e).unwrap();
+        let mut log = MetricsLog::open(&run.dir).unwrap();
+        params_of.push(params(&warmup::run(&run, &mut log).unwrap()));
+    }
+    assert!(
+        params_of[0] == params_of[1],
+        "same seed, different jittered warm-up"
+    );
+}

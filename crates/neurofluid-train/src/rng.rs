@@ -160,6 +160,25 @@ impl Rng {
     }
 }
 
+/// The renderer's stratified jitter draws from the same stream as the pixel sampler, so one
+/// saved state restores both.
+impl rand::RngCore for Rng {
+    fn next_u32(&mut self) -> u32 {
+        (Rng::next_u64(self) >> 32) as u32
+    }
+
+    fn next_u64(&mut self) -> u64 {
+        Rng::next_u64(self)
+    }
+
+    fn fill_bytes(&mut self, dst: &mut [u8]) {
+        for chunk in dst.chunks_mut(8) {
+            let v = Rng::next_u64(self).to_le_bytes();
+            chunk.copy_from_slice(&v[..chunk.len()]);
+        }
+    }
+}
+
 /// A rectangle of pixels: rows `row0..row0+rows`, columns `col0..col0+cols`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct PixelWindow {

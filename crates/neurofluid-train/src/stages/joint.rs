@@ -193,7 +193,12 @@ pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::
         let (w, h) = (target.camera.width, target.camera.height);
         let pixels = rng.sample_pixels(cfg.rays, w, h, cfg.precrop_at(step))?;
         let (rays, colours) = target.batch(&pixels, device);
-        let out = renderer.render_rays(&pred.pos, &rays, None)?;
+        let jitter: Option<&mut dyn rand::RngCore> = if run.exp.renderer.jitter {
+            Some(&mut rng)
+        } else {
+            None
+        };
+        let out = renderer.render_rays(&pred.pos, &rays, jitter)?;
         let image_loss = renderer.loss(&out, colours);
         pending_mse = scalar(&image_loss.fine);
         let loss = image_loss.total

@@ -117,7 +117,12 @@ pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::
             let (w, h) = (view.camera.width, view.camera.height);
             let pixels = rng.sample_pixels(cfg.rays, w, h, cfg.precrop_at(step))?;
             let (rays, target) = view.batch(&pixels, device);
-            let out = model.render_rays(&particles, &rays, None)?;
+            let jitter: Option<&mut dyn rand::RngCore> = if run.exp.renderer.jitter {
+                Some(&mut rng)
+            } else {
+                None
+            };
+            let out = model.render_rays(&particles, &rays, jitter)?;
             let loss = model.loss(&out, target);
             fine_mse += scalar(&loss.fine) / frames.len() as f64;
             total = Some(match total {
