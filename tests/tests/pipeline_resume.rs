@@ -22,6 +22,10 @@ impl ModuleVisitor for Collect {
     }
 }
 
+/// Burn's backend RNG (which initialises the renderer from the experiment's seed) is global to
+/// the process: tests that build models from a seed take turns.
+static SEEDED: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 fn params<M: Module>(m: &M) -> Vec<Vec<f32>> {
     let mut c = Collect::default();
     m.visit(&mut c);
@@ -48,6 +52,7 @@ fn experiment(tmp: &Path, name: &str) -> Experiment {
 
 #[test]
 fn resumed_run_matches_uninterrupted_run() {
+    let _turn = SEEDED.lock().unwrap_or_else(|e| e.into_inner());
     let tmp = tempfile::tempdir().unwrap();
 
     let straight = Run::open(experiment(tmp.path(), "straight")).unwrap();
@@ -92,6 +97,7 @@ fn resumed_run_matches_uninterrupted_run() {
 
 #[test]
 fn stratified_jitter_is_seeded_and_reproducible() {
+    let _turn = SEEDED.lock().unwrap_or_else(|e| e.into_inner());
     let tmp = tempfile::tempdir().unwrap();
     let mut params_of = Vec::new();
     for name in ["jitter-a", "jitter-b"] {
