@@ -64,6 +64,8 @@ fn five_step_forward_matches_open3d() {
         let ev = rel_err(&flat(&traj.vel[step]), rv);
         eprintln!("step {step}: pos {ep:.3e} vel {ev:.3e}");
         assert!(ep <= 1e-5, "step {step}: position relative error {ep:.3e}");
-        assert!(ev <= 1e-5, "step {step}: velocity relative error {ev:.3e}");
+        // v = (x_new − x)/dt: one float32 ulp of a 0.6 m position (6e-8 m) is 3e-6 m/s, about
+        // 1e-5 of |v|max = 0.33 m/s; Open3D rerun against itself differs by as much (README).
+        assert!(ev <= 2e-5, "step {step}: velocity relative error {ev:.3e}");
     }
 }
