@@ -4,42 +4,13 @@
 
 use std::path::Path;
 
-use burn::module::{Module, ModuleVisitor, Param};
-use burn::prelude::*;
-use neurofluid_tests::workspace_root;
+use neurofluid_tests::{params, seeded_turn, tiny_experiment};
 use neurofluid_train::config::Experiment;
 use neurofluid_train::metrics_log::MetricsLog;
 use neurofluid_train::stages::{Run, eval, joint, warmup};
 
-/// Every float parameter of a module, in visiting order.
-#[derive(Default)]
-struct Collect(Vec<Vec<f32>>);
-
-impl ModuleVisitor for Collect {
-    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
-        self.0
-            .push(param.val().try_into_vec_as::<f32>().expect("float data"));
-    }
-}
-
-/// Burn's backend RNG (which initialises the renderer from the experiment's seed) is global to
-/// the process: tests that build models from a seed take turns.
-static SEEDED: std::sync::Mutex<()> = std::sync::Mutex::new(());
-
-fn params<M: Module>(m: &M) -> Vec<Vec<f32>> {
-    let mut c = Collect::default();
-    m.visit(&mut c);
-    c.0
-}
-
 fn experiment(tmp: &Path, name: &str) -> Experiment {
-    let root = workspace_root();
-    let mut e =
-        Experiment::load(&root.join("experiments/tiny-ci.toml")).expect("tiny-ci.toml loads");
-    e.name = name.into();
-    e.out_dir = Some(tmp.join(name));
-    e.scene.dir = Some(tmp.join("scene"));
-    e.dlf.weights = root.join("assets/dlf_pretrained/pretrained_model_weights.pt");
+    let mut e = tiny_experiment(tmp, name);
     // enough rays that the image loss reaches the particles in every joint iteration
     e.apply_overrides(&[
         "warmup.ckpt_every=0",
@@ -52,7 +23,7 @@ fn experiment(tmp: &Path, name: &str) -> Experiment {
 
 #[test]
 fn resumed_run_matches_uninterrupted_run() {
-    let _turn = SEEDED.lock().unwrap_or_else(|e| e.into_inner());
+    let _turn = seeded_turn();
     let tmp = tempfile::tempdir().unwrap();
 
     let straight = Run::open(experiment(tmp.path(), "straight")).unwrap();
@@ -97,7 +68,7 @@ fn resumed_run_matches_uninterrupted_run() {
 
 #[test]
 fn stratified_jitter_is_seeded_and_reproducible() {
-    let _turn = SEEDED.lock().unwrap_or_else(|e| e.into_inner());
+    let _turn = seeded_turn();
     let tmp = tempfile::tempdir().unwrap();
     let mut params_of = Vec::new();
     for name in ["jitter-a", "jitter-b"] {
