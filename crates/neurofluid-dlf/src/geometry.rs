@@ -270,8 +270,3 @@ impl ConvGeometry {
         &self.device
     }
 }
-
-/// Converts a `[N, 3]` float slice into points.
-pub fn as_points(flat: &[f32]) -> Vec<[f32; 3]> {
-    flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()
-}

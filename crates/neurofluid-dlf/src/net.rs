@@ -7,7 +7,7 @@ use burn::tensor::activation::relu;
 use crate::config::{DlfConfig, GeometryMode};
 use crate::conv::ContinuousConv;
 use crate::diff_geometry::differentiable_weights;
-use crate::geometry::{ConvGeometry, as_points, build_host_geometry};
+use crate::geometry::{ConvGeometry, build_host_geometry};
 
 /// Channel widths of the published model: layer 0 branches, layers 1, 2, 3.
 pub const LAYER_CHANNELS: [usize; 4] = [32, 64, 64, 3];
@@ -99,21 +99,7 @@ fn rotation_tensor(r: [[f32; 3]; 3], transpose: bool, device: &Device) -> Tensor
     Tensor::from_data(TensorData::new(v, [3, 3]), device)
 }
 
-/// Host copy of a `[N, 3]` float tensor as points.
-pub fn tensor_points(t: &Tensor<2>) -> Vec<[f32; 3]> {
-    let v: Vec<f32> = t
-        .to_data()
-        .convert::<f32>()
-        .try_into_vec::<f32>()
-        .expect("float tensor data");
-    as_points(&v)
-}
-
-/// A `[N, 3]` tensor from points.
-pub fn points_tensor(points: &[[f32; 3]], device: &Device) -> Tensor<2> {
-    let flat: Vec<f32> = points.iter().flatten().copied().collect();
-    Tensor::from_data(TensorData::new(flat, [points.len(), 3]), device)
-}
+pub use neurofluid_core::tensors::{points_tensor, tensor_points};
 
 impl DlfNet {
     /// A freshly initialised network (Open3D/torch initialisers) with the given settings.

@@ -1,7 +1,5 @@
 //! Inference rollouts of the DLF model and the statistics the reference harness reports.
 
-use burn::prelude::*;
-
 use crate::net::{Boundary, DlfNet, points_tensor, tensor_points};
 
 /// A rollout: the state after every step, plus the first step's internals.
@@ -71,9 +69,4 @@ pub fn count_outside(points: &[[f32; 3]], lo: [f32; 3], hi: [f32; 3]) -> usize {
         .iter()
         .filter(|p| (0..3).any(|k| p[k] < lo[k] || p[k] > hi[k]))
         .count()
-}
-
-/// Convenience: a `[N, 3]` tensor on `device` from points (re-export of the net helper).
-pub fn to_tensor(points: &[[f32; 3]], device: &Device) -> Tensor<2> {
-    points_tensor(points, device)
 }

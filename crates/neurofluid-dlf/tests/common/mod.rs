@@ -91,5 +91,5 @@ pub fn host(t: &Tensor<2>) -> Vec<f32> {
 
 /// A `[N, 3]` tensor from points.
 pub fn to_tensor(points: &[[f32; 3]], device: &Device) -> Tensor<2> {
-    neurofluid_dlf::rollout::to_tensor(points, device)
+    neurofluid_core::tensors::points_tensor(points, device)
 }
