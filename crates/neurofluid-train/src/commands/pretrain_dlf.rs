@@ -1,21 +1,25 @@
 //! `pretrain-dlf`: supervised (pre)training or fine-tuning (the paper's DLF†) of the DLF model on
-//! DLF `.msgpack.zst` records, with DLF's loss, rotations, schedule and validation errors.
+//! DLF `.msgpack.zst` records or a scene's particle sequence, with DLF's loss, rotations, schedule and validation errors.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 use neurofluid_core::device::parse_device;
-use neurofluid_dlf::train::{PretrainConfig, TrainEvent, load_record_dir, pretrain};
+use neurofluid_core::scene::{MANIFEST_FILE, Role, Scene, UpAxis};
+use neurofluid_dlf::train::{
+    PretrainConfig, TrainEvent, TrainingSequence, load_record_dir, pretrain,
+};
 use neurofluid_dlf::{DlfConfig, DlfNet, load_dlf, save_checkpoint};
 
 /// Arguments of `pretrain-dlf`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Folder of training records (`*.msgpack.zst`, DLF's format; one sequence per file).
+    /// Training data: a folder of DLF records (`*.msgpack.zst`, one sequence per file) or a
+    /// scene folder (generated or released layout; its test sequence is used).
     #[arg(long)]
     pub data: PathBuf,
-    /// Folder of validation records (same format).
+    /// Validation data (a records folder or a scene folder).
     #[arg(long)]
     pub val: Option<PathBuf>,
     /// Start from these weights (`.pt`, `.safetensors`, `.bpk`): fine-tuning. Default: random init.
@@ -50,16 +54,39 @@ pub struct Args {
     pub device: String,
 }
 
+/// The sequences of a records folder (y-up, DLF's frame) or of a scene folder (its up axis).
+fn load_sequences(path: &Path) -> anyhow::Result<(Vec<TrainingSequence>, UpAxis)> {
+    if !path.join(MANIFEST_FILE).is_file() && !path.join("view_1").is_dir() {
+        return Ok((load_record_dir(path)?, UpAxis::Y));
+    }
+    let scene =
+        Scene::open(path).with_context(|| format!("opening the scene {}", path.display()))?;
+    let frames = scene.particle_sequence(Role::Test)?;
+    let walls = scene.boundary()?;
+    let name = scene.manifest().name.clone();
+    let sequence = TrainingSequence::new(
+        name,
+        frames.iter().map(|f| f.pos.clone()).collect(),
+        frames.iter().map(|f| f.vel.clone()).collect(),
+        walls.points,
+        walls.normals,
+    )?;
+    Ok((vec![sequence], scene.up_axis()))
+}
+
 /// Runs the training.
 pub fn run(args: Args) -> anyhow::Result<()> {
     let device = parse_device(&args.device)?.autodiff();
     device.seed(args.seed);
-    let train = load_record_dir(&args.data)?;
+    let (train, up) = load_sequences(&args.data)?;
     let val = match &args.val {
-        Some(dir) => load_record_dir(dir)?,
+        Some(dir) => load_sequences(dir)?.0,
         None => Vec::new(),
     };
-    let config = DlfConfig::default();
+    let config = match up {
+        UpAxis::Z => DlfConfig::z_up(),
+        UpAxis::Y => DlfConfig::default(),
+    };
     let net: DlfNet = match &args.init {
         Some(path) => load_dlf(path, config, &device)?,
         None => DlfNet::new(config, &device),

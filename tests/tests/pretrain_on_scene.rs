@@ -1,0 +1,37 @@
+//! `pretrain-dlf` fine-tunes on a generated scene folder (its test sequence) and writes a
+//! checkpoint that loads.
+
+use neurofluid_dlf::{DlfConfig, load_dlf};
+use neurofluid_tests::{seeded_turn, tiny_experiment, workspace_root};
+use neurofluid_train::commands::pretrain_dlf::{Args, run};
+use neurofluid_train::stages::scene_source::ensure_scene;
+
+#[test]
+fn fine_tunes_on_a_generated_scene() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = ensure_scene(&tiny_experiment(tmp.path(), "pretrain")).unwrap();
+    let weights = workspace_root().join("assets/dlf_pretrained/pretrained_model_weights.pt");
+    let output = tmp.path().join("ft.bpk");
+    run(Args {
+        data: scene.clone(),
+        val: Some(scene),
+        init: Some(weights),
+        output: output.clone(),
+        iterations: 2,
+        batch_size: 1,
+        lr: 1e-5,
+        validate_every: 1,
+        frame_skip: 1,
+        no_rotation: false,
+        seed: 1,
+        device: "cpu".into(),
+    })
+    .unwrap();
+    load_dlf(
+        &output,
+        DlfConfig::default(),
+        &neurofluid_core::device::cpu(),
+    )
+    .unwrap();
+}
