@@ -8,8 +8,6 @@
 //! schedule, update the renderer and the transition model. The carried state is detached after
 //! every `bptt_steps` transitions (1 = the reference's truncated BPTT).
 
-use std::time::Instant;
-
 use anyhow::Context;
 use burn::optim::{GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
@@ -25,7 +23,7 @@ use super::context::{Run, ViewFrame, check_particles, points_tensor, scalar, ten
 use super::preview;
 use super::progress::StageProgress;
 use super::warmup;
-use crate::metrics_log::{MetricsLog, MetricsRow, psnr_from_mse};
+use crate::metrics_log::{MetricsLog, psnr_from_mse};
 use crate::rng::Rng;
 
 /// Folder of the stage inside the run folder.
@@ -179,8 +177,6 @@ pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::
     let sched_t = cfg.transition_schedule();
     let end = stop.map_or(total, |s| s.min(total));
     let mut bar = StageProgress::new("joint", start, total);
-    let mut window = Instant::now();
-    let mut window_rays = 0usize;
     let mut pending: Option<Tensor<1>> = None;
     let mut pending_mse: f64;
     for step in start..end {
@@ -207,7 +203,7 @@ pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::
             None => loss,
             Some(p) => p + loss,
         });
-        window_rays += cfg.rays;
+        bar.add_rays(cfg.rays);
         state = (pred.pos, pred.vel);
         let done = step + 1;
         let window_end = done % bptt == 0 || (t + 1) as u64 == transitions || done == end;
@@ -231,16 +227,10 @@ pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::
         let psnr = psnr_from_mse(pending_mse);
         bar.update(done, loss_value, psnr);
         if done % cfg.log_every.max(1) == 0 || done == total {
-            let secs = window.elapsed().as_secs_f64();
-            let mut row = MetricsRow::new(STAGE, done, loss_value, bar.elapsed());
-            row.psnr = Some(psnr);
+            let mut row = bar.row(STAGE, done, loss_value, psnr);
             row.lr_renderer = Some(lr_r);
             row.lr_transition = Some(lr_t);
-            row.rays_per_s = Some(window_rays as f64 / secs.max(1e-9));
-            bar.set_rays_per_s(row.rays_per_s.unwrap_or(0.0));
             log.append(&row)?;
-            window = Instant::now();
-            window_rays = 0;
         }
         if cfg.eval_every > 0 && done % cfg.eval_every == 0 {
             // the training view at the frame just predicted, rendered from the prediction

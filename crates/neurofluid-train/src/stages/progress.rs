@@ -4,12 +4,16 @@ use std::time::Instant;
 
 use indicatif::{ProgressBar, ProgressStyle};
 
+use crate::metrics_log::MetricsRow;
+
 /// A stage's progress bar (hidden when stderr is not a terminal, e.g. in CI logs).
 #[derive(Debug)]
 pub struct StageProgress {
     bar: ProgressBar,
     started: Instant,
     rays_per_s: f64,
+    window: Instant,
+    window_rays: usize,
 }
 
 impl StageProgress {
@@ -28,6 +32,8 @@ impl StageProgress {
             bar,
             started: Instant::now(),
             rays_per_s: 0.0,
+            window: Instant::now(),
+            window_rays: 0,
         }
     }
 
@@ -40,9 +46,22 @@ impl StageProgress {
         ));
     }
 
-    /// Records the latest throughput for the message.
-    pub fn set_rays_per_s(&mut self, r: f64) {
-        self.rays_per_s = r;
+    /// Counts rays rendered since the last metrics row.
+    pub fn add_rays(&mut self, rays: usize) {
+        self.window_rays += rays;
+    }
+
+    /// A metrics row for `step` with the loss, the PSNR and the throughput since the previous
+    /// row (which the bar then shows).
+    pub fn row(&mut self, stage: &str, step: u64, loss: f64, psnr: f64) -> MetricsRow {
+        let secs = self.window.elapsed().as_secs_f64().max(1e-9);
+        self.rays_per_s = self.window_rays as f64 / secs;
+        self.window = Instant::now();
+        self.window_rays = 0;
+        let mut row = MetricsRow::new(stage, step, loss, self.elapsed());
+        row.psnr = Some(psnr);
+        row.rays_per_s = Some(self.rays_per_s);
+        row
     }
 
     /// Seconds since the bar was created.

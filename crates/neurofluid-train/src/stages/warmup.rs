@@ -3,8 +3,6 @@
 //! iterations), sums the views' coarse + fine MSE and takes one Adam step with the learning rate
 //! lr0·0.1^(s/decay_steps).
 
-use std::time::Instant;
-
 use anyhow::Context;
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
@@ -16,7 +14,7 @@ use super::checkpoint;
 use super::context::{Run, ViewFrame, check_particles, points_tensor, scalar};
 use super::preview;
 use super::progress::StageProgress;
-use crate::metrics_log::{MetricsLog, MetricsRow, psnr_from_mse};
+use crate::metrics_log::{MetricsLog, psnr_from_mse};
 use crate::rng::Rng;
 
 /// Folder of the stage inside the run folder.
@@ -107,8 +105,6 @@ pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::
     let schedule = cfg.lr_schedule();
     let end = stop.map_or(cfg.iters, |s| s.min(cfg.iters));
     let mut bar = StageProgress::new("warm-up", start, cfg.iters);
-    let mut window = Instant::now();
-    let mut window_rays = 0usize;
     for step in start..end {
         let lr = schedule.lr_at(step);
         let mut total: Option<Tensor<1>> = None;
@@ -129,7 +125,7 @@ pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::
                 None => loss.total,
                 Some(t) => t + loss.total,
             });
-            window_rays += cfg.rays;
+            bar.add_rays(cfg.rays);
         }
         let total = total.context("the warm-up has no views")?;
         let loss_value = scalar(&total);
@@ -143,15 +139,9 @@ pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::
         let psnr = psnr_from_mse(fine_mse);
         bar.update(done, loss_value, psnr);
         if done % cfg.log_every.max(1) == 0 || done == cfg.iters {
-            let secs = window.elapsed().as_secs_f64();
-            let mut row = MetricsRow::new(STAGE, done, loss_value, bar.elapsed());
-            row.psnr = Some(psnr);
+            let mut row = bar.row(STAGE, done, loss_value, psnr);
             row.lr_renderer = Some(lr);
-            row.rays_per_s = Some(window_rays as f64 / secs.max(1e-9));
-            bar.set_rays_per_s(row.rays_per_s.unwrap_or(0.0));
             log.append(&row)?;
-            window = Instant::now();
-            window_rays = 0;
         }
         if let Some(view) = &held_out
             && done % cfg.eval_every == 0
