@@ -83,3 +83,27 @@ fn stratified_jitter_is_seeded_and_reproducible() {
         "same seed, different jittered warm-up"
     );
 }
+
+#[test]
+fn resumed_metrics_log_has_no_duplicate_steps() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let run = Run::open(experiment(tmp.path(), "log")).unwrap();
+    let mut log = run.open_log().unwrap();
+    warmup::run_until(&run, &mut log, Some(2)).unwrap();
+    // a row logged after the last checkpoint, as a crash would leave it
+    log.append(&neurofluid_train::metrics_log::MetricsRow::new(
+        "warmup", 3, 0.5, 1.0,
+    ))
+    .unwrap();
+    drop(log);
+    let mut log = run.open_log().unwrap();
+    warmup::run(&run, &mut log).unwrap();
+    let rows = neurofluid_train::metrics_log::read_jsonl(log.jsonl_path()).unwrap();
+    let steps: Vec<u64> = rows
+        .iter()
+        .filter(|r| r.stage == "warmup")
+        .map(|r| r.step)
+        .collect();
+    assert_eq!(steps, (1..=run.exp.warmup.iters).collect::<Vec<_>>());
+}

@@ -1,7 +1,6 @@
 //! `run`: the whole pipeline of an experiment — scene (generated if missing), warm-up, joint
 //! grounding, evaluation — then the summary table.
 
-use crate::metrics_log::MetricsLog;
 use crate::stages::{Run, eval, joint, warmup};
 
 use super::experiment_args::ExperimentArgs;
@@ -17,7 +16,7 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let run = Run::open(args.exp.load()?)?;
     tracing::info!("run folder {}", run.dir.display());
-    let mut log = MetricsLog::open(&run.dir)?;
+    let mut log = run.open_log()?;
     warmup::run(&run, &mut log)?;
     let grounded = joint::run(&run, &mut log)?;
     let summary = eval::run(&run, &grounded)?;

@@ -1,6 +1,5 @@
 //! `warmup`, `joint` and `eval`: the stages of `run`, one at a time.
 
-use crate::metrics_log::MetricsLog;
 use crate::stages::{Run, eval, joint, warmup};
 
 use super::experiment_args::ExperimentArgs;
@@ -15,7 +14,7 @@ pub struct Args {
 /// The renderer warm-up on frame 0.
 pub fn run_warmup(args: Args) -> anyhow::Result<()> {
     let run = Run::open(args.exp.load()?)?;
-    let mut log = MetricsLog::open(&run.dir)?;
+    let mut log = run.open_log()?;
     warmup::run(&run, &mut log)?;
     println!(
         "warm-up checkpoint in {}",
@@ -27,7 +26,7 @@ pub fn run_warmup(args: Args) -> anyhow::Result<()> {
 /// Joint grounding (needs a finished warm-up).
 pub fn run_joint(args: Args) -> anyhow::Result<()> {
     let run = Run::open(args.exp.load()?)?;
-    let mut log = MetricsLog::open(&run.dir)?;
+    let mut log = run.open_log()?;
     joint::run(&run, &mut log)?;
     println!(
         "joint checkpoint in {}",

@@ -5,7 +5,6 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 
-use crate::metrics_log::MetricsLog;
 use crate::stages::{Run, eval, joint, warmup};
 use crate::sweep::{Sweep, table_rows, write_table};
 
@@ -40,7 +39,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         tracing::info!("variant {} ({})", variant.name, variant.label);
         let outcome = (|| -> anyhow::Result<_> {
             let run = Run::open(exp)?;
-            let mut log = MetricsLog::open(&run.dir)?;
+            let mut log = run.open_log()?;
             warmup::run(&run, &mut log)?;
             let grounded = joint::run(&run, &mut log)?;
             let report = eval::run(&run, &grounded)?;

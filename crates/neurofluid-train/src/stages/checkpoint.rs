@@ -103,3 +103,14 @@ pub fn load_state<S: DeserializeOwned>(dir: &Path) -> anyhow::Result<S> {
     serde_json::from_str(&text)
         .with_context(|| format!("{}: malformed checkpoint state", path.display()))
 }
+
+/// The step recorded by a stage's latest checkpoint (0 without one).
+pub fn saved_step(stage_dir: &Path) -> u64 {
+    #[derive(serde::Deserialize)]
+    struct Step {
+        step: u64,
+    }
+    latest(stage_dir)
+        .and_then(|dir| load_state::<Step>(&dir).ok())
+        .map_or(0, |s| s.step)
+}

@@ -46,6 +46,21 @@ impl Run {
         })
     }
 
+    /// The run's metrics log, without the rows a resumed stage will log again (those after its
+    /// latest checkpoint), so an interrupted run leaves no duplicate steps.
+    pub fn open_log(&self) -> anyhow::Result<crate::metrics_log::MetricsLog> {
+        let warmup = super::checkpoint::saved_step(&self.stage_dir(super::warmup::STAGE));
+        let joint = super::checkpoint::saved_step(&self.stage_dir(super::joint::STAGE));
+        let log = crate::metrics_log::MetricsLog::open_resumed(&self.dir, |row| {
+            match row.stage.trim_end_matches("-preview") {
+                s if s == super::warmup::STAGE => row.step <= warmup,
+                s if s == super::joint::STAGE => row.step <= joint,
+                _ => true,
+            }
+        })?;
+        Ok(log)
+    }
+
     /// The folder of one stage inside the run folder.
     pub fn stage_dir(&self, stage: &str) -> PathBuf {
         self.dir.join(stage)
