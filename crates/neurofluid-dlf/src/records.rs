@@ -10,7 +10,7 @@ use rmpv::Value;
 #[derive(Debug, thiserror::Error)]
 pub enum RecordError {
     /// I/O failed.
-    #[error("{path}: {source}")]
+    #[error("{path}")]
     Io {
         /// The file.
         path: PathBuf,

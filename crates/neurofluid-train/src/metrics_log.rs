@@ -18,7 +18,7 @@ pub const CSV_HEADER: &str = "stage,step,loss,psnr,lr_renderer,lr_transition,ray
 #[derive(Debug, thiserror::Error)]
 pub enum MetricsError {
     /// A file could not be opened, read or written.
-    #[error("metrics file {}: {source}", path.display())]
+    #[error("metrics file {}", path.display())]
     Io {
         /// The file.
         path: PathBuf,

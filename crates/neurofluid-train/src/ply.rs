@@ -17,7 +17,7 @@ pub enum PlyFormat {
 #[derive(Debug, thiserror::Error)]
 pub enum PlyError {
     /// The file could not be read or written.
-    #[error("PLY file {}: {source}", path.display())]
+    #[error("PLY file {}", path.display())]
     Io {
         /// The file.
         path: PathBuf,

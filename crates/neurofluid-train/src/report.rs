@@ -19,7 +19,7 @@ pub const MARKDOWN_FILE: &str = "report.md";
 #[derive(Debug, thiserror::Error)]
 pub enum ReportError {
     /// A file could not be read or written.
-    #[error("report file {}: {source}", path.display())]
+    #[error("report file {}", path.display())]
     Io {
         /// The file.
         path: PathBuf,
