@@ -107,6 +107,14 @@ fn f32_from_le(bytes: &[u8]) -> Vec<f32> {
         .collect()
 }
 
+/// Little-endian float64 bytes, rounded to f32.
+fn f32_from_f64_le(bytes: &[u8]) -> Vec<f32> {
+    bytes
+        .chunks_exact(8)
+        .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")) as f32)
+        .collect()
+}
+
 /// Reads every tensor of a PyTorch `state_dict` file (`torch.save`, zip format) by name.
 pub fn read_pytorch(path: &Path) -> Result<BTreeMap<String, NamedTensor>, WeightsError> {
     use burn::store::pytorch_reader::{DType, PytorchReader};
@@ -119,10 +127,7 @@ pub fn read_pytorch(path: &Path) -> Result<BTreeMap<String, NamedTensor>, Weight
             .map_err(|e| read_err(path, format!("tensor `{name}`: {e}")))?;
         let data = match t.dtype() {
             DType::F32 => f32_from_le(&bytes),
-            DType::F64 => bytes
-                .chunks_exact(8)
-                .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")) as f32)
-                .collect(),
+            DType::F64 => f32_from_f64_le(&bytes),
             other => {
                 return Err(WeightsError::Value {
                     path: path.to_path_buf(),
@@ -145,11 +150,7 @@ pub fn read_safetensors(path: &Path) -> Result<BTreeMap<String, NamedTensor>, We
     for (name, view) in st.tensors() {
         let data = match view.dtype() {
             Dtype::F32 => f32_from_le(view.data()),
-            Dtype::F64 => view
-                .data()
-                .chunks_exact(8)
-                .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")) as f32)
-                .collect(),
+            Dtype::F64 => f32_from_f64_le(view.data()),
             other => {
                 return Err(WeightsError::Value {
                     path: path.to_path_buf(),

@@ -37,19 +37,19 @@ pub fn pretrained(device: &Device) -> DlfNet {
     .expect("pretrained weights load")
 }
 
-/// The input scene of a stored case.
-pub struct Scene {
-    pub pos: Vec<[f32; 3]>,
-    pub vel: Vec<[f32; 3]>,
-    pub box_points: Vec<[f32; 3]>,
-    pub box_normals: Vec<[f32; 3]>,
-    pub box_lo: [f32; 3],
-    pub box_hi: [f32; 3],
+/// The input scene of a stored case, as the crate's own scene type.
+pub type Scene = neurofluid_dlf::scene::BoxScene;
+
+/// Stored-case loading and the boundary of a scene, for the parity tests.
+pub trait CaseScene: Sized {
+    /// Reads `<name>_in.npz`.
+    fn load(name: &str) -> Self;
+    /// The boundary for `net`.
+    fn boundary(&self, net: &DlfNet, device: &Device) -> Boundary;
 }
 
-impl Scene {
-    /// Reads `<name>_in.npz`.
-    pub fn load(name: &str) -> Self {
+impl CaseScene for Scene {
+    fn load(name: &str) -> Self {
         let mut r = NpzReader::open(case(&format!("{name}_in.npz"))).expect("input case");
         let v3 = |a: Vec<f32>| [a[0], a[1], a[2]];
         Self {
@@ -62,8 +62,7 @@ impl Scene {
         }
     }
 
-    /// The boundary for `net`.
-    pub fn boundary(&self, net: &DlfNet, device: &Device) -> Boundary {
+    fn boundary(&self, net: &DlfNet, device: &Device) -> Boundary {
         net.boundary(&self.box_points, &self.box_normals, device)
     }
 }
