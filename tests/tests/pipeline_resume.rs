@@ -26,12 +26,12 @@ fn resumed_run_matches_uninterrupted_run() {
     let _turn = seeded_turn();
     let tmp = tempfile::tempdir().unwrap();
 
-    let straight = Run::open(experiment(tmp.path(), "straight")).unwrap();
+    let straight = Run::prepare(experiment(tmp.path(), "straight")).unwrap();
     let mut log = MetricsLog::open(&straight.dir).unwrap();
     warmup::run(&straight, &mut log).unwrap();
     let a = joint::run(&straight, &mut log).unwrap();
 
-    let pieces = Run::open(experiment(tmp.path(), "pieces")).unwrap();
+    let pieces = Run::prepare(experiment(tmp.path(), "pieces")).unwrap();
     let mut log = MetricsLog::open(&pieces.dir).unwrap();
     let warm_iters = pieces.exp.warmup.iters;
     assert!(warm_iters >= 2);
@@ -41,9 +41,9 @@ fn resumed_run_matches_uninterrupted_run() {
     joint::run_until(&pieces, &mut log, Some(2)).unwrap();
     let b = joint::run(&pieces, &mut log).unwrap();
 
-    let (pa, pb) = (params(&a.renderer), params(&b.renderer));
+    let (pa, pb) = (params(&a.physnerf), params(&b.physnerf));
     assert_eq!(pa.len(), pb.len());
-    assert!(pa == pb, "renderer parameters differ after resuming");
+    assert!(pa == pb, "PhysNeRF parameters differ after resuming");
     assert!(
         params(&a.dlf) == params(&b.dlf),
         "DLF parameters differ after resuming"
@@ -73,8 +73,8 @@ fn stratified_jitter_is_seeded_and_reproducible() {
     let mut params_of = Vec::new();
     for name in ["jitter-a", "jitter-b"] {
         let mut e = experiment(tmp.path(), name);
-        e.apply_overrides(&["renderer.jitter=true"]).unwrap();
-        let run = Run::open(e).unwrap();
+        e.apply_overrides(&["physnerf.stratified=true"]).unwrap();
+        let run = Run::prepare(e).unwrap();
         let mut log = MetricsLog::open(&run.dir).unwrap();
         params_of.push(params(&warmup::run(&run, &mut log).unwrap()));
     }
@@ -88,7 +88,7 @@ fn stratified_jitter_is_seeded_and_reproducible() {
 fn resumed_metrics_log_has_no_duplicate_steps() {
     let _turn = seeded_turn();
     let tmp = tempfile::tempdir().unwrap();
-    let run = Run::open(experiment(tmp.path(), "log")).unwrap();
+    let run = Run::prepare(experiment(tmp.path(), "log")).unwrap();
     let mut log = run.open_log().unwrap();
     warmup::run_until(&run, &mut log, Some(2)).unwrap();
     // a row logged after the last checkpoint, as a crash would leave it

@@ -1,16 +1,17 @@
-//! `pretrain-dlf` fine-tunes on a generated scene folder (its test sequence) and writes a
+//! `pretrain-dlf` fine-tunes on a generated scene folder (its training frames) and writes a
 //! checkpoint that loads.
 
 use neurofluid_dlf::{DlfConfig, load_dlf};
 use neurofluid_tests::{seeded_turn, tiny_experiment, workspace_root};
 use neurofluid_train::commands::pretrain_dlf::{Args, run};
-use neurofluid_train::stages::scene_source::ensure_scene;
+use neurofluid_train::stages::scene_source::generate_scene_if_missing;
+use neurofluid_train::stages::supervised_dlf::SupervisedConfig;
 
 #[test]
 fn fine_tunes_on_a_generated_scene() {
     let _turn = seeded_turn();
     let tmp = tempfile::tempdir().unwrap();
-    let scene = ensure_scene(&tiny_experiment(tmp.path(), "pretrain")).unwrap();
+    let scene = generate_scene_if_missing(&tiny_experiment(tmp.path(), "pretrain")).unwrap();
     let weights = workspace_root().join("assets/dlf_pretrained/pretrained_model_weights.pt");
     let output = tmp.path().join("ft.bpk");
     run(Args {
@@ -18,14 +19,17 @@ fn fine_tunes_on_a_generated_scene() {
         val: Some(scene),
         init: Some(weights),
         output: output.clone(),
-        iterations: 2,
-        batch_size: 1,
-        lr: 1e-5,
-        validate_every: 1,
-        frame_skip: 1,
-        no_rotation: false,
-        seed: 1,
+        train: SupervisedConfig {
+            iterations: 2,
+            batch_size: 1,
+            lr: 1e-5,
+            validate_every: 1,
+            frame_skip: 1,
+            no_rotation: false,
+            seed: 1,
+        },
         device: "cpu".into(),
+        fresh: false,
     })
     .unwrap();
     load_dlf(

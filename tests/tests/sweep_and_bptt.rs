@@ -24,7 +24,7 @@ label = "Full model"
 [[variant]]
 name = "no_vd"
 label = "w/o v_D"
-set = ["renderer.encoding.vd=false"]
+set = ["physnerf.encoding.vd=false"]
 "#,
         base = root.join("experiments/tiny-ci.toml").display(),
         out = tmp.path().join("out").display(),
@@ -52,12 +52,12 @@ fn multi_step_bptt_with_differentiable_geometry_trains() {
     let tmp = tempfile::tempdir().unwrap();
     let mut e = tiny_experiment(tmp.path(), "bptt");
     e.apply_overrides(&[
-        "dlf.bptt_steps=3",
-        "dlf.geometry_grad=true",
+        "joint.bptt_steps=3",
+        "dlf.geometry=differentiable",
         "joint.rays=512",
     ])
     .unwrap();
-    let run = Run::open(e).unwrap();
+    let run = Run::prepare(e).unwrap();
     let mut log = MetricsLog::open(&run.dir).unwrap();
     warmup::run(&run, &mut log).unwrap();
     let before = params(&run.load_dlf(&run.exp.dlf.weights).unwrap());

@@ -8,7 +8,7 @@
 
 use std::time::Instant;
 
-use neurofluid_core::neighbors::{NeighborGrid, Selection};
+use neurofluid_core::neighbors::{NeighborGrid, NeighborSelection};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -52,7 +52,7 @@ fn main() {
     let (build, _) = median_secs(|| NeighborGrid::new(&particles, 0.225).points().len());
     println!("grid build, 100k particles: {:.4} s", build);
     let grid = NeighborGrid::new(&particles, 0.225);
-    for sel in [Selection::LowestIndex, Selection::Nearest] {
+    for sel in [NeighborSelection::LowestIndex, NeighborSelection::Nearest] {
         let (t, filled) = median_secs(|| {
             let q = grid.ball_query(&queries, 0.225, 20, sel);
             q.count.iter().map(|&c| c as usize).sum()

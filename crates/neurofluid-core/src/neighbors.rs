@@ -54,9 +54,11 @@ impl PairList {
     }
 }
 
-/// Which K points a capped ball query keeps when more than K are inside the ball.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub enum Selection {
+/// Which K points a capped ball query keeps when more than K are inside the ball. In files:
+/// `"lowest_index"` or `"nearest"`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum NeighborSelection {
     /// The K lowest particle indices, as pytorch3d's `ball_query` (the reference's behaviour).
     #[default]
     LowestIndex,
@@ -278,16 +280,16 @@ impl<'a> NeighborGrid<'a> {
         out
     }
 
-    /// At most `k` input points with float32 `d² < radius²` per query (see [`Selection`]).
+    /// At most `k` input points with float32 `d² < radius²` per query (see [`NeighborSelection`]).
     ///
-    /// Slots of a query are ordered by ascending index ([`Selection::LowestIndex`]) or by
-    /// ascending distance ([`Selection::Nearest`]); empty slots hold index −1 and distance 0.
+    /// Slots of a query are ordered by ascending index ([`NeighborSelection::LowestIndex`]) or by
+    /// ascending distance ([`NeighborSelection::Nearest`]); empty slots hold index −1 and distance 0.
     pub fn ball_query(
         &self,
         queries: &[[f32; 3]],
         radius: f32,
         k: usize,
-        selection: Selection,
+        selection: NeighborSelection,
     ) -> BallQuery {
         let r2 = radius * radius;
         let nq = queries.len();
@@ -313,8 +315,10 @@ impl<'a> NeighborGrid<'a> {
                     self.buckets_around(q, radius, &mut buckets);
                     best.clear();
                     match selection {
-                        Selection::LowestIndex => self.lowest_k(q, r2, k, &buckets, &mut best),
-                        Selection::Nearest => self.nearest_k(q, r2, k, &buckets, &mut best),
+                        NeighborSelection::LowestIndex => {
+                            self.lowest_k(q, r2, k, &buckets, &mut best)
+                        }
+                        NeighborSelection::Nearest => self.nearest_k(q, r2, k, &buckets, &mut best),
                     }
                     count[qi] = best.len() as u32;
                     for (s, &(i, d)) in best.iter().enumerate() {
@@ -402,7 +406,7 @@ pub fn ball_query(
     queries: &[[f32; 3]],
     radius: f32,
     k: usize,
-    selection: Selection,
+    selection: NeighborSelection,
 ) -> BallQuery {
     NeighborGrid::new(points, radius).ball_query(queries, radius, k, selection)
 }
@@ -454,7 +458,7 @@ mod tests {
         queries: &[[f32; 3]],
         r: f32,
         k: usize,
-        sel: Selection,
+        sel: NeighborSelection,
     ) -> BallQuery {
         let mut out = BallQuery {
             k,
@@ -467,7 +471,7 @@ mod tests {
                 .map(|(i, &p)| (i as u32, dist2(p, q)))
                 .filter(|&(_, d)| d < r * r)
                 .collect();
-            if sel == Selection::Nearest {
+            if sel == NeighborSelection::Nearest {
                 inside.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
             }
             inside.truncate(k);
@@ -489,7 +493,7 @@ mod tests {
                 "pairs, ignore_identical = {ignore}"
             );
         }
-        for sel in [Selection::LowestIndex, Selection::Nearest] {
+        for sel in [NeighborSelection::LowestIndex, NeighborSelection::Nearest] {
             assert_eq!(
                 ball_query(points, queries, r, k, sel),
                 brute_ball(points, queries, r, k, sel),
@@ -522,7 +526,7 @@ mod tests {
         let q = cloud(50, 1.0, 4);
         // no particles
         check_all(&[], &q, 0.2, 20);
-        let empty = ball_query(&[], &q, 0.2, 20, Selection::LowestIndex);
+        let empty = ball_query(&[], &q, 0.2, 20, NeighborSelection::LowestIndex);
         assert!(empty.idx.iter().all(|&i| i == -1) && empty.count.iter().all(|&c| c == 0));
         // no queries
         check_all(&q, &[], 0.2, 20);
@@ -558,7 +562,7 @@ mod tests {
             vec![0, 1]
         );
         assert_eq!(
-            ball_query(&points, &q, r, 4, Selection::LowestIndex).neighbors(0),
+            ball_query(&points, &q, r, 4, NeighborSelection::LowestIndex).neighbors(0),
             &[1]
         );
     }
@@ -568,8 +572,8 @@ mod tests {
         // a line of points, the far ones with low indices
         let points: Vec<[f32; 3]> = (0..30).map(|i| [0.3 - 0.01 * i as f32, 0.0, 0.0]).collect();
         let q = [[0.0f32; 3]];
-        let low = ball_query(&points, &q, 0.245, 5, Selection::LowestIndex);
-        let near = ball_query(&points, &q, 0.245, 5, Selection::Nearest);
+        let low = ball_query(&points, &q, 0.245, 5, NeighborSelection::LowestIndex);
+        let near = ball_query(&points, &q, 0.245, 5, NeighborSelection::Nearest);
         assert_eq!(low.neighbors(0), &[6, 7, 8, 9, 10]);
         assert_eq!(near.neighbors(0), &[29, 28, 27, 26, 25]);
         assert_eq!(low.count, vec![5]);

@@ -1,7 +1,9 @@
 //! Run-time settings of the DLF model: gravity, time step, frame, geometry mode.
 
 /// How the conv geometry (mapped coordinates, trilinear and window weights) enters autodiff.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+/// In files: `"constant"` or `"differentiable"`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum GeometryMode {
     /// Geometry is a constant: gradients reach features and kernels only (Open3D, the default).
     #[default]

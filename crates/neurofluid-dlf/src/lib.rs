@@ -23,5 +23,5 @@ pub use config::{DlfConfig, Frame, GeometryMode};
 pub use conv::ContinuousConv;
 pub use geometry::{ConvGeometry, FILTER_EXTENT, HostGeometry, build_host_geometry};
 pub use loss::{dlf_step_loss, two_step_loss};
-pub use net::{Boundary, DlfNet, StepOutput};
+pub use net::{Boundary, DlfNet, StepOutput, StepTrace};
 pub use weights::{WeightsError, load_checkpoint, load_dlf, save_checkpoint};

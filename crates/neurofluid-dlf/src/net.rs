@@ -58,6 +58,11 @@ pub struct StepOutput {
     pub vel: Tensor<2>,
     /// Fluid neighbours of every particle at x* (self excluded), as used by the loss.
     pub num_fluid_neighbors: Vec<u32>,
+}
+
+/// The internals of one step, for parity checks against the reference ([`DlfNet::step_traced`]).
+#[derive(Debug, Clone)]
+pub struct StepTrace {
     /// Raw network output h3 `[N, 3]` (model frame, before the 1/128 scale).
     pub raw_output: Tensor<2>,
     /// x* after the gravity pre-step (model frame).
@@ -232,6 +237,17 @@ impl DlfNet {
     /// One step (one frame, dt): gravity pre-step, network correction, velocity from the
     /// position difference. `pos`, `vel` `[N, 3]` are in the scene frame.
     pub fn step(&self, pos: Tensor<2>, vel: Tensor<2>, boundary: &Boundary) -> StepOutput {
+        self.step_traced(pos, vel, boundary).0
+    }
+
+    /// [`DlfNet::step`], also returning the step's internals (x*, v*, the raw output and the
+    /// layer features) for parity checks.
+    pub fn step_traced(
+        &self,
+        pos: Tensor<2>,
+        vel: Tensor<2>,
+        boundary: &Boundary,
+    ) -> (StepOutput, StepTrace) {
         let cfg = self.config;
         let device = pos.device();
         let pos = self.to_model(pos);
@@ -245,14 +261,17 @@ impl DlfNet {
         let (raw, features) = self.correction(vel_pred.clone(), boundary, &fluid, &solid);
         let pos_new = pos_pred.clone() + raw.clone() * cfg.output_scale;
         let vel_new = (pos_new.clone() - pos) / cfg.dt;
-        StepOutput {
+        let out = StepOutput {
             pos: self.to_scene(pos_new),
             vel: self.to_scene(vel_new),
             num_fluid_neighbors,
+        };
+        let trace = StepTrace {
             raw_output: raw,
             pos_pred,
             vel_pred,
             features,
-        }
+        };
+        (out, trace)
     }
 }

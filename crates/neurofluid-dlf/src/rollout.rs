@@ -2,17 +2,13 @@
 
 use crate::net::{Boundary, DlfNet, points_tensor, tensor_points};
 
-/// A rollout: the state after every step, plus the first step's internals.
+/// A rollout: the state after every step.
 #[derive(Debug, Clone, Default)]
 pub struct Rollout {
     /// Positions, one entry per state (index 0 = the input).
     pub pos: Vec<Vec<[f32; 3]>>,
     /// Velocities, one entry per state.
     pub vel: Vec<Vec<[f32; 3]>>,
-    /// Raw network output of the first step (model frame), `[N, 3]` flattened.
-    pub raw_output_step0: Vec<f32>,
-    /// Fluid neighbour counts at x* of the first step.
-    pub num_fluid_neighbors_step0: Vec<u32>,
 }
 
 /// Runs `steps` network steps from (`pos`, `vel`), calling `on_step(step)` after each.
@@ -31,21 +27,11 @@ pub fn rollout(
     let mut out = Rollout {
         pos: vec![pos.to_vec()],
         vel: vec![vel.to_vec()],
-        ..Rollout::default()
     };
     let mut p = points_tensor(pos, &device);
     let mut v = points_tensor(vel, &device);
     for step in 1..=steps {
         let o = net.step(p, v, boundary);
-        if step == 1 {
-            out.raw_output_step0 = o
-                .raw_output
-                .to_data()
-                .convert::<f32>()
-                .try_into_vec::<f32>()
-                .expect("float data");
-            out.num_fluid_neighbors_step0 = o.num_fluid_neighbors.clone();
-        }
         out.pos.push(tensor_points(&o.pos));
         out.vel.push(tensor_points(&o.vel));
         p = o.pos;

@@ -1,18 +1,15 @@
-//! Supervised training of DLF (spec/dlf.md §5): 2-step unrolled loss with γ = 0.5 and
-//! exp(−n/40) weighting, random rotations about the gravity axis, Adam (ε = 1e-6) with DLF's
-//! piecewise learning-rate schedule, and DLF's validation errors (err_n1, err_n2, whole-sequence
-//! nearest-neighbour error). Fine-tuning (the paper's DLF†) is the same loop started from loaded
-//! weights.
+//! What supervised training of DLF needs from the model side (spec/dlf.md §5): training
+//! sequences (from DLF records or scenes), the 2-step unrolled loss of one sample with γ = 0.5
+//! and exp(−n/40) weighting, rotations about the gravity axis, and DLF's validation errors
+//! (err_n1, err_n2, whole-sequence nearest-neighbour error). The loop itself (Adam, DLF's
+//! schedule, batches, checkpoints) is a trainer stage of `neurofluid-train`.
 
 use std::path::Path;
 
-use burn::optim::{AdamConfig, GradientsAccumulator, GradientsParams};
 use burn::prelude::*;
 use kiddo::{KdTree, SquaredEuclidean};
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
 
-use crate::loss::{LOSS_SCALE, dlf_step_loss};
+use crate::loss::dlf_step_loss;
 use crate::net::{DlfNet, points_tensor, tensor_points};
 use crate::records::{RecordError, RecordFrame, read_record};
 
@@ -151,59 +148,6 @@ pub fn load_record_dir(dir: &Path) -> Result<Vec<TrainingSequence>, TrainError> 
         .collect()
 }
 
-/// Settings of supervised (pre)training.
-#[derive(Debug, Clone, PartialEq)]
-pub struct PretrainConfig {
-    /// Optimiser steps (DLF: 50,000).
-    pub iterations: usize,
-    /// Samples per step (DLF: 16).
-    pub batch_size: usize,
-    /// Base learning rate (DLF: 1e-3).
-    pub base_lr: f64,
-    /// Adam ε (DLF: 1e-6).
-    pub adam_epsilon: f32,
-    /// Rotate each sample by a random angle about the gravity axis (DLF default: on).
-    pub random_rotation: bool,
-    /// Validate every this many steps (DLF: 1000); 0 = only at the end.
-    pub validate_every: usize,
-    /// Frame skip of validation (DLF training: 20, `evaluate_network.py`: 5).
-    pub frame_skip: usize,
-    /// Seed of sample order and rotations.
-    pub seed: u64,
-}
-
-impl Default for PretrainConfig {
-    /// DLF's published settings.
-    fn default() -> Self {
-        Self {
-            iterations: 50_000,
-            batch_size: 16,
-            base_lr: 1e-3,
-            adam_epsilon: 1e-6,
-            random_rotation: true,
-            validate_every: 1000,
-            frame_skip: 20,
-            seed: 0,
-        }
-    }
-}
-
-/// DLF's piecewise learning-rate factor at `step` of a run of `iterations` steps: 1, then
-/// 0.5/0.25/0.125/0.0625/0.03125 after 25k/30k/35k/40k/45k of 50k steps (boundaries scaled
-/// proportionally for other run lengths).
-pub fn dlf_lr_factor(step: usize, iterations: usize) -> f64 {
-    const BOUNDARIES: [f64; 5] = [25_000.0, 30_000.0, 35_000.0, 40_000.0, 45_000.0];
-    const VALUES: [f64; 5] = [0.5, 0.25, 0.125, 0.0625, 0.03125];
-    let scale = iterations as f64 / 50_000.0;
-    let mut factor = 1.0;
-    for (b, v) in BOUNDARIES.iter().zip(VALUES) {
-        if step as f64 > b * scale {
-            factor = v;
-        }
-    }
-    factor
-}
-
 /// Rotation matrix (row-major) by `angle` about the unit `axis` (Rodrigues).
 pub fn rotation_about(axis: [f32; 3], angle: f32) -> [[f32; 3]; 3] {
     let n = (axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2]).sqrt();
@@ -312,29 +256,9 @@ pub fn validate(
     }
 }
 
-/// What the training loop reports.
-#[derive(Debug, Clone, PartialEq)]
-pub enum TrainEvent {
-    /// One optimiser step: the batch loss `128 · mean_batch(0.5 L1 + 0.5 L2)` and the learning rate.
-    Step {
-        /// Step number (1-based).
-        step: usize,
-        /// Batch loss.
-        loss: f64,
-        /// Learning rate used.
-        lr: f64,
-    },
-    /// A validation (step 0 = before training).
-    Validation {
-        /// Step number.
-        step: usize,
-        /// The errors.
-        metrics: ValidationMetrics,
-    },
-}
-
-/// Loss of one sample (two unrolled steps from frame `t`, rotated by `rot`), in the autodiff graph.
-fn sample_loss(
+/// DLF's loss of one training sample: two steps unrolled from frame `t` of `seq` (rotated by
+/// `rot`), `0.5·L(step 1) + 0.5·L(step 2)`, in the autodiff graph (before the ×128 scale).
+pub fn supervised_loss(
     net: &DlfNet,
     seq: &TrainingSequence,
     t: usize,
@@ -355,75 +279,4 @@ fn sample_loss(
     let s2 = net.step(s1.pos, s1.vel, &boundary);
     let l2 = dlf_step_loss(s2.pos, gt2, &s2.num_fluid_neighbors);
     l1 * 0.5 + l2 * 0.5
-}
-
-/// Trains `net` (on an autodiff device) on `train`, validating on `val`; `on_event` sees every
-/// step and validation. Returns the trained network.
-pub fn pretrain(
-    mut net: DlfNet,
-    train: &[TrainingSequence],
-    val: &[TrainingSequence],
-    config: &PretrainConfig,
-    mut on_event: impl FnMut(&TrainEvent, &DlfNet),
-) -> Result<DlfNet, TrainError> {
-    let samples: Vec<(usize, usize)> = train
-        .iter()
-        .enumerate()
-        .flat_map(|(s, seq)| seq.windows().into_iter().map(move |t| (s, t)))
-        .collect();
-    if samples.is_empty() {
-        return Err(TrainError::Data {
-            source_name: "training data".into(),
-            what: "no window of 3 consecutive frames with a constant particle count".into(),
-        });
-    }
-    let gravity_axis = net.config.gravity;
-    let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
-    let mut optim = AdamConfig::new().with_epsilon(config.adam_epsilon).init();
-    let run_validation =
-        |net: &DlfNet, step: usize, on_event: &mut dyn FnMut(&TrainEvent, &DlfNet)| {
-            if val.is_empty() {
-                return;
-            }
-            let metrics = validate(&net.valid(), val, config.frame_skip);
-            tracing::info!(
-                "step {step}: err_n1 {:.6} err_n2 {:.6} whole_seq {:.5}",
-                metrics.err_n1,
-                metrics.err_n2,
-                metrics.whole_seq_err
-            );
-            on_event(&TrainEvent::Validation { step, metrics }, net);
-        };
-    run_validation(&net, 0, &mut on_event);
-    for step in 1..=config.iterations {
-        let lr = config.base_lr * dlf_lr_factor(step, config.iterations);
-        let mut accum = GradientsAccumulator::<DlfNet>::new();
-        let mut batch_loss = 0.0;
-        for _ in 0..config.batch_size.max(1) {
-            let (s, t) = samples[rng.random_range(0..samples.len())];
-            let rot = config.random_rotation.then(|| {
-                rotation_about(gravity_axis, rng.random_range(0.0..std::f32::consts::TAU))
-            });
-            let loss = sample_loss(&net, &train[s], t, rot)
-                * (LOSS_SCALE / config.batch_size.max(1) as f32);
-            batch_loss += loss.clone().into_scalar::<f32>() as f64;
-            let grads = GradientsParams::from_grads(loss.backward(), &net);
-            accum.accumulate(&net, grads);
-        }
-        net = optim.step(lr, net, accum.grads());
-        on_event(
-            &TrainEvent::Step {
-                step,
-                loss: batch_loss,
-                lr,
-            },
-            &net,
-        );
-        if (config.validate_every > 0 && step % config.validate_every == 0)
-            || step == config.iterations
-        {
-            run_validation(&net, step, &mut on_event);
-        }
-    }
-    Ok(net)
 }

@@ -243,8 +243,8 @@ fn differentiable_geometry_mode_keeps_values_and_gives_position_gradients() {
     let boundary = scene.boundary(&net, &ad);
     let pos = to_tensor(&scene.pos[..400], &ad).require_grad();
     let vel = to_tensor(&scene.vel[..400], &ad);
-    let a = net.step(pos.clone(), vel.clone(), &boundary);
-    let b = net_diff.step(pos.clone(), vel, &boundary);
+    let (_, a) = net.step_traced(pos.clone(), vel.clone(), &boundary);
+    let (_, b) = net_diff.step_traced(pos.clone(), vel, &boundary);
     let e = rel_err(&host(&b.raw_output), &host(&a.raw_output));
     assert!(e < 1e-5, "raw output differs: {e:.2e}");
     let ga = a.raw_output.sum().backward();

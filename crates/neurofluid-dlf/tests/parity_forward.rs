@@ -22,14 +22,14 @@ fn five_step_forward_matches_open3d() {
     // Step 0 internals.
     let p0 = common::to_tensor(&scene.pos, &device);
     let v0 = common::to_tensor(&scene.vel, &device);
-    let out = net.step(p0, v0, &boundary);
+    let (out, trace) = net.step_traced(p0, v0, &boundary);
     let counts = reference.i64("num_fluid_neighbors_step0").unwrap().data;
     let ours: Vec<i64> = out.num_fluid_neighbors.iter().map(|&c| c as i64).collect();
     assert_eq!(ours, counts, "neighbour counts differ");
     for (key, t) in [
-        ("pos_pred_step0", &out.pos_pred),
-        ("vel_pred_step0", &out.vel_pred),
-        ("raw_output_step0", &out.raw_output),
+        ("pos_pred_step0", &trace.pos_pred),
+        ("vel_pred_step0", &trace.vel_pred),
+        ("raw_output_step0", &trace.raw_output),
     ] {
         let e = rel_err(&host(t), &reference.f32(key).unwrap().data);
         eprintln!("{key}: relative error {e:.3e}");
@@ -37,11 +37,11 @@ fn five_step_forward_matches_open3d() {
     }
     let rows = reference.i64("feature_rows").unwrap().data;
     for (key, t) in [
-        ("conv0_obstacle_step0", &out.features.conv0_obstacle),
-        ("conv0_fluid_step0", &out.features.conv0_fluid),
-        ("dense0_fluid_step0", &out.features.dense0_fluid),
-        ("layer1_step0", &out.features.layer1),
-        ("layer2_step0", &out.features.layer2),
+        ("conv0_obstacle_step0", &trace.features.conv0_obstacle),
+        ("conv0_fluid_step0", &trace.features.conv0_fluid),
+        ("dense0_fluid_step0", &trace.features.dense0_fluid),
+        ("layer1_step0", &trace.features.layer1),
+        ("layer2_step0", &trace.features.layer2),
     ] {
         let all = host(t);
         let width = all.len() / n;

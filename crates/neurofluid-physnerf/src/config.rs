@@ -3,33 +3,15 @@
 
 use serde::{Deserialize, Serialize};
 
-/// Which K particles the capped ball query keeps when more than K lie inside the ball.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum NeighborSelection {
-    /// The K lowest particle indices (pytorch3d `ball_query`, the reference behaviour).
-    #[default]
-    LowestIndex,
-    /// The K nearest particles (a behavioural change; breaks released renderer weights).
-    Nearest,
-}
-
-impl From<NeighborSelection> for neurofluid_core::neighbors::Selection {
-    fn from(s: NeighborSelection) -> Self {
-        match s {
-            NeighborSelection::LowestIndex => Self::LowestIndex,
-            NeighborSelection::Nearest => Self::Nearest,
-        }
-    }
-}
+pub use neurofluid_core::neighbors::NeighborSelection;
 
 /// Which particle-derived encoding terms enter the networks (the paper's Table 5 ablations).
 ///
 /// A switched-off term is removed from its input; the other blocks keep their order:
 /// `e_x = [γ(x), γ(σ_p)?, γ(p_c)?, γ(v_d)?]`, `e_d = [γ(d), γ(d_c)?]`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(default)]
-pub struct FeatureFlags {
+#[serde(default, deny_unknown_fields)]
+pub struct EncodingTerms {
     /// γ₁₀(p_c), the fictitious particle centre.
     pub pc: bool,
     /// γ₄(σ_p), the particle density.
@@ -40,13 +22,13 @@ pub struct FeatureFlags {
     pub dc: bool,
 }
 
-impl Default for FeatureFlags {
+impl Default for EncodingTerms {
     fn default() -> Self {
         Self::all()
     }
 }
 
-impl FeatureFlags {
+impl EncodingTerms {
     /// Every term on (the paper code).
     pub fn all() -> Self {
         Self {
@@ -70,7 +52,7 @@ impl FeatureFlags {
 
 /// Positional-encoding frequency counts L of each encoded term.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct Frequencies {
     /// Sample position x (10).
     pub x: usize,
@@ -99,14 +81,20 @@ impl Default for Frequencies {
     }
 }
 
-/// Everything the renderer needs besides its weights. Serde-friendly (TOML/JSON); missing
-/// fields take the defaults of the paper code.
+/// Everything the renderer needs besides its weights. Serde-friendly (TOML/JSON, the
+/// experiment's `[physnerf]` table); missing fields take the defaults of the paper code and
+/// unknown fields are rejected.
+///
+/// The ray segment `near`/`far` belongs to the scene's cameras, not to the model: it is not
+/// read from or written to files, and whoever builds the renderer for a scene sets it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct PhysNerfConfig {
     /// Near bound of the ray segment (world units; 9.0 in the released scenes).
+    #[serde(skip)]
     pub near: f64,
     /// Far bound of the ray segment (13.0 in the released scenes).
+    #[serde(skip)]
     pub far: f64,
     /// Coarse samples per ray (64), `z = near·(1−t) + far·t`, `t = linspace(0, 1, n)`.
     pub n_samples: usize,
@@ -123,8 +111,8 @@ pub struct PhysNerfConfig {
     pub stratified: bool,
     /// Composite on a white background (true in the paper code).
     pub white_background: bool,
-    /// Encoding-term switches.
-    pub features: FeatureFlags,
+    /// Encoding-term switches (the paper's Table 5 ablations).
+    pub encoding: EncodingTerms,
     /// Encoding frequency counts.
     pub frequencies: Frequencies,
     /// MLP depth D (8).
@@ -136,6 +124,9 @@ pub struct PhysNerfConfig {
     /// Evaluate the MLPs only on gated samples (all K slots filled). Masked samples contribute
     /// exactly zero colour, density and gradient, so this gives the same numbers with less work.
     pub gated_only: bool,
+    /// Rays per chunk when a whole image is rendered (a memory knob; results do not depend on
+    /// it).
+    pub chunk: usize,
 }
 
 impl Default for PhysNerfConfig {
@@ -150,12 +141,13 @@ impl Default for PhysNerfConfig {
             selection: NeighborSelection::LowestIndex,
             stratified: false,
             white_background: true,
-            features: FeatureFlags::all(),
+            encoding: EncodingTerms::all(),
             frequencies: Frequencies::default(),
             depth: 8,
             width: 256,
             skip: 4,
             gated_only: true,
+            chunk: 1024,
         }
     }
 }
@@ -169,7 +161,7 @@ impl PhysNerfConfig {
     /// Width of the position-like network input e_x (198 with every term on).
     pub fn in_xyz(&self) -> usize {
         let f = &self.frequencies;
-        let t = &self.features;
+        let t = &self.encoding;
         encoded_width(3, f.x)
             + usize::from(t.sigma_p) * encoded_width(1, f.sigma_p)
             + usize::from(t.pc) * encoded_width(3, f.pc)
@@ -179,7 +171,7 @@ impl PhysNerfConfig {
     /// Width of the view-like network input e_d (54 with every term on).
     pub fn in_dir(&self) -> usize {
         let f = &self.frequencies;
-        encoded_width(3, f.d) + usize::from(self.features.dc) * encoded_width(3, f.dc)
+        encoded_width(3, f.d) + usize::from(self.encoding.dc) * encoded_width(3, f.dc)
     }
 
     /// Checks the values for consistency.
@@ -205,6 +197,9 @@ impl PhysNerfConfig {
         if self.k == 0 {
             return Err("k must be at least 1".into());
         }
+        if self.chunk == 0 {
+            return Err("chunk must be at least 1".into());
+        }
         if self.depth == 0 || self.width == 0 || self.skip >= self.depth || self.skip == 0 {
             return Err(format!(
                 "need depth ≥ 2, width ≥ 1 and 0 < skip < depth, got depth {} width {} skip {}",
@@ -223,30 +218,32 @@ mod tests {
     fn widths_follow_the_flags() {
         let mut c = PhysNerfConfig::default();
         assert_eq!((c.in_xyz(), c.in_dir()), (198, 54));
-        c.features.pc = false;
+        c.encoding.pc = false;
         assert_eq!(c.in_xyz(), 135);
-        c.features = FeatureFlags {
+        c.encoding = EncodingTerms {
             sigma_p: false,
-            ..FeatureFlags::all()
+            ..EncodingTerms::all()
         };
         assert_eq!(c.in_xyz(), 189);
-        c.features = FeatureFlags {
+        c.encoding = EncodingTerms {
             dc: false,
-            ..FeatureFlags::all()
+            ..EncodingTerms::all()
         };
         assert_eq!((c.in_xyz(), c.in_dir()), (198, 27));
-        c.features = FeatureFlags::none();
+        c.encoding = EncodingTerms::none();
         assert_eq!((c.in_xyz(), c.in_dir()), (63, 27));
     }
 
     #[test]
     fn serde_defaults_fill_missing_fields() {
         let c: PhysNerfConfig =
-            serde_json::from_str(r#"{"near": 3.0, "far": 5.0, "features": {"vd": false}}"#)
-                .unwrap();
-        assert_eq!(c.near, 3.0);
-        assert_eq!(c.k, 20);
-        assert!(!c.features.vd && c.features.pc);
+            serde_json::from_str(r#"{"k": 12, "encoding": {"vd": false}}"#).unwrap();
+        assert_eq!(c.k, 12);
+        assert_eq!(c.n_samples, 64);
+        assert!(!c.encoding.vd && c.encoding.pc);
         assert!(c.validate().is_ok());
+        // unknown keys are errors, and the ray segment is the scene's, not a setting
+        assert!(serde_json::from_str::<PhysNerfConfig>(r#"{"radius": 0.2}"#).is_err());
+        assert!(serde_json::from_str::<PhysNerfConfig>(r#"{"near": 3.0}"#).is_err());
     }
 }

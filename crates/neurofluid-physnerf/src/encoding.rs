@@ -28,7 +28,7 @@ pub fn encode_inputs(
     config: &PhysNerfConfig,
 ) -> (Tensor<2>, Tensor<2>) {
     let f = &config.frequencies;
-    let t = &config.features;
+    let t = &config.encoding;
     let mut ex = vec![posenc(x, f.x)];
     if t.sigma_p {
         ex.push(posenc(feats.sigma_p.clone(), f.sigma_p));

@@ -1,4 +1,5 @@
-//! Errors of the renderer, the weight files and the case files.
+//! Errors of the renderer and of the safetensors files it reads and writes (weights; the
+//! reference cases of the developer tools).
 
 use std::path::PathBuf;
 
@@ -76,6 +77,16 @@ pub enum PhysNerfError {
         /// The cause.
         message: String,
     },
+}
+
+impl PhysNerfError {
+    /// An IO error on `path`.
+    pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+        Self::Io {
+            path: path.into(),
+            source,
+        }
+    }
 }
 
 /// Result alias of this crate.

@@ -22,7 +22,6 @@
 //! # Ok(()) }
 //! ```
 
-pub mod case;
 pub mod config;
 pub mod encoding;
 pub mod error;
@@ -31,13 +30,13 @@ pub mod mlp;
 pub mod neighbors;
 pub mod real;
 pub mod renderer;
+pub mod safetensors_file;
 pub mod sampling;
-pub mod st;
 pub mod view;
 pub mod volume;
 pub mod weights;
 
-pub use config::{FeatureFlags, Frequencies, NeighborSelection, PhysNerfConfig};
+pub use config::{EncodingTerms, Frequencies, NeighborSelection, PhysNerfConfig};
 pub use error::{PhysNerfError, Result};
 
 pub use mlp::NerfMlp;

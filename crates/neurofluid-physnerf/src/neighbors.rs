@@ -3,10 +3,9 @@
 //! search with the same semantics: `d² = (dx² + dy²) + dz² < r²` strict, `r² = r·r` in the
 //! working precision, K lowest indices (or K nearest), empty slots `idx = −1`, `d² = 0`.
 
-use neurofluid_core::neighbors::{NeighborGrid, Selection};
+use neurofluid_core::neighbors::{NeighborGrid, NeighborSelection};
 use rayon::prelude::*;
 
-use crate::config::NeighborSelection;
 use crate::real::Real;
 
 /// Ball-query result in the working precision T.
@@ -66,7 +65,7 @@ pub fn ball_query<T: Real>(
         let p: Vec<[f32; 3]> = points.iter().map(|v| v.map(|c| c.f64() as f32)).collect();
         let q: Vec<[f32; 3]> = queries.iter().map(|v| v.map(|c| c.f64() as f32)).collect();
         let r = radius as f32;
-        let bq = NeighborGrid::new(&p, r).ball_query(&q, r, k, Selection::from(selection));
+        let bq = NeighborGrid::new(&p, r).ball_query(&q, r, k, selection);
         Neighbors {
             k,
             idx: bq.idx,

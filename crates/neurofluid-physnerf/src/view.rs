@@ -7,7 +7,6 @@ use neurofluid_core::camera::Camera;
 
 use crate::error::{PhysNerfError, Result};
 use crate::renderer::{PhysNerf, RayBatch};
-use crate::st::write_atomic;
 
 /// A rendered view: row-major RGB in [0, 1] (white background).
 #[derive(Debug, Clone, PartialEq)]
@@ -105,7 +104,7 @@ pub fn save_png(path: impl AsRef<Path>, width: u32, height: u32, rgb: &[f32]) ->
         image::ImageFormat::Png,
     )
     .map_err(|e| err(e.to_string()))?;
-    write_atomic(path, &png)
+    neurofluid_core::atomic::write_bytes(path, &png).map_err(|e| PhysNerfError::io(path, e))
 }
 
 impl RenderedImage {

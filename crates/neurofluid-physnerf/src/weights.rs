@@ -14,10 +14,13 @@ use crate::config::PhysNerfConfig;
 use crate::error::{PhysNerfError, Result};
 use crate::mlp::{NerfMlp, layer_shapes};
 use crate::renderer::PhysNerf;
-use crate::st::{StFile, StWriter};
+use crate::safetensors_file::{StFile, StWriter};
 
 /// Metadata key holding the JSON renderer configuration in files we write.
 pub const CONFIG_KEY: &str = "physnerf_config";
+/// Metadata keys of the ray segment the weights were trained with (not part of the config).
+const NEAR_KEY: &str = "near";
+const FAR_KEY: &str = "far";
 /// The two network prefixes.
 pub const NETS: [&str; 2] = ["nerf_coarse", "nerf_fine"];
 
@@ -116,12 +119,22 @@ impl PhysNerf {
                 message: "missing; a nerf_pl file without it loads with PhysNerf::from_nerf_pl"
                     .into(),
             })?;
-        let config: PhysNerfConfig =
+        let mut config: PhysNerfConfig =
             serde_json::from_str(json).map_err(|e| PhysNerfError::Metadata {
                 path: path.to_path_buf(),
                 field: CONFIG_KEY.into(),
                 message: e.to_string(),
             })?;
+        // the ray segment is the scene's, kept beside the config so the file is self-contained
+        for (key, slot) in [(NEAR_KEY, &mut config.near), (FAR_KEY, &mut config.far)] {
+            if let Some(v) = meta.get(key) {
+                *slot = v.parse().map_err(|e| PhysNerfError::Metadata {
+                    path: path.to_path_buf(),
+                    field: key.into(),
+                    message: format!("expected a number: {e}"),
+                })?;
+            }
+        }
         Self::from_nerf_pl(path, config, device, dtype)
     }
 
@@ -158,6 +171,8 @@ impl PhysNerf {
             CONFIG_KEY,
             serde_json::to_string(&self.config).expect("config serialises"),
         );
+        w.meta(NEAR_KEY, self.config.near.to_string());
+        w.meta(FAR_KEY, self.config.far.to_string());
         w.meta("format", "neurofluid-physnerf/1".into());
         w.write(path)
     }

@@ -33,12 +33,6 @@ pub enum Command {
     Info(commands::info::Args),
     /// Run every variant of a sweep file and write a Table-5-shaped table.
     Sweep(commands::sweep::Args),
-    /// Render a PhysNeRF reference case file and write the reference's keys (parity check).
-    PhysnerfCase(commands::physnerf_case::Args),
-    /// Render a whole view of a PhysNeRF case in ray chunks and save a PNG.
-    Render(commands::render::Args),
-    /// Run the DLF model on a scene `.npz` (the DLF reference harness's keys).
-    DlfRollout(commands::dlf_rollout::Args),
     /// Supervised (pre)training or fine-tuning of DLF on `.msgpack.zst` records.
     PretrainDlf(commands::pretrain_dlf::Args),
     /// Print the compiled-in backends and the devices they offer.

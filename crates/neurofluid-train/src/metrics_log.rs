@@ -12,7 +12,7 @@ pub const CSV_FILE: &str = "metrics.csv";
 /// JSON-lines file name inside a run folder.
 pub const JSONL_FILE: &str = "metrics.jsonl";
 /// The CSV header.
-pub const CSV_HEADER: &str = "stage,step,loss,psnr,lr_renderer,lr_transition,rays_per_s,time_s";
+pub const CSV_HEADER: &str = "stage,step,loss,psnr,lr_physnerf,lr_dlf,rays_per_s,time_s";
 
 /// Errors of the metrics log.
 #[derive(Debug, thiserror::Error)]
@@ -49,12 +49,20 @@ pub struct MetricsRow {
     /// PSNR (dB) of the step's batch or of an evaluation.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub psnr: Option<f64>,
-    /// Renderer learning rate (the warm-up's only one).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub lr_renderer: Option<f64>,
-    /// Transition learning rate (joint stage).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub lr_transition: Option<f64>,
+    /// PhysNeRF's learning rate (the warm-up's only one).
+    #[serde(
+        default,
+        alias = "lr_renderer",
+        skip_serializing_if = "Option::is_none"
+    )]
+    pub lr_physnerf: Option<f64>,
+    /// DLF's learning rate (joint stage, supervised DLF).
+    #[serde(
+        default,
+        alias = "lr_transition",
+        skip_serializing_if = "Option::is_none"
+    )]
+    pub lr_dlf: Option<f64>,
     /// Throughput in rays per second.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rays_per_s: Option<f64>,
@@ -70,8 +78,8 @@ impl MetricsRow {
             step,
             loss,
             psnr: None,
-            lr_renderer: None,
-            lr_transition: None,
+            lr_physnerf: None,
+            lr_dlf: None,
             rays_per_s: None,
             time_s,
         }
@@ -86,8 +94,8 @@ impl MetricsRow {
             self.step,
             self.loss,
             opt(self.psnr),
-            opt(self.lr_renderer),
-            opt(self.lr_transition),
+            opt(self.lr_physnerf),
+            opt(self.lr_dlf),
             opt(self.rays_per_s),
             self.time_s
         )
@@ -227,7 +235,7 @@ mod tests {
     fn row(stage: &str, step: u64, loss: f64) -> MetricsRow {
         let mut r = MetricsRow::new(stage, step, loss, step as f64 * 0.5);
         r.psnr = Some(psnr_from_mse(loss));
-        r.lr_renderer = Some(5e-4);
+        r.lr_physnerf = Some(5e-4);
         r
     }
 
@@ -250,7 +258,7 @@ mod tests {
         {
             let mut log = MetricsLog::open(dir.path()).unwrap();
             let mut r = MetricsRow::new("joint", 0, 0.2, 9.0);
-            r.lr_transition = Some(1e-5);
+            r.lr_dlf = Some(1e-5);
             log.append(&r).unwrap();
         }
         let csv = std::fs::read_to_string(dir.path().join(CSV_FILE)).unwrap();
@@ -263,7 +271,7 @@ mod tests {
         let rows = read_jsonl(&dir.path().join(JSONL_FILE)).unwrap();
         assert_eq!(rows.len(), 3);
         assert_eq!(rows[1], row("warmup", 10, 0.05));
-        assert_eq!(rows[2].lr_transition, Some(1e-5));
+        assert_eq!(rows[2].lr_dlf, Some(1e-5));
         assert_eq!(rows[2].psnr, None);
     }
 

@@ -8,7 +8,7 @@
 //! [[variant]]
 //! name = "no_pc"
 //! label = "w/o p_c"
-//! set = ["renderer.encoding.pc=false"]
+//! set = ["physnerf.encoding.pc=false"]
 //! ```
 //! Without `[[variant]]` the paper's Table 5 set is used: full, w/o p_c, σ_p, v_D, d_c.
 
@@ -52,7 +52,7 @@ pub struct Variant {
     /// Row label in the table; default the name.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub label: Option<String>,
-    /// Dotted overrides, e.g. `renderer.encoding.pc=false`.
+    /// Dotted overrides, e.g. `physnerf.encoding.pc=false`.
     #[serde(default)]
     pub set: Vec<String>,
 }
@@ -66,14 +66,14 @@ pub fn table5_variants() -> Vec<Variant> {
     };
     vec![
         v("full", "Full model", &[]),
-        v("no_pc", "w/o p_c", &["renderer.encoding.pc=false"]),
+        v("no_pc", "w/o p_c", &["physnerf.encoding.pc=false"]),
         v(
             "no_sigma_p",
             "w/o σ_p",
-            &["renderer.encoding.sigma_p=false"],
+            &["physnerf.encoding.sigma_p=false"],
         ),
-        v("no_vd", "w/o v_D", &["renderer.encoding.vd=false"]),
-        v("no_dc", "w/o d_c", &["renderer.encoding.dc=false"]),
+        v("no_vd", "w/o v_D", &["physnerf.encoding.vd=false"]),
+        v("no_dc", "w/o d_c", &["physnerf.encoding.dc=false"]),
     ]
 }
 
@@ -293,7 +293,7 @@ mod tests {
         let enc: Vec<_> = s
             .variants
             .iter()
-            .map(|v| v.experiment.renderer.encoding)
+            .map(|v| v.experiment.physnerf.encoding)
             .collect();
         assert!(enc[0].pc && enc[0].sigma_p && enc[0].vd && enc[0].dc);
         assert!(!enc[1].pc && enc[1].sigma_p && enc[1].vd && enc[1].dc);
@@ -315,12 +315,12 @@ mod tests {
     #[test]
     fn explicit_variants_and_errors() {
         let s = sweep(
-            "base = \"b\"\nout_dir = \"runs/x\"\n[[variant]]\nname = \"a\"\n[[variant]]\nname = \"b\"\nset = [\"joint.lr_renderer=1e-4\"]\n",
+            "base = \"b\"\nout_dir = \"runs/x\"\n[[variant]]\nname = \"a\"\n[[variant]]\nname = \"b\"\nset = [\"joint.physnerf_optim.lr=1e-4\"]\n",
         )
         .unwrap();
         assert_eq!(s.variants.len(), 2);
         assert_eq!(s.variants[0].label, "a");
-        assert_eq!(s.variants[1].experiment.joint.lr_renderer, 1e-4);
+        assert_eq!(s.variants[1].experiment.joint.physnerf_optim.lr, 1e-4);
         assert_eq!(
             s.variants[1].experiment.out_dir(),
             PathBuf::from("runs/x/b")

@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use neurofluid_train::config::{Experiment, RESOLVED_FILE};
-use neurofluid_train::rng::Rng;
+use neurofluid_train::sampler::Rng;
 use neurofluid_train::sweep::Sweep;
 
 fn experiments_dir() -> PathBuf {
@@ -98,7 +98,7 @@ fn encoding_sweep_expands_to_table5() {
         .variants
         .iter()
         .map(|v| {
-            let e = v.experiment.renderer.encoding;
+            let e = v.experiment.physnerf.encoding;
             [e.pc, e.sigma_p, e.vd, e.dc]
                 .iter()
                 .filter(|on| !**on)

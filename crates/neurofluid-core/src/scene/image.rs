@@ -2,7 +2,6 @@
 
 use std::path::Path;
 
-use super::atomic::write_atomic;
 use super::error::{Result, SceneError};
 
 /// An image composited on white: `rgb` is row-major H×W×3 in [0, 1]; `alpha` is H×W.
@@ -81,5 +80,5 @@ pub fn write_png_rgba(path: &Path, width: u32, height: u32, rgba: &[u8]) -> Resu
                 message: e.to_string(),
             })?;
     }
-    write_atomic(path, &buf)
+    crate::atomic::write_bytes(path, &buf).map_err(|e| SceneError::io(path, e))
 }

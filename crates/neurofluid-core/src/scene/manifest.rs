@@ -11,7 +11,6 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use super::atomic::write_atomic;
 use super::error::{Result, SceneError};
 
 /// File name of the manifest inside a scene directory.
@@ -261,6 +260,6 @@ impl SceneManifest {
             message: e.to_string(),
         })?;
         text.push('\n');
-        write_atomic(path, text.as_bytes())
+        crate::atomic::write_bytes(path, text.as_bytes()).map_err(|e| SceneError::io(path, e))
     }
 }

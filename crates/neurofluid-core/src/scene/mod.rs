@@ -13,7 +13,6 @@
 //! frames exist; images, particles and the box are read on demand. Every missing file or field
 //! is an error naming the path and the field. Writers are atomic (temporary file + rename).
 
-mod atomic;
 mod error;
 mod image;
 mod manifest;
@@ -25,7 +24,6 @@ use std::collections::BTreeMap;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 
-pub use atomic::write_atomic;
 pub use error::{Result, SceneError};
 pub use image::{Image, png_size, write_png_rgba};
 pub use manifest::{Aabb, FrameRange, MANIFEST_FILE, Role, SceneManifest, UpAxis, ViewSet};

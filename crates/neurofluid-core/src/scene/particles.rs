@@ -128,7 +128,8 @@ impl BoxParticles {
     /// Writes the box as a plain Python pickle (`box.pt`, loadable by `joblib.load` and
     /// `pickle.load`), atomically.
     pub fn write_pickle(&self, path: &Path) -> Result<()> {
-        super::atomic::write_atomic(path, &super::pickle::box_pickle(self))
+        crate::atomic::write_bytes(path, &super::pickle::box_pickle(self))
+            .map_err(|e| SceneError::io(path, e))
     }
 
     /// Writes `box` and `box_normals` as float32 N×3 arrays, atomically.

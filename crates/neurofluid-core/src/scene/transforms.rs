@@ -4,7 +4,6 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use super::atomic::write_atomic;
 use super::error::{Result, SceneError};
 
 /// One frame of a transforms file.
@@ -65,7 +64,7 @@ impl TransformsFile {
             message: e.to_string(),
         })?;
         text.push('\n');
-        write_atomic(path, text.as_bytes())
+        crate::atomic::write_bytes(path, text.as_bytes()).map_err(|e| SceneError::io(path, e))
     }
 }
 

@@ -17,7 +17,8 @@ pub struct ExperimentArgs {
     /// Override a key of the experiment, e.g. `--set joint.epochs=2` (repeatable).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub set: Vec<String>,
-    /// Start from scratch: delete the run folder's checkpoints instead of resuming from them.
+    /// Start over: delete what the run folder holds (checkpoints, metrics, evaluation) instead
+    /// of resuming from it.
     #[arg(long)]
     pub fresh: bool,
 }
@@ -33,14 +34,7 @@ impl ExperimentArgs {
         }
         exp.validate(&self.experiment)?;
         if self.fresh {
-            let dir = exp.out_dir();
-            for stage in ["warmup", "joint", "eval"] {
-                let p = dir.join(stage);
-                if p.exists() {
-                    std::fs::remove_dir_all(&p)
-                        .with_context(|| format!("removing {}", p.display()))?;
-                }
-            }
+            crate::stages::reset_run_folder(&exp)?;
         }
         Ok(exp)
     }

@@ -1,13 +1,10 @@
 //! One module per subcommand; each exposes `Args` and `run`.
 
 pub mod devices;
-pub mod dlf_rollout;
 pub mod experiment_args;
 pub mod generate;
 pub mod info;
-pub mod physnerf_case;
 pub mod pretrain_dlf;
-pub mod render;
 pub mod run;
 pub mod stage_cmds;
 pub mod sweep;
@@ -24,9 +21,6 @@ pub fn dispatch(command: Command) -> anyhow::Result<()> {
         Command::Generate(args) => generate::run(args),
         Command::Info(args) => info::run(args),
         Command::Sweep(args) => sweep::run(args),
-        Command::PhysnerfCase(args) => physnerf_case::run(args),
-        Command::Render(args) => render::run(args),
-        Command::DlfRollout(args) => dlf_rollout::run(args),
         Command::PretrainDlf(args) => pretrain_dlf::run(args),
         Command::Devices(args) => devices::run(args),
     }

@@ -1,57 +1,55 @@
-//! `pretrain-dlf`: supervised (pre)training or fine-tuning (the paper's DLF†) of the DLF model on
-//! DLF `.msgpack.zst` records or a scene's particle sequence, with DLF's loss, rotations, schedule and validation errors.
+//! `pretrain-dlf`: supervised (pre)training or fine-tuning (the paper's DLF†) of DLF on DLF
+//! `.msgpack.zst` records or a scene's particle sequence, with DLF's loss, rotations, schedule
+//! and validation errors. It checkpoints into `<output stem>.pretrain/` and resumes from there;
+//! the weights file is written at every checkpoint.
+//!
+//! On a scene folder only the frames DLF† may see are used: the training split (t < 50), so the
+//! prediction window stays unseen.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use indicatif::{ProgressBar, ProgressStyle};
 use neurofluid_core::device::parse_device;
 use neurofluid_core::scene::{MANIFEST_FILE, Role, Scene, UpAxis};
-use neurofluid_dlf::train::{
-    PretrainConfig, TrainEvent, TrainingSequence, load_record_dir, pretrain,
-};
-use neurofluid_dlf::{DlfConfig, DlfNet, load_dlf, save_checkpoint};
+use neurofluid_dlf::train::{TrainingSequence, load_record_dir};
+use neurofluid_dlf::{DlfConfig, DlfNet, load_dlf};
+use serde::Serialize;
+
+use crate::config::Settings;
+use crate::stages::supervised_dlf::{STAGE, SupervisedConfig, SupervisedDlfTrainer};
+use crate::trainer::sinks::ProgressBars;
+use crate::trainer::{Cadence, Driver, Event, EventSink, Trainer};
 
 /// Arguments of `pretrain-dlf`.
-#[derive(Debug, clap::Args)]
+#[derive(Debug, Serialize, clap::Args)]
 pub struct Args {
     /// Training data: a folder of DLF records (`*.msgpack.zst`, one sequence per file) or a
-    /// scene folder (generated or released layout; its test sequence is used).
+    /// scene folder (generated or released layout; its training frames are used).
     #[arg(long)]
     pub data: PathBuf,
     /// Validation data (a records folder or a scene folder).
     #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub val: Option<PathBuf>,
     /// Start from these weights (`.pt`, `.safetensors`, `.bpk`): fine-tuning. Default: random init.
     #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub init: Option<PathBuf>,
-    /// Output checkpoint (burnpack `.bpk`); also written after every validation.
+    /// Output weights (burnpack `.bpk`); also written at every checkpoint.
     #[arg(long)]
     pub output: PathBuf,
-    /// Optimiser steps (DLF: 50000).
-    #[arg(long, default_value_t = 50_000)]
-    pub iterations: usize,
-    /// Samples per step (DLF: 16).
-    #[arg(long, default_value_t = 16)]
-    pub batch_size: usize,
-    /// Base learning rate (DLF: 1e-3; the piecewise decay is applied on top).
-    #[arg(long, default_value_t = 1e-3)]
-    pub lr: f64,
-    /// Validate (and checkpoint) every this many steps.
-    #[arg(long, default_value_t = 1000)]
-    pub validate_every: usize,
-    /// Frame skip of the validation errors.
-    #[arg(long, default_value_t = 20)]
-    pub frame_skip: usize,
-    /// Turn off the random rotation about the gravity axis (DLF's dambreak setting).
-    #[arg(long)]
-    pub no_rotation: bool,
-    /// Seed of sample order, rotations and initialisation.
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
+    /// The training settings.
+    #[command(flatten)]
+    #[serde(flatten)]
+    pub train: SupervisedConfig,
     /// Device (cpu, flex, ndarray, wgpu, cuda, cuda:N).
     #[arg(long, default_value = "cpu")]
+    #[serde(skip)]
     pub device: String,
+    /// Start over: delete the checkpoints of an earlier run with this output.
+    #[arg(long)]
+    #[serde(skip)]
+    pub fresh: bool,
 }
 
 /// The sequences of a records folder (y-up, DLF's frame) or of a scene folder (its up axis).
@@ -61,7 +59,7 @@ fn load_sequences(path: &Path) -> anyhow::Result<(Vec<TrainingSequence>, UpAxis)
     }
     let scene =
         Scene::open(path).with_context(|| format!("opening the scene {}", path.display()))?;
-    let frames = scene.particle_sequence(Role::Test)?;
+    let frames = scene.particle_sequence(Role::Train)?;
     let walls = scene.boundary()?;
     let name = scene.manifest().name.clone();
     let sequence = TrainingSequence::new(
@@ -74,10 +72,29 @@ fn load_sequences(path: &Path) -> anyhow::Result<(Vec<TrainingSequence>, UpAxis)
     Ok((vec![sequence], scene.up_axis()))
 }
 
+/// The folder of the checkpoints that go with `output`.
+pub fn checkpoint_dir(output: &Path) -> PathBuf {
+    output.with_extension("pretrain")
+}
+
+/// Copies the checkpoint's weights to the output file at every checkpoint.
+struct ExportWeights<'a>(&'a Path);
+
+impl EventSink for ExportWeights<'_> {
+    fn on_event(&mut self, event: &Event<'_>) -> anyhow::Result<()> {
+        if let Event::Checkpointed { dir, .. } = event {
+            let bytes = std::fs::read(dir.join("dlf.bpk"))?;
+            neurofluid_core::atomic::write_bytes(self.0, &bytes)
+                .with_context(|| format!("writing {}", self.0.display()))?;
+        }
+        Ok(())
+    }
+}
+
 /// Runs the training.
 pub fn run(args: Args) -> anyhow::Result<()> {
     let device = parse_device(&args.device)?.autodiff();
-    device.seed(args.seed);
+    device.seed(args.train.seed);
     let (train, up) = load_sequences(&args.data)?;
     let val = match &args.val {
         Some(dir) => load_sequences(dir)?.0,
@@ -91,51 +108,39 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Some(path) => load_dlf(path, config, &device)?,
         None => DlfNet::new(config, &device),
     };
-    let train_config = PretrainConfig {
-        iterations: args.iterations,
-        batch_size: args.batch_size,
-        base_lr: args.lr,
-        random_rotation: !args.no_rotation,
-        validate_every: args.validate_every,
-        frame_skip: args.frame_skip,
-        seed: args.seed,
-        ..PretrainConfig::default()
-    };
     tracing::info!(
         "pretrain-dlf: {} training and {} validation sequences, {} steps of batch {}",
         train.len(),
         val.len(),
-        args.iterations,
-        args.batch_size
+        args.train.iterations,
+        args.train.batch_size
     );
-    let bar = ProgressBar::new(args.iterations as u64);
-    bar.set_style(
-        ProgressStyle::with_template("{bar:40} {pos}/{len} steps, loss {msg}, eta {eta}")
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-    );
-    let mut save_error = None;
-    let net = pretrain(net, &train, &val, &train_config, |event, net| match event {
-        TrainEvent::Step { loss, .. } => {
-            bar.set_message(format!("{loss:.4}"));
-            bar.inc(1);
-        }
-        TrainEvent::Validation { step, metrics } => {
-            bar.println(format!(
-                "step {step}: err_n1 {:.6} err_n2 {:.6} whole_seq_err {:.5}",
-                metrics.err_n1, metrics.err_n2, metrics.whole_seq_err
-            ));
-            if *step > 0
-                && let Err(e) = save_checkpoint(net, &args.output)
-            {
-                save_error = Some(e);
-            }
-        }
-    })?;
-    bar.finish_and_clear();
-    if let Some(e) = save_error {
-        return Err(e).context("saving a checkpoint during training");
+    let dir = checkpoint_dir(&args.output);
+    if args.fresh && dir.exists() {
+        std::fs::remove_dir_all(&dir).with_context(|| format!("removing {}", dir.display()))?;
     }
-    save_checkpoint(&net, &args.output)?;
+    let mut trainer = SupervisedDlfTrainer::new(&args.train, net, train, val)?;
+    let mut bars = ProgressBars::new();
+    if crate::trainer::checkpoint::latest(&dir).is_none()
+        && let Some(e) = trainer.evaluate(0)?
+    {
+        bars.on_event(&Event::Evaluated {
+            stage: STAGE,
+            done: 0,
+            time_s: 0.0,
+            evaluation: &e,
+        })?;
+    }
+    let cadence = Cadence {
+        log_every: 1,
+        evaluate_every: args.train.validate_every,
+        checkpoint_every: args.train.validate_every,
+    };
+    let mut export = ExportWeights(&args.output);
+    Driver::new(&dir, cadence, Settings::of(&args))
+        .with_sink(&mut bars)
+        .with_sink(&mut export)
+        .run(&mut trainer, None)?;
     tracing::info!("wrote {}", args.output.display());
     Ok(())
 }
@@ -166,26 +171,32 @@ mod tests {
                 ..RecordFrame::default()
             })
             .collect();
-        let dir = std::env::temp_dir().join(format!("nf_pretrain_dlf_{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        write_record(&dir.join("sim_0001_00.msgpack.zst"), &frames, 3).unwrap();
-        let output = dir.join("ft.bpk");
+        let dir = tempfile::tempdir().unwrap();
+        write_record(&dir.path().join("sim_0001_00.msgpack.zst"), &frames, 3).unwrap();
+        let output = dir.path().join("ft.bpk");
         run(Args {
-            data: dir.clone(),
-            val: Some(dir.clone()),
+            data: dir.path().to_path_buf(),
+            val: Some(dir.path().to_path_buf()),
             init: Some(weights),
             output: output.clone(),
-            iterations: 2,
-            batch_size: 1,
-            lr: 1e-5,
-            validate_every: 1,
-            frame_skip: 1,
-            no_rotation: false,
-            seed: 1,
+            train: SupervisedConfig {
+                iterations: 2,
+                batch_size: 1,
+                lr: 1e-5,
+                validate_every: 1,
+                frame_skip: 1,
+                no_rotation: false,
+                seed: 1,
+            },
             device: "cpu".into(),
+            fresh: false,
         })
         .unwrap();
         load_dlf(&output, DlfConfig::default(), &device).unwrap();
-        std::fs::remove_dir_all(dir).unwrap();
+        assert!(
+            checkpoint_dir(&output)
+                .join("checkpoint/state.json")
+                .is_file()
+        );
     }
 }

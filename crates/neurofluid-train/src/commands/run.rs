@@ -14,13 +14,12 @@ pub struct Args {
 
 /// Runs every stage, resuming from the checkpoints of an interrupted run.
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let run = Run::open(args.exp.load()?)?;
+    let run = Run::prepare(args.exp.load()?)?;
     tracing::info!("run folder {}", run.dir.display());
     let mut log = run.open_log()?;
     warmup::run(&run, &mut log)?;
     let grounded = joint::run(&run, &mut log)?;
     let summary = eval::run(&run, &grounded)?;
-    crate::plot::plot_metrics_file(log.jsonl_path(), &run.dir.join("curves.png"))?;
     println!("{}", summary.markdown());
     println!("results in {}", run.dir.display());
     Ok(())

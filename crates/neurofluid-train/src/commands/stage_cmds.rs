@@ -13,7 +13,7 @@ pub struct Args {
 
 /// The renderer warm-up on frame 0.
 pub fn run_warmup(args: Args) -> anyhow::Result<()> {
-    let run = Run::open(args.exp.load()?)?;
+    let run = Run::prepare(args.exp.load()?)?;
     let mut log = run.open_log()?;
     warmup::run(&run, &mut log)?;
     println!(
@@ -25,7 +25,7 @@ pub fn run_warmup(args: Args) -> anyhow::Result<()> {
 
 /// Joint grounding (needs a finished warm-up).
 pub fn run_joint(args: Args) -> anyhow::Result<()> {
-    let run = Run::open(args.exp.load()?)?;
+    let run = Run::prepare(args.exp.load()?)?;
     let mut log = run.open_log()?;
     joint::run(&run, &mut log)?;
     println!(
@@ -35,9 +35,9 @@ pub fn run_joint(args: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Evaluation of a finished joint stage.
+/// Evaluation of a finished joint stage (reads the scene and checkpoints; simulates nothing).
 pub fn run_eval(args: Args) -> anyhow::Result<()> {
-    let run = Run::open(args.exp.load()?)?;
+    let run = Run::open_existing(args.exp.load()?)?;
     let grounded = joint::load_trained(&run)?;
     let summary = eval::run(&run, &grounded)?;
     println!("{}", summary.markdown());

@@ -38,12 +38,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         tracing::info!("variant {} ({})", variant.name, variant.label);
         let outcome = (|| -> anyhow::Result<_> {
-            let run = Run::open(exp)?;
+            let run = Run::prepare(exp)?;
             let mut log = run.open_log()?;
             warmup::run(&run, &mut log)?;
             let grounded = joint::run(&run, &mut log)?;
             let report = eval::run(&run, &grounded)?;
-            crate::plot::plot_metrics_file(log.jsonl_path(), &run.dir.join("curves.png"))?;
             Ok(report)
         })();
         match outcome {

@@ -14,8 +14,9 @@ use neurofluid_dlf::DlfNet;
 use neurofluid_dlf::rollout::rollout;
 use neurofluid_physnerf::{PhysNerf, render_image, save_png};
 
-use super::context::{Run, ViewFrame, check_particles, points_tensor};
 use super::joint::Grounded;
+use super::run_folder::Run;
+use super::views::{ViewFrame, check_particles, points_tensor, side_by_side};
 use crate::config::PlyEncoding;
 use crate::ply::{PlyFormat, write_ply};
 use crate::report::{EvalReport, FrameDistance, ImageScore, Windows};
@@ -68,36 +69,30 @@ fn scaled_view(view: &ViewFrame, scale: f64) -> (Camera, Vec<f32>) {
 
 /// Renders `particles` from `view`, saves `[render | ground truth]` and scores it.
 fn render_and_score(
-    renderer: &PhysNerf,
+    physnerf: &PhysNerf,
     view: &ViewFrame,
     particles: &[[f32; 3]],
-    chunk: usize,
     scale: f64,
     png: &std::path::Path,
 ) -> anyhow::Result<(f64, f64)> {
-    let device = renderer
+    let device = physnerf
         .devices()
         .into_iter()
         .next()
-        .context("renderer has no device")?;
+        .context("PhysNeRF has no device")?;
     let (cam, gt_rgb) = scaled_view(view, scale);
     let cam = &cam;
     let image = render_image(
-        renderer,
+        physnerf,
         cam,
         &points_tensor(particles, &device),
-        chunk,
+        physnerf.config.chunk,
         &mut |_, _| {},
     )?;
     let pred = as_image(cam.width, cam.height, image.best())?;
     let gt = as_image(cam.width, cam.height, &gt_rgb)?;
-    let (w, h) = (cam.width as usize, cam.height as usize);
-    let mut side = Vec::with_capacity(2 * w * h * 3);
-    for row in 0..h {
-        side.extend_from_slice(&pred.data[row * w * 3..(row + 1) * w * 3]);
-        side.extend_from_slice(&gt.data[row * w * 3..(row + 1) * w * 3]);
-    }
-    save_png(png, 2 * cam.width, cam.height, &side)?;
+    let side = side_by_side(&pred, &gt);
+    save_png(png, side.width, side.height, &side.rgb)?;
     Ok((psnr(&pred, &gt)?, ssim(&pred, &gt).unwrap_or(f64::NAN)))
 }
 
@@ -164,7 +159,7 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
         }
     }
     if cfg.render {
-        let renderer = models.renderer.valid();
+        let physnerf = models.physnerf.valid();
         let every = cfg.render_every.max(1);
         let frames: Vec<usize> = (1..=steps)
             .filter(|t| t % every == 0 || *t == steps)
@@ -179,14 +174,8 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
             for &t in &frames {
                 let vf = ViewFrame::load(scene, Role::Test, view, test.start + t)?;
                 let png = dir.join(format!("renders/{view}/t{t:04}.png"));
-                let (psnr, ssim) = render_and_score(
-                    &renderer,
-                    &vf,
-                    &grounded[t],
-                    run.exp.renderer.chunk,
-                    cfg.image_scale,
-                    &png,
-                )?;
+                let (psnr, ssim) =
+                    render_and_score(&physnerf, &vf, &grounded[t], cfg.image_scale, &png)?;
                 report.images.push(ImageScore {
                     view: view.clone(),
                     t,

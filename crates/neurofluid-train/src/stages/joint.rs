@@ -1,49 +1,44 @@
-//! Joint grounding (spec §4.2): the transition model T_θ (DLF) and the renderer R_φ (PhysNeRF)
-//! trained together from the training view only.
+//! Joint grounding (spec §4.2): DLF (the transition model) and PhysNeRF (the renderer) trained
+//! together from the training view only.
 //!
 //! Frames are visited in order; at the start of every epoch the state is reset to the known
-//! ground-truth state of the first training frame. Each iteration steps DLF once, renders the
-//! prediction with the camera of frame t+1 at `rays` random pixels of image t+1, and minimises
-//! MSE_coarse + MSE_fine + w·L1(outside the box). Two Adams, each with its own multi-step
-//! schedule, update the renderer and the transition model. The carried state is detached after
-//! every `bptt_steps` transitions (1 = the reference's truncated BPTT).
+//! ground-truth state of the first training frame. Each step moves DLF one transition, renders
+//! the prediction with the camera of frame t+1 at `rays` random pixels of image t+1, and adds
+//! MSE_coarse + MSE_fine + w·L1(outside the box) to the window's loss. Two Adams, each with its
+//! own schedule, update PhysNeRF and DLF at the end of every window of `bptt_steps` transitions
+//! (1 = the reference's truncated BPTT), after which the carried state is detached.
+
+use std::path::Path;
 
 use anyhow::Context;
 use burn::optim::{GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
 use neurofluid_core::npz::{NpzReader, NpzWriter};
-use neurofluid_core::scene::{Aabb, Role};
+use neurofluid_core::scene::{Aabb, Particles, Role, Scene};
 use neurofluid_dlf::{Boundary, DlfNet};
 use neurofluid_physnerf::PhysNerf;
-use serde::{Deserialize, Serialize};
 
-use super::checkpoint;
-use super::context::{Run, ViewFrame, check_particles, points_tensor, scalar, tensor_points};
-use super::preview;
-use super::progress::StageProgress;
+use super::run_folder::Run;
+use super::views::{
+    ViewFrame, check_particles, points_tensor, render_beside_truth, scalar, tensor_points,
+};
 use super::warmup;
+use crate::config::{JointSection, StageKind};
 use crate::metrics_log::{MetricsLog, psnr_from_mse};
-use crate::rng::Rng;
+use crate::sampler::Rng;
+use crate::trainer::checkpoint::{self, first_existing};
+use crate::trainer::{Cadence, Evaluation, StageState, StepStats, Trainer};
 
 /// Folder of the stage inside the run folder.
 pub const STAGE: &str = "joint";
 
-/// What `state.json` of a joint checkpoint holds.
-#[derive(Debug, Serialize, Deserialize)]
-struct JointState {
-    /// Iterations (transitions) done.
-    step: u64,
-    /// Pixel-sampling RNG state.
-    rng: u64,
-}
-
 /// The models the joint stage trains.
 #[derive(Debug, Clone)]
 pub struct Grounded {
-    /// The renderer R_φ.
-    pub renderer: PhysNerf,
-    /// The transition model T_θ.
+    /// PhysNeRF, the renderer.
+    pub physnerf: PhysNerf,
+    /// The transition model.
     pub dlf: DlfNet,
 }
 
@@ -58,205 +53,268 @@ pub fn boundary_penalty(pos: Tensor<2>, interior: &Aabb) -> Tensor<1> {
     (below + above).mean()
 }
 
+/// What the joint stage trains on: the training view at every training frame, the true state of
+/// the first training frame, and the box.
+#[derive(Debug, Clone)]
+pub struct JointData {
+    /// The training view at frames 0 … T−1 of the training split.
+    pub targets: Vec<ViewFrame>,
+    /// The true state at the first training frame (every epoch starts from it).
+    pub initial: Particles,
+    /// Box particles and their normals.
+    pub walls: (Vec<[f32; 3]>, Vec<[f32; 3]>),
+    /// The box interior (the boundary penalty's bounds).
+    pub interior: Aabb,
+}
+
+impl JointData {
+    /// Loads the data `cfg` asks for from `scene`.
+    pub fn load(scene: &Scene, cfg: &JointSection) -> anyhow::Result<Self> {
+        let frames = scene.frames(Role::Train);
+        anyhow::ensure!(
+            frames.len() >= 2,
+            "the training split has {} frame(s); joint training needs at least 2",
+            frames.len()
+        );
+        let view = cfg
+            .view
+            .clone()
+            .unwrap_or_else(|| scene.views(Role::Train)[0].clone());
+        let targets = frames
+            .clone()
+            .map(|t| ViewFrame::load(scene, Role::Train, &view, t))
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        let initial = scene.particles(Role::Train, frames.start)?;
+        check_particles(&initial, "first training frame")?;
+        let walls = scene.boundary()?;
+        Ok(Self {
+            targets,
+            initial,
+            walls: (walls.points, walls.normals),
+            interior: scene.manifest().box_interior,
+        })
+    }
+
+    /// Transitions per epoch.
+    pub fn transitions(&self) -> u64 {
+        (self.targets.len() - 1) as u64
+    }
+}
+
 /// The carried particle state (positions, velocities) on the device.
 type State = (Tensor<2>, Tensor<2>);
 
-fn save_carried(dir: &std::path::Path, state: &State) -> anyhow::Result<()> {
-    let mut w = NpzWriter::new();
-    w.add_points("pos", &tensor_points(&state.0));
-    w.add_points("vel", &tensor_points(&state.1));
-    w.write(dir.join("carried_state.npz"))?;
-    Ok(())
+/// DLF and PhysNeRF, their two Adams, the pixel stream and the carried state.
+pub struct JointTrainer {
+    cfg: JointSection,
+    physnerf: PhysNerf,
+    dlf: DlfNet,
+    opt_physnerf: ModuleOptimizer,
+    opt_dlf: ModuleOptimizer,
+    rng: Rng,
+    data: JointData,
+    boundary: Boundary,
+    state: State,
+    /// The window's loss so far (several transitions with `bptt_steps` > 1).
+    pending: Option<Tensor<1>>,
+    /// The target frame of the last step (what a preview shows).
+    last_target: usize,
 }
 
-fn load_carried(dir: &std::path::Path, device: &Device) -> anyhow::Result<State> {
-    let mut r = NpzReader::open(dir.join("carried_state.npz"))?;
-    Ok((
-        points_tensor(&r.points("pos")?, device),
-        points_tensor(&r.points("vel")?, device),
-    ))
+impl JointTrainer {
+    /// Joint training of `physnerf` (warmed up) and `dlf` (pretrained) on `data`; the pixel
+    /// stream follows `seed`.
+    pub fn new(
+        cfg: &JointSection,
+        physnerf: PhysNerf,
+        dlf: DlfNet,
+        data: JointData,
+        seed: u64,
+    ) -> Self {
+        let device = dlf.device();
+        let boundary = dlf.boundary(&data.walls.0, &data.walls.1, &device);
+        let state = initial_state(&data, &device);
+        Self {
+            opt_physnerf: cfg.physnerf_optim.adam(),
+            opt_dlf: cfg.dlf_optim.adam(),
+            rng: Rng::stream(seed, STAGE),
+            cfg: cfg.clone(),
+            physnerf,
+            dlf,
+            data,
+            boundary,
+            state,
+            pending: None,
+            last_target: 1,
+        }
+    }
+
+    /// The grounded models.
+    pub fn into_models(self) -> Grounded {
+        Grounded {
+            physnerf: self.physnerf,
+            dlf: self.dlf,
+        }
+    }
 }
 
-/// Runs (or resumes) the joint stage and returns the grounded models.
+fn initial_state(data: &JointData, device: &Device) -> State {
+    (
+        points_tensor(&data.initial.pos, device),
+        points_tensor(&data.initial.vel, device),
+    )
+}
+
+impl Trainer for JointTrainer {
+    fn stage(&self) -> &'static str {
+        STAGE
+    }
+
+    fn total_steps(&self) -> u64 {
+        self.cfg.epochs * self.data.transitions()
+    }
+
+    fn step(&mut self, step: u64) -> anyhow::Result<StepStats> {
+        let transitions = self.data.transitions();
+        let device = self.dlf.device();
+        let t = (step % transitions) as usize;
+        if t == 0 {
+            self.state = initial_state(&self.data, &device);
+        }
+        let pred = self
+            .dlf
+            .step(self.state.0.clone(), self.state.1.clone(), &self.boundary);
+        let target = &self.data.targets[t + 1];
+        self.last_target = t + 1;
+        let (w, h) = (target.camera.width, target.camera.height);
+        let pixels = self
+            .rng
+            .sample_pixels(self.cfg.rays, w, h, self.cfg.precrop_at(step))?;
+        let (rays, colours) = target.batch(&pixels, &device);
+        let jitter: Option<&mut dyn rand::RngCore> = if self.physnerf.config.stratified {
+            Some(&mut self.rng)
+        } else {
+            None
+        };
+        let out = self.physnerf.render_rays(&pred.pos, &rays, jitter)?;
+        let image_loss = self.physnerf.loss(&out, colours);
+        let psnr = psnr_from_mse(scalar(&image_loss.fine));
+        let loss = image_loss.total
+            + boundary_penalty(pred.pos.clone(), &self.data.interior)
+                .mul_scalar(self.cfg.boundary_weight);
+        self.pending = Some(match self.pending.take() {
+            None => loss,
+            Some(p) => p + loss,
+        });
+        self.state = (pred.pos, pred.vel);
+        let done = step + 1;
+        let window_end = done % self.cfg.bptt_steps.max(1) as u64 == 0
+            || (t + 1) as u64 == transitions
+            || done == self.total_steps();
+        let mut stats = StepStats {
+            psnr: Some(psnr),
+            rays: self.cfg.rays,
+            ..StepStats::default()
+        };
+        if !window_end {
+            stats.loss = scalar(self.pending.as_ref().context("no loss")?);
+            return Ok(stats);
+        }
+        let loss = self.pending.take().context("no loss to optimise")?;
+        stats.loss = scalar(&loss);
+        if !stats.loss.is_finite() {
+            return Ok(stats);
+        }
+        let mut grads = loss.backward();
+        let g_physnerf = GradientsParams::from_module(&mut grads, &self.physnerf);
+        let g_dlf = GradientsParams::from_module(&mut grads, &self.dlf);
+        let (lr_p, lr_d) = (
+            self.cfg.physnerf_optim.lr_at(step),
+            self.cfg.dlf_optim.lr_at(step),
+        );
+        self.physnerf = self
+            .opt_physnerf
+            .step(lr_p, self.physnerf.clone(), g_physnerf);
+        self.dlf = self.opt_dlf.step(lr_d, self.dlf.clone(), g_dlf);
+        // the carried state leaves the graph: truncated backpropagation through time
+        self.state = (self.state.0.clone().detach(), self.state.1.clone().detach());
+        stats.lr_physnerf = Some(lr_p);
+        stats.lr_dlf = Some(lr_d);
+        stats.updated = true;
+        Ok(stats)
+    }
+
+    /// The training view at the frame just predicted, rendered from the prediction.
+    fn evaluate(&mut self, _done: u64) -> anyhow::Result<Option<Evaluation>> {
+        let target = &self.data.targets[self.last_target];
+        render_beside_truth(&self.physnerf, target, &self.state.0).map(Some)
+    }
+
+    fn save(&self, dir: &Path) -> anyhow::Result<StageState> {
+        checkpoint::save_module(&self.physnerf, &dir.join("physnerf.bpk"))?;
+        checkpoint::save_module(&self.dlf, &dir.join("dlf.bpk"))?;
+        checkpoint::save_optimizer(&self.opt_physnerf, &dir.join("optim_physnerf.bpk"))?;
+        checkpoint::save_optimizer(&self.opt_dlf, &dir.join("optim_dlf.bpk"))?;
+        let mut w = NpzWriter::new();
+        w.add_points("pos", &tensor_points(&self.state.0));
+        w.add_points("vel", &tensor_points(&self.state.1));
+        w.write(dir.join("carried_state.npz"))?;
+        Ok(self.rng.to_state())
+    }
+
+    fn load(&mut self, dir: &Path, done: u64, state: StageState) -> anyhow::Result<()> {
+        let device = self.dlf.device();
+        self.physnerf = checkpoint::load_module(
+            self.physnerf.clone(),
+            &first_existing(dir, &["physnerf.bpk", "renderer.bpk"]),
+        )?;
+        self.dlf = checkpoint::load_module(self.dlf.clone(), &dir.join("dlf.bpk"))?;
+        self.opt_physnerf = checkpoint::load_optimizer(
+            self.cfg.physnerf_optim.adam(),
+            &first_existing(dir, &["optim_physnerf.bpk", "optim_renderer.bpk"]),
+        )?;
+        self.opt_dlf = checkpoint::load_optimizer(
+            self.cfg.dlf_optim.adam(),
+            &first_existing(dir, &["optim_dlf.bpk", "optim_transition.bpk"]),
+        )?;
+        self.rng = Rng::from_stage_state(&state, dir)?;
+        if done % self.data.transitions() != 0 {
+            let mut r = NpzReader::open(dir.join("carried_state.npz"))?;
+            self.state = (
+                points_tensor(&r.points("pos")?, &device),
+                points_tensor(&r.points("vel")?, &device),
+            );
+        }
+        Ok(())
+    }
+}
+
+/// Runs (or resumes) the joint stage of `run` with the CLI's sinks and returns the models.
 pub fn run(run: &Run, log: &mut MetricsLog) -> anyhow::Result<Grounded> {
     run_until(run, log, None)
 }
 
-/// Runs (or resumes) the joint stage up to iteration `stop` (all of it for `None`),
-/// checkpointing there (with the carried particle state when `stop` falls inside an epoch).
+/// Runs (or resumes) the joint stage up to step `stop` (all of it for `None`), checkpointing
+/// there (with the carried particle state when `stop` falls inside an epoch).
 pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::Result<Grounded> {
     let cfg = &run.exp.joint;
-    let device = &run.device;
-    let scene = &run.scene;
-    let frames = scene.frames(Role::Train);
-    anyhow::ensure!(
-        frames.len() >= 2,
-        "the training split has {} frame(s); joint training needs at least 2",
-        frames.len()
-    );
-    let transitions = (frames.len() - 1) as u64;
-    let total = cfg.epochs * transitions;
-    let view = cfg
-        .view
-        .clone()
-        .unwrap_or_else(|| scene.views(Role::Train)[0].clone());
-    let targets = frames
-        .clone()
-        .map(|t| ViewFrame::load(scene, Role::Train, &view, t))
-        .collect::<anyhow::Result<Vec<_>>>()?;
-    let gt0 = scene.particles(Role::Train, frames.start)?;
-    check_particles(&gt0, "first training frame")?;
-    let box_particles = scene.boundary()?;
-    let interior = scene.manifest().box_interior;
-    let bptt = run.exp.dlf.bptt_steps.max(1) as u64;
-
-    let stage_dir = run.stage_dir(STAGE);
-    let mut renderer = warmup::load_trained(run)?;
-    let mut dlf = run.load_dlf(&run.exp.dlf.weights)?;
-    let boundary: Boundary = dlf.boundary(&box_particles.points, &box_particles.normals, device);
-    let mut opt_r: ModuleOptimizer = warmup::adam();
-    let mut opt_t: ModuleOptimizer = warmup::adam();
-    let mut rng = Rng::stream(run.exp.seed, STAGE);
-    let mut start = 0;
-    let initial = || -> State {
-        (
-            points_tensor(&gt0.pos, device),
-            points_tensor(&gt0.vel, device),
-        )
-    };
-    let mut state = initial();
-    if let Some(ckpt) = checkpoint::latest(&stage_dir) {
-        let s: JointState = checkpoint::load_state(&ckpt)?;
-        renderer = checkpoint::load_module(renderer, &ckpt.join("renderer.bpk"))?;
-        dlf = checkpoint::load_module(dlf, &ckpt.join("dlf.bpk"))?;
-        opt_r = checkpoint::load_optimizer(opt_r, &ckpt.join("optim_renderer.bpk"))?;
-        opt_t = checkpoint::load_optimizer(opt_t, &ckpt.join("optim_transition.bpk"))?;
-        rng = Rng::from_state(s.rng);
-        start = s.step;
-        if start % transitions != 0 {
-            state = load_carried(&ckpt, device)?;
-        }
-        tracing::info!(
-            step = start,
-            "resuming joint training from {}",
-            ckpt.display()
-        );
-    }
-    let save = |renderer: &PhysNerf,
-                dlf: &DlfNet,
-                opt_r: &ModuleOptimizer,
-                opt_t: &ModuleOptimizer,
-                rng: &Rng,
-                state: &State,
-                step: u64| {
-        checkpoint::write(&stage_dir, |dir| {
-            checkpoint::save_module(renderer, &dir.join("renderer.bpk"))?;
-            checkpoint::save_module(dlf, &dir.join("dlf.bpk"))?;
-            checkpoint::save_optimizer(opt_r, &dir.join("optim_renderer.bpk"))?;
-            checkpoint::save_optimizer(opt_t, &dir.join("optim_transition.bpk"))?;
-            save_carried(dir, state)?;
-            checkpoint::save_state(
-                &JointState {
-                    step,
-                    rng: rng.state(),
-                },
-                dir,
-            )
-        })
-    };
-
+    let data = JointData::load(&run.scene, cfg)?;
     tracing::info!(
-        view = %view,
-        frames = ?frames,
         epochs = cfg.epochs,
-        iterations = total,
-        bptt_steps = bptt,
+        transitions = data.transitions(),
+        bptt_steps = cfg.bptt_steps,
         "joint grounding"
     );
-    let sched_r = cfg.renderer_schedule();
-    let sched_t = cfg.transition_schedule();
-    let end = stop.map_or(total, |s| s.min(total));
-    let mut bar = StageProgress::new("joint", start, total);
-    let mut pending: Option<Tensor<1>> = None;
-    let mut pending_mse: f64;
-    for step in start..end {
-        let t = (step % transitions) as usize;
-        if t == 0 {
-            state = initial();
-        }
-        let pred = dlf.step(state.0.clone(), state.1.clone(), &boundary);
-        let target = &targets[t + 1];
-        let (w, h) = (target.camera.width, target.camera.height);
-        let pixels = rng.sample_pixels(cfg.rays, w, h, cfg.precrop_at(step))?;
-        let (rays, colours) = target.batch(&pixels, device);
-        let jitter: Option<&mut dyn rand::RngCore> = if run.exp.renderer.jitter {
-            Some(&mut rng)
-        } else {
-            None
-        };
-        let out = renderer.render_rays(&pred.pos, &rays, jitter)?;
-        let image_loss = renderer.loss(&out, colours);
-        pending_mse = scalar(&image_loss.fine);
-        let loss = image_loss.total
-            + boundary_penalty(pred.pos.clone(), &interior).mul_scalar(cfg.boundary_weight);
-        pending = Some(match pending {
-            None => loss,
-            Some(p) => p + loss,
-        });
-        bar.add_rays(cfg.rays);
-        state = (pred.pos, pred.vel);
-        let done = step + 1;
-        let window_end = done % bptt == 0 || (t + 1) as u64 == transitions || done == end;
-        if !window_end {
-            continue;
-        }
-        let loss = pending.take().context("no loss to optimise")?;
-        let loss_value = scalar(&loss);
-        anyhow::ensure!(
-            loss_value.is_finite(),
-            "joint loss is {loss_value} at iteration {step}"
-        );
-        let mut grads = loss.backward();
-        let g_r = GradientsParams::from_module(&mut grads, &renderer);
-        let g_t = GradientsParams::from_module(&mut grads, &dlf);
-        let (lr_r, lr_t) = (sched_r.lr_at(step), sched_t.lr_at(step));
-        renderer = opt_r.step(lr_r, renderer, g_r);
-        dlf = opt_t.step(lr_t, dlf, g_t);
-        // the carried state leaves the graph: truncated backpropagation through time
-        state = (state.0.detach(), state.1.detach());
-        let psnr = psnr_from_mse(pending_mse);
-        bar.update(done, loss_value, psnr);
-        if done % cfg.log_every.max(1) == 0 || done == total {
-            let mut row = bar.row(STAGE, done, loss_value, psnr);
-            row.lr_renderer = Some(lr_r);
-            row.lr_transition = Some(lr_t);
-            log.append(&row)?;
-        }
-        if cfg.eval_every > 0 && done % cfg.eval_every == 0 {
-            // the training view at the frame just predicted, rendered from the prediction
-            let dir = stage_dir.join("previews");
-            let elapsed = bar.elapsed();
-            preview::preview(
-                STAGE,
-                done,
-                &renderer,
-                target,
-                &state.0,
-                run.exp.renderer.chunk,
-                &dir,
-                elapsed,
-                log,
-            )?;
-        }
-        if cfg.ckpt_every > 0 && done % cfg.ckpt_every == 0 && done < end {
-            save(&renderer, &dlf, &opt_r, &opt_t, &rng, &state, done)?;
-        }
-    }
-    bar.finish();
-    if start < end {
-        save(&renderer, &dlf, &opt_r, &opt_t, &rng, &state, end)?;
-    }
-    Ok(Grounded { renderer, dlf })
+    let physnerf = warmup::load_trained(run)?;
+    let dlf = run.load_dlf(&run.exp.dlf.weights)?;
+    let mut trainer = JointTrainer::new(cfg, physnerf, dlf, data, run.exp.seed);
+    let cadence = Cadence {
+        log_every: cfg.log_every,
+        evaluate_every: cfg.preview_every,
+        checkpoint_every: cfg.ckpt_every,
+    };
+    super::drive(run, log, &mut trainer, StageKind::Joint, cadence, stop)?;
+    Ok(trainer.into_models())
 }
 
 /// The models of a finished joint stage (its last checkpoint).
@@ -268,9 +326,12 @@ pub fn load_trained(run: &Run) -> anyhow::Result<Grounded> {
             stage_dir.display()
         )
     })?;
-    let renderer = neurofluid_physnerf::PhysNerf::new(run.renderer_config(), &run.device)?;
-    let renderer = checkpoint::load_module(renderer, &ckpt.join("renderer.bpk"))?;
+    let physnerf = PhysNerf::new(run.physnerf_config(), &run.device)?;
+    let physnerf = checkpoint::load_module(
+        physnerf,
+        &first_existing(&ckpt, &["physnerf.bpk", "renderer.bpk"]),
+    )?;
     let dlf = run.load_dlf(&run.exp.dlf.weights)?;
     let dlf = checkpoint::load_module(dlf, &ckpt.join("dlf.bpk"))?;
-    Ok(Grounded { renderer, dlf })
+    Ok(Grounded { physnerf, dlf })
 }

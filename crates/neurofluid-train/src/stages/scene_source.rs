@@ -21,8 +21,9 @@ pub fn generator_config(exp: &Experiment) -> anyhow::Result<Option<SceneConfig>>
     Ok(Some(cfg))
 }
 
-/// The scene folder of an experiment, generating the built-in scene when its folder holds none.
-pub fn ensure_scene(exp: &Experiment) -> anyhow::Result<PathBuf> {
+/// The scene folder of an experiment; a built-in scene is generated first when its folder holds
+/// none.
+pub fn generate_scene_if_missing(exp: &Experiment) -> anyhow::Result<PathBuf> {
     let dir = exp.scene.scene_dir();
     match generator_config(exp)? {
         None => {

@@ -1,177 +1,211 @@
 //! Warm-up (spec §4.1): PhysNeRF alone on the first frame, seen from the warm-up views. Every
-//! iteration draws `rays` pixels per view (from the central window during the precrop
-//! iterations), sums the views' coarse + fine MSE and takes one Adam step with the learning rate
+//! step draws `rays` pixels per view (from the central window during the precrop iterations),
+//! sums the views' coarse + fine MSE and takes one Adam step with the learning rate
 //! lr0·0.1^(s/decay_steps).
 
-use anyhow::Context;
-use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
-use burn::prelude::*;
-use neurofluid_core::scene::Role;
-use neurofluid_physnerf::PhysNerf;
-use serde::{Deserialize, Serialize};
+use std::path::Path;
 
-use super::checkpoint;
-use super::context::{Run, ViewFrame, check_particles, points_tensor, scalar};
-use super::preview;
-use super::progress::StageProgress;
+use anyhow::Context;
+use burn::optim::{GradientsParams, ModuleOptimizer};
+use burn::prelude::*;
+use neurofluid_core::scene::{Role, Scene};
+use neurofluid_physnerf::PhysNerf;
+
+use super::run_folder::Run;
+use super::views::{ViewFrame, check_particles, points_tensor, render_beside_truth, scalar};
+use crate::config::{StageKind, WarmupSection};
 use crate::metrics_log::{MetricsLog, psnr_from_mse};
-use crate::rng::Rng;
+use crate::sampler::Rng;
+use crate::trainer::checkpoint::{self, first_existing};
+use crate::trainer::{Cadence, Evaluation, StageState, StepStats, Trainer};
 
 /// Folder of the stage inside the run folder.
 pub const STAGE: &str = "warmup";
 
-/// What `state.json` of a warm-up checkpoint holds.
-#[derive(Debug, Serialize, Deserialize)]
-struct WarmupState {
-    /// Iterations done.
-    step: u64,
-    /// Pixel-sampling RNG state.
-    rng: u64,
+/// What the warm-up trains on: the warm-up views of frame 0, the particles of frame 0 and the
+/// held-out view of the same frame for previews.
+#[derive(Debug, Clone)]
+pub struct WarmupData {
+    /// The warm-up views.
+    pub views: Vec<ViewFrame>,
+    /// Particle positions of frame 0.
+    pub particles: Vec<[f32; 3]>,
+    /// The first test view at frame 0 (for previews), when previews are on.
+    pub held_out: Option<ViewFrame>,
 }
 
-/// Adam as the reference configures it (PyTorch's epsilon 1e-8).
-pub fn adam() -> ModuleOptimizer {
-    AdamConfig::new().with_epsilon(1e-8).init()
-}
-
-/// Runs (or resumes) the warm-up and returns the trained renderer.
-pub fn run(run: &Run, log: &mut MetricsLog) -> anyhow::Result<PhysNerf> {
-    run_until(run, log, None)
-}
-
-/// Runs (or resumes) the warm-up up to iteration `stop` (all of it for `None`), checkpointing
-/// there, so a long warm-up can run in pieces.
-pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::Result<PhysNerf> {
-    let cfg = &run.exp.warmup;
-    let device = &run.device;
-    let scene = &run.scene;
-    let t0 = scene.frames(Role::Warmup).start;
-    let views: Vec<String> = cfg
-        .views
-        .clone()
-        .unwrap_or_else(|| scene.views(Role::Warmup).to_vec());
-    let frames = views
-        .iter()
-        .map(|v| ViewFrame::load(scene, Role::Warmup, v, t0))
-        .collect::<anyhow::Result<Vec<_>>>()?;
-    let gt = scene.particles(Role::Warmup, t0)?;
-    check_particles(&gt, "warm-up particles")?;
-    let particles = points_tensor(&gt.pos, device);
-    // the held-out view of the same frame, for the periodic previews
-    let test_view = scene.views(Role::Test).first().cloned();
-    let held_out = match &test_view {
-        Some(v) if cfg.eval_every > 0 => Some(ViewFrame::load(scene, Role::Test, v, t0)?),
-        _ => None,
-    };
-
-    let stage_dir = run.stage_dir(STAGE);
-    // the renderer's initial weights follow the experiment's seed
-    device.seed(run.exp.seed);
-    let mut model = PhysNerf::new(run.renderer_config(), device)
-        .context("building the renderer from [renderer]")?;
-    let mut opt = adam();
-    let mut rng = Rng::stream(run.exp.seed, STAGE);
-    let mut start = 0;
-    if let Some(ckpt) = checkpoint::latest(&stage_dir) {
-        let state: WarmupState = checkpoint::load_state(&ckpt)?;
-        model = checkpoint::load_module(model, &ckpt.join("renderer.bpk"))?;
-        opt = checkpoint::load_optimizer(opt, &ckpt.join("optim.bpk"))?;
-        rng = Rng::from_state(state.rng);
-        start = state.step;
-        tracing::info!(step = start, "resuming the warm-up from {}", ckpt.display());
-    }
-    let save = |model: &PhysNerf, opt: &ModuleOptimizer, rng: &Rng, step: u64| {
-        checkpoint::write(&stage_dir, |dir| {
-            checkpoint::save_module(model, &dir.join("renderer.bpk"))?;
-            checkpoint::save_optimizer(opt, &dir.join("optim.bpk"))?;
-            checkpoint::save_state(
-                &WarmupState {
-                    step,
-                    rng: rng.state(),
-                },
-                dir,
-            )
+impl WarmupData {
+    /// Loads the data `cfg` asks for from `scene`.
+    pub fn load(scene: &Scene, cfg: &WarmupSection) -> anyhow::Result<Self> {
+        let t0 = scene.frames(Role::Warmup).start;
+        let names = cfg
+            .views
+            .clone()
+            .unwrap_or_else(|| scene.views(Role::Warmup).to_vec());
+        let views = names
+            .iter()
+            .map(|v| ViewFrame::load(scene, Role::Warmup, v, t0))
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        anyhow::ensure!(!views.is_empty(), "the warm-up has no views");
+        let gt = scene.particles(Role::Warmup, t0)?;
+        check_particles(&gt, "warm-up particles")?;
+        let held_out = match scene.views(Role::Test).first() {
+            Some(v) if cfg.preview_every > 0 => Some(ViewFrame::load(scene, Role::Test, v, t0)?),
+            _ => None,
+        };
+        Ok(Self {
+            views,
+            particles: gt.pos,
+            held_out,
         })
-    };
+    }
+}
 
-    tracing::info!(
-        views = ?views,
-        frame = t0,
-        iters = cfg.iters,
-        rays = cfg.rays,
-        particles = gt.pos.len(),
-        "warm-up"
-    );
-    let schedule = cfg.lr_schedule();
-    let end = stop.map_or(cfg.iters, |s| s.min(cfg.iters));
-    let mut bar = StageProgress::new("warm-up", start, cfg.iters);
-    for step in start..end {
-        let lr = schedule.lr_at(step);
+/// PhysNeRF, its Adam and the pixel stream, trained on frame 0.
+pub struct WarmupTrainer {
+    cfg: WarmupSection,
+    physnerf: PhysNerf,
+    opt: ModuleOptimizer,
+    rng: Rng,
+    data: WarmupData,
+    particles: Tensor<2>,
+}
+
+impl WarmupTrainer {
+    /// A warm-up of `physnerf` on `data`; the pixel stream follows `seed`.
+    pub fn new(cfg: &WarmupSection, physnerf: PhysNerf, data: WarmupData, seed: u64) -> Self {
+        let device = physnerf
+            .devices()
+            .into_iter()
+            .next()
+            .expect("a module has a device");
+        Self {
+            opt: cfg.optim.adam(),
+            rng: Rng::stream(seed, STAGE),
+            particles: points_tensor(&data.particles, &device),
+            cfg: cfg.clone(),
+            physnerf,
+            data,
+        }
+    }
+
+    /// The trained PhysNeRF.
+    pub fn into_physnerf(self) -> PhysNerf {
+        self.physnerf
+    }
+}
+
+impl Trainer for WarmupTrainer {
+    fn stage(&self) -> &'static str {
+        STAGE
+    }
+
+    fn total_steps(&self) -> u64 {
+        self.cfg.iters
+    }
+
+    fn step(&mut self, step: u64) -> anyhow::Result<StepStats> {
+        let lr = self.cfg.optim.lr_at(step);
+        let device = self.particles.device();
         let mut total: Option<Tensor<1>> = None;
         let mut fine_mse = 0.0;
-        for view in &frames {
+        let n = self.data.views.len() as f64;
+        for view in &self.data.views {
             let (w, h) = (view.camera.width, view.camera.height);
-            let pixels = rng.sample_pixels(cfg.rays, w, h, cfg.precrop_at(step))?;
-            let (rays, target) = view.batch(&pixels, device);
-            let jitter: Option<&mut dyn rand::RngCore> = if run.exp.renderer.jitter {
-                Some(&mut rng)
+            let pixels = self
+                .rng
+                .sample_pixels(self.cfg.rays, w, h, self.cfg.precrop_at(step))?;
+            let (rays, target) = view.batch(&pixels, &device);
+            let jitter: Option<&mut dyn rand::RngCore> = if self.physnerf.config.stratified {
+                Some(&mut self.rng)
             } else {
                 None
             };
-            let out = model.render_rays(&particles, &rays, jitter)?;
-            let loss = model.loss(&out, target);
-            fine_mse += scalar(&loss.fine) / frames.len() as f64;
+            let out = self.physnerf.render_rays(&self.particles, &rays, jitter)?;
+            let loss = self.physnerf.loss(&out, target);
+            fine_mse += scalar(&loss.fine) / n;
             total = Some(match total {
                 None => loss.total,
                 Some(t) => t + loss.total,
             });
-            bar.add_rays(cfg.rays);
         }
         let total = total.context("the warm-up has no views")?;
-        let loss_value = scalar(&total);
-        anyhow::ensure!(
-            loss_value.is_finite(),
-            "warm-up loss is {loss_value} at step {step}"
-        );
-        let grads = GradientsParams::from_grads(total.backward(), &model);
-        model = opt.step(lr, model, grads);
-        let done = step + 1;
-        let psnr = psnr_from_mse(fine_mse);
-        bar.update(done, loss_value, psnr);
-        if done % cfg.log_every.max(1) == 0 || done == cfg.iters {
-            let mut row = bar.row(STAGE, done, loss_value, psnr);
-            row.lr_renderer = Some(lr);
-            log.append(&row)?;
+        let loss = scalar(&total);
+        if loss.is_finite() {
+            let grads = GradientsParams::from_grads(total.backward(), &self.physnerf);
+            self.physnerf = self.opt.step(lr, self.physnerf.clone(), grads);
         }
-        if let Some(view) = &held_out
-            && done % cfg.eval_every == 0
-        {
-            let dir = stage_dir.join("previews");
-            let elapsed = bar.elapsed();
-            preview::preview(
-                STAGE,
-                done,
-                &model,
-                view,
-                &particles,
-                run.exp.renderer.chunk,
-                &dir,
-                elapsed,
-                log,
-            )?;
-        }
-        if cfg.ckpt_every > 0 && done % cfg.ckpt_every == 0 && done < end {
-            save(&model, &opt, &rng, done)?;
+        Ok(StepStats {
+            loss,
+            psnr: Some(psnr_from_mse(fine_mse)),
+            lr_physnerf: Some(lr),
+            lr_dlf: None,
+            rays: self.cfg.rays * self.data.views.len(),
+            updated: true,
+        })
+    }
+
+    fn evaluate(&mut self, _done: u64) -> anyhow::Result<Option<Evaluation>> {
+        match &self.data.held_out {
+            Some(view) => render_beside_truth(&self.physnerf, view, &self.particles).map(Some),
+            None => Ok(None),
         }
     }
-    bar.finish();
-    if start < end {
-        save(&model, &opt, &rng, end)?;
+
+    fn save(&self, dir: &Path) -> anyhow::Result<StageState> {
+        checkpoint::save_module(&self.physnerf, &dir.join("physnerf.bpk"))?;
+        checkpoint::save_optimizer(&self.opt, &dir.join("optim_physnerf.bpk"))?;
+        Ok(self.rng.to_state())
     }
-    Ok(model)
+
+    fn load(&mut self, dir: &Path, _done: u64, state: StageState) -> anyhow::Result<()> {
+        self.physnerf = checkpoint::load_module(
+            self.physnerf.clone(),
+            &first_existing(dir, &["physnerf.bpk", "renderer.bpk"]),
+        )?;
+        self.opt = checkpoint::load_optimizer(
+            self.cfg.optim.adam(),
+            &first_existing(dir, &["optim_physnerf.bpk", "optim.bpk"]),
+        )?;
+        self.rng = Rng::from_stage_state(&state, dir)?;
+        Ok(())
+    }
 }
 
-/// The renderer of a finished warm-up (its last checkpoint).
+/// A fresh PhysNeRF for `run`, initialised from the experiment's seed.
+pub fn new_physnerf(run: &Run) -> anyhow::Result<PhysNerf> {
+    run.device.seed(run.exp.seed);
+    PhysNerf::new(run.physnerf_config(), &run.device).context("building PhysNeRF from [physnerf]")
+}
+
+/// Runs (or resumes) the warm-up of `run` with the CLI's sinks and returns PhysNeRF.
+pub fn run(run: &Run, log: &mut MetricsLog) -> anyhow::Result<PhysNerf> {
+    run_until(run, log, None)
+}
+
+/// Runs (or resumes) the warm-up up to step `stop` (all of it for `None`), checkpointing
+/// there, so a long warm-up can run in pieces.
+pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::Result<PhysNerf> {
+    let cfg = &run.exp.warmup;
+    let data = WarmupData::load(&run.scene, cfg)?;
+    tracing::info!(
+        views = data.views.len(),
+        iters = cfg.iters,
+        rays = cfg.rays,
+        particles = data.particles.len(),
+        "warm-up"
+    );
+    let mut trainer = WarmupTrainer::new(cfg, new_physnerf(run)?, data, run.exp.seed);
+    let cadence = Cadence {
+        log_every: cfg.log_every,
+        evaluate_every: cfg.preview_every,
+        checkpoint_every: cfg.ckpt_every,
+    };
+    super::drive(run, log, &mut trainer, StageKind::Warmup, cadence, stop)?;
+    Ok(trainer.into_physnerf())
+}
+
+/// PhysNeRF of a finished warm-up (its last checkpoint).
 pub fn load_trained(run: &Run) -> anyhow::Result<PhysNerf> {
     let stage_dir = run.stage_dir(STAGE);
     let ckpt = checkpoint::latest(&stage_dir).with_context(|| {
@@ -180,6 +214,9 @@ pub fn load_trained(run: &Run) -> anyhow::Result<PhysNerf> {
             stage_dir.display()
         )
     })?;
-    let model = PhysNerf::new(run.renderer_config(), &run.device)?;
-    checkpoint::load_module(model, &ckpt.join("renderer.bpk"))
+    let model = PhysNerf::new(run.physnerf_config(), &run.device)?;
+    checkpoint::load_module(
+        model,
+        &first_existing(&ckpt, &["physnerf.bpk", "renderer.bpk"]),
+    )
 }

@@ -6,7 +6,7 @@ mod common;
 use burn::prelude::*;
 use burn::tensor::DType;
 use common::*;
-use neurofluid_physnerf::case::run_case;
+use neurofluid_dev::physnerf_case::run_case;
 
 #[test]
 fn float64_case_matches_reference_precisely() {
@@ -78,7 +78,7 @@ fn float64_case_matches_reference_precisely() {
         "gradnorm/values".into(),
     ];
     for net in ["nerf_coarse", "nerf_fine"] {
-        for k in neurofluid_physnerf::case::GRAD_SMALL {
+        for k in neurofluid_dev::physnerf_case::GRAD_SMALL {
             keys.push(format!("grad/{net}.{k}"));
         }
     }

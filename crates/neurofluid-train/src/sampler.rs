@@ -1,5 +1,6 @@
-//! A small seedable random generator whose whole state is one `u64` (SplitMix64), so a
-//! checkpoint stores it exactly, and the ray-batch sampler built on it (spec §4.4).
+//! The trainer's random stream and what it samples: a small seedable generator whose whole
+//! state is one `u64` (SplitMix64), so a checkpoint stores it exactly, and the ray-batch (pixel)
+//! sampler built on it (spec §4.4).
 //!
 //! The stream of a given seed is fixed by this file alone (no dependency's algorithm can change
 //! under us), so runs are reproducible across versions and machines.
@@ -74,6 +75,30 @@ impl Rng {
     /// A generator continuing from a stored state.
     pub fn from_state(state: u64) -> Self {
         Self { state }
+    }
+
+    /// The state as a stage stores it in its checkpoint (`"rng": <u64>`).
+    pub fn to_state(&self) -> crate::trainer::StageState {
+        let mut m = crate::trainer::StageState::new();
+        m.insert("rng".into(), self.state.into());
+        m
+    }
+
+    /// The generator stored by [`Rng::to_state`] in the checkpoint `dir`.
+    pub fn from_stage_state(
+        state: &crate::trainer::StageState,
+        dir: &std::path::Path,
+    ) -> anyhow::Result<Self> {
+        state
+            .get("rng")
+            .and_then(serde_json::Value::as_u64)
+            .map(Self::from_state)
+            .ok_or_else(|| {
+                anyhow::anyhow!(
+                    "{}: state.json holds no `rng` (an unsigned 64-bit integer)",
+                    dir.display()
+                )
+            })
     }
 
     /// The next 64 random bits.

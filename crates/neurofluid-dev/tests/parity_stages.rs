@@ -13,7 +13,7 @@ use neurofluid_physnerf::features::{
 use neurofluid_physnerf::neighbors::ball_query;
 use neurofluid_physnerf::sampling::{coarse_depths, merge_sorted, midpoints, sample_pdf};
 use neurofluid_physnerf::volume::{deltas, volume_render};
-use neurofluid_physnerf::{FeatureFlags, PhysNerfConfig};
+use neurofluid_physnerf::{EncodingTerms, PhysNerfConfig};
 
 const K: usize = 20;
 
@@ -144,7 +144,7 @@ fn probe_ball_query_and_features() {
 }
 
 fn check_features(
-    file: &neurofluid_physnerf::st::StFile,
+    file: &neurofluid_physnerf::safetensors_file::StFile,
     prefix: &str,
     f: &LocalFeatures,
     tol: [f64; 5],
@@ -226,7 +226,7 @@ fn feature_probe_with_padded_origin_particles() {
 
 /// The features of the `enc/samples` rows of one pass, taken from the stored probe arrays.
 fn enc_inputs(
-    file: &neurofluid_physnerf::st::StFile,
+    file: &neurofluid_physnerf::safetensors_file::StFile,
     pass: i64,
 ) -> (Vec<f32>, Vec<f32>, [Vec<f32>; 4], usize) {
     let es = refi(file, "enc/samples");
@@ -265,33 +265,33 @@ fn encodings_and_ablations() {
     let (_, file) = case();
     let dev = device();
     let ablations = [
-        ("none", FeatureFlags::none()),
+        ("none", EncodingTerms::none()),
         (
             "no_pc",
-            FeatureFlags {
+            EncodingTerms {
                 pc: false,
-                ..FeatureFlags::all()
+                ..EncodingTerms::all()
             },
         ),
         (
             "no_sigma_p",
-            FeatureFlags {
+            EncodingTerms {
                 sigma_p: false,
-                ..FeatureFlags::all()
+                ..EncodingTerms::all()
             },
         ),
         (
             "no_vd",
-            FeatureFlags {
+            EncodingTerms {
                 vd: false,
-                ..FeatureFlags::all()
+                ..EncodingTerms::all()
             },
         ),
         (
             "no_dc",
-            FeatureFlags {
+            EncodingTerms {
                 dc: false,
-                ..FeatureFlags::all()
+                ..EncodingTerms::all()
             },
         ),
     ];
@@ -305,7 +305,7 @@ fn encodings_and_ablations() {
             vd: t3(&vd),
             dc: t3(&dc),
         };
-        let mut configs = vec![(format!("enc/{tag}"), FeatureFlags::all())];
+        let mut configs = vec![(format!("enc/{tag}"), EncodingTerms::all())];
         configs.extend(
             ablations
                 .iter()
@@ -313,7 +313,7 @@ fn encodings_and_ablations() {
         );
         for (prefix, flags) in configs {
             let cfg = PhysNerfConfig {
-                features: flags,
+                encoding: flags,
                 ..PhysNerfConfig::default()
             };
             let (ex, ed) = encode_inputs(t3(&x), t3(&d), &feats, &cfg);

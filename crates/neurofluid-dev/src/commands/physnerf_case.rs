@@ -4,10 +4,10 @@
 
 use std::path::PathBuf;
 
+use crate::physnerf_case::run_case_file;
 use anyhow::Context;
 use burn::tensor::DType;
 use neurofluid_core::device::parse_device;
-use neurofluid_physnerf::case::run_case_file;
 
 /// Arguments of `physnerf-case`.
 #[derive(Debug, clap::Args)]

@@ -6,12 +6,12 @@ mod common;
 use burn::prelude::*;
 use burn::tensor::{DType, TensorData};
 use common::*;
-use neurofluid_physnerf::st::{StFile, StWriter};
-use neurofluid_physnerf::{FeatureFlags, NeighborSelection, PhysNerf, PhysNerfConfig, RayBatch};
+use neurofluid_physnerf::safetensors_file::{StFile, StWriter};
+use neurofluid_physnerf::{EncodingTerms, NeighborSelection, PhysNerf, PhysNerfConfig, RayBatch};
 use rand::SeedableRng;
 
 /// The 6×6 centre block of the case's rays.
-fn centre_rays(inputs: &neurofluid_physnerf::case::CaseInputs) -> RayBatch {
+fn centre_rays(inputs: &neurofluid_dev::physnerf_case::CaseInputs) -> RayBatch {
     let all = inputs.rays::<f32>();
     let ids: Vec<usize> = (5..11)
         .flat_map(|r| (5..11).map(move |c| r * 16 + c))
@@ -22,7 +22,7 @@ fn centre_rays(inputs: &neurofluid_physnerf::case::CaseInputs) -> RayBatch {
     }
 }
 
-fn particles(inputs: &neurofluid_physnerf::case::CaseInputs, device: &Device) -> Tensor<2> {
+fn particles(inputs: &neurofluid_dev::physnerf_case::CaseInputs, device: &Device) -> Tensor<2> {
     let flat: Vec<f32> = inputs
         .particles
         .iter()
@@ -120,18 +120,18 @@ fn ablations_change_the_input_widths_and_nearest_k_changes_the_picture() {
     let rays = centre_rays(&inputs);
     let p = particles(&inputs, &device);
     for flags in [
-        FeatureFlags::none(),
-        FeatureFlags {
+        EncodingTerms::none(),
+        EncodingTerms {
             pc: false,
-            ..FeatureFlags::all()
+            ..EncodingTerms::all()
         },
-        FeatureFlags {
+        EncodingTerms {
             dc: false,
-            ..FeatureFlags::all()
+            ..EncodingTerms::all()
         },
     ] {
         let cfg = PhysNerfConfig {
-            features: flags,
+            encoding: flags,
             width: 32,
             ..inputs.config.clone()
         };
@@ -154,7 +154,7 @@ fn ablations_change_the_input_widths_and_nearest_k_changes_the_picture() {
         let err = PhysNerf::from_nerf_pl(
             inputs.weights_path(),
             PhysNerfConfig {
-                features: flags,
+                encoding: flags,
                 ..inputs.config.clone()
             },
             &device,

@@ -5,9 +5,9 @@ use std::path::PathBuf;
 
 use burn::prelude::*;
 use burn::tensor::DType;
+use neurofluid_dev::physnerf_case::CaseInputs;
 use neurofluid_physnerf::PhysNerf;
-use neurofluid_physnerf::case::CaseInputs;
-use neurofluid_physnerf::st::StFile;
+use neurofluid_physnerf::safetensors_file::StFile;
 
 /// `tests/data/physnerf` of the workspace.
 pub fn data_dir() -> PathBuf {

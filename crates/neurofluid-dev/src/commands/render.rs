@@ -3,12 +3,11 @@
 
 use std::path::PathBuf;
 
+use crate::physnerf_case::{CaseInputs, load_case_model};
 use anyhow::Context;
-use burn::prelude::*;
-use burn::tensor::{DType, TensorData};
+use burn::tensor::DType;
 use indicatif::{ProgressBar, ProgressStyle};
 use neurofluid_core::device::parse_device;
-use neurofluid_physnerf::case::{CaseInputs, load_case_model};
 use neurofluid_physnerf::{render_image, save_png};
 
 /// Arguments of `render`.
@@ -49,14 +48,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let camera = inputs.camera(hw);
     let model = load_case_model(&inputs, args.weights.as_deref(), &device, DType::F32)
         .with_context(|| format!("loading the weights of {}", args.case.display()))?;
-    let flat: Vec<f32> = inputs
-        .particles
-        .iter()
-        .flatten()
-        .map(|&v| v as f32)
-        .collect();
-    let particles =
-        Tensor::<2>::from_data(TensorData::new(flat, [inputs.particles.len(), 3]), &device);
+    let particles = inputs.particles_tensor(&device, DType::F32);
     let bar = ProgressBar::new(camera.num_pixels() as u64);
     bar.set_style(
         ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} rays ({eta})")

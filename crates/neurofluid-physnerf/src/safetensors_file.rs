@@ -1,6 +1,6 @@
-//! Minimal safetensors reading and writing (case files, weight files, CLI outputs).
-//! Reading converts any float dtype (F16/BF16/F32/F64) to f64 and any integer dtype to i64;
-//! writing is atomic (temporary file, then rename).
+//! Minimal safetensors reading and writing (weight files; the reference cases of the developer
+//! tools). Reading converts any float dtype (F16/BF16/F32/F64) to f64 and any integer dtype to
+//! i64; writing goes through [`neurofluid_core::atomic`].
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -27,10 +27,7 @@ impl StFile {
     /// Reads and validates the file.
     pub fn open(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref().to_path_buf();
-        let bytes = std::fs::read(&path).map_err(|source| PhysNerfError::Io {
-            path: path.clone(),
-            source,
-        })?;
+        let bytes = std::fs::read(&path).map_err(|e| PhysNerfError::io(&path, e))?;
         SafeTensors::deserialize(&bytes).map_err(|e| format_err(&path, e))?;
         Ok(Self { path, bytes })
     }
@@ -259,24 +256,8 @@ impl StWriter {
         }
         let meta = (!self.metadata.is_empty()).then_some(self.metadata);
         let bytes = safetensors::tensor::serialize(views, meta).map_err(|e| format_err(path, e))?;
-        write_atomic(path, &bytes)
+        neurofluid_core::atomic::write_bytes(path, &bytes).map_err(|e| PhysNerfError::io(path, e))
     }
-}
-
-/// Writes `bytes` to a temporary file beside `path`, then renames it into place.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let io = |source| PhysNerfError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).map_err(io)?;
-    }
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(format!(".tmp{}", std::process::id()));
-    let tmp = PathBuf::from(tmp);
-    std::fs::write(&tmp, bytes).map_err(io)?;
-    std::fs::rename(&tmp, path).map_err(io)
 }
 
 #[cfg(test)]

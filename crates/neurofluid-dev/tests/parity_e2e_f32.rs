@@ -5,7 +5,7 @@ mod common;
 use burn::prelude::*;
 use burn::tensor::DType;
 use common::*;
-use neurofluid_physnerf::case::run_case;
+use neurofluid_dev::physnerf_case::run_case;
 
 /// Per-ray max-abs colour differences.
 fn ray_errors(a: &[f64], b: &[f64]) -> Vec<f64> {
@@ -89,7 +89,7 @@ fn float32_case_matches_reference_statistically() {
 fn case_file_runner_writes_the_reference_keys() {
     let dir = std::env::temp_dir().join(format!("nf_case_{}", std::process::id()));
     let out_path = dir.join("out.safetensors");
-    let out = neurofluid_physnerf::case::run_case_file(
+    let out = neurofluid_dev::physnerf_case::run_case_file(
         &case_path(),
         None,
         &out_path,
@@ -97,7 +97,8 @@ fn case_file_runner_writes_the_reference_keys() {
         DType::F32,
     )
     .expect("run");
-    let written = neurofluid_physnerf::st::StFile::open(&out_path).expect("output file");
+    let written =
+        neurofluid_physnerf::safetensors_file::StFile::open(&out_path).expect("output file");
     let (_, reference) = case();
     let groups = [
         "rays/",

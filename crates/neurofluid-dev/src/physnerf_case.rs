@@ -1,6 +1,7 @@
-//! Reference case files (`tests/data/physnerf/*.safetensors`, made by `physnerf_reference.py`):
-//! read the inputs, render them, and produce the same output keys (`rays/*`, `coarse/*`,
-//! `fine/*`, `loss/*`, `grad/*`, `gradnorm/values`), so a case can be checked from the CLI.
+//! The PhysNeRF reference-case harness. Case files (`tests/data/physnerf/*.safetensors`, made by
+//! `physnerf_reference.py`): read the inputs, render them, and produce the same output keys
+//! (`rays/*`, `coarse/*`, `fine/*`, `loss/*`, `grad/*`, `gradnorm/values`), so a case can be
+//! checked from the command line (`neurofluid-dev physnerf-case`) and by the parity tests.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -9,12 +10,13 @@ use burn::prelude::*;
 use burn::tensor::{DType, Gradients, TensorData};
 use serde::Deserialize;
 
-use crate::config::{FeatureFlags, PhysNerfConfig};
-use crate::error::{PhysNerfError, Result};
-use crate::real::Real;
-use crate::renderer::{PhysNerf, RayBatch, RenderOutput, mse};
-use crate::st::{StFile, StWriter};
-use crate::weights::NETS;
+use neurofluid_physnerf::real::{Real, linspace};
+use neurofluid_physnerf::renderer::{RenderOutput, mse};
+use neurofluid_physnerf::safetensors_file::{StFile, StWriter};
+use neurofluid_physnerf::weights::{CONFIG_KEY, NETS};
+use neurofluid_physnerf::{
+    EncodingTerms, PhysNerf, PhysNerfConfig, PhysNerfError, RayBatch, Result,
+};
 
 /// The `render_config` metadata entry of a case file.
 #[derive(Debug, Clone, Deserialize)]
@@ -25,7 +27,7 @@ struct RenderConfigMeta {
     n_importance: usize,
     radius: f64,
     k: usize,
-    flags: FeatureFlags,
+    flags: EncodingTerms,
     white_back: bool,
 }
 
@@ -76,7 +78,7 @@ impl CaseInputs {
             n_importance: rc.n_importance,
             search_radius: rc.radius,
             k: rc.k,
-            features: rc.flags,
+            encoding: rc.flags,
             white_background: rc.white_back,
             ..PhysNerfConfig::default()
         };
@@ -137,6 +139,15 @@ impl CaseInputs {
             .unwrap_or_default();
         self.path
             .with_file_name(format!("{stem}_weights.safetensors"))
+    }
+
+    /// The particles as a `[N, 3]` tensor on `device` in `dtype` (rounded to nearest for F32).
+    pub fn particles_tensor(&self, device: &Device, dtype: DType) -> Tensor<2> {
+        let flat: Vec<f64> = self.particles.iter().flatten().copied().collect();
+        Tensor::from_data(
+            TensorData::new(flat, [self.particles.len(), 3]),
+            (device, dtype),
+        )
     }
 
     /// Every pixel's ray, row-major (`r = row·W + col`), computed in the precision T exactly as
@@ -279,9 +290,7 @@ pub fn run_case(inputs: &CaseInputs, model: &PhysNerf) -> Result<CaseOutputs> {
         _ => inputs.rays::<f32>(),
     };
     let n = inputs.particles.len();
-    let flat: Vec<f64> = inputs.particles.iter().flatten().copied().collect();
-    let particles =
-        Tensor::<2>::from_data(TensorData::new(flat, [n, 3]), (&device, dtype)).require_grad();
+    let particles = inputs.particles_tensor(&device, dtype).require_grad();
     let out: RenderOutput = model.render_rays(&particles, &rays, None)?;
     let r = rays.len();
     let mut res = CaseOutputs {
@@ -307,8 +316,8 @@ pub fn run_case(inputs: &CaseInputs, model: &PhysNerf) -> Result<CaseOutputs> {
         res.floats
             .insert("fine/z".into(), (vec![r, f.samples], f.z.clone()));
         let u: Vec<f64> = match dtype {
-            DType::F64 => crate::real::linspace(0.0f64, 1.0, ni),
-            _ => crate::real::linspace(0.0f32, 1.0, ni)
+            DType::F64 => linspace(0.0f64, 1.0, ni),
+            _ => linspace(0.0f32, 1.0, ni)
                 .into_iter()
                 .map(f64::from)
                 .collect(),
@@ -414,9 +423,7 @@ pub fn load_case_model(
     let path = weights
         .map(Path::to_path_buf)
         .unwrap_or_else(|| inputs.weights_path());
-    let has_config = StFile::open(&path)?
-        .metadata()?
-        .contains_key(crate::weights::CONFIG_KEY);
+    let has_config = StFile::open(&path)?.metadata()?.contains_key(CONFIG_KEY);
     if has_config {
         PhysNerf::load(&path, device, dtype)
     } else {

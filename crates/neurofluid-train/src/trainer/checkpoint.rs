@@ -2,15 +2,38 @@
 //! folder that is renamed into place, so a crash never leaves a partial checkpoint behind.
 //!
 //! A checkpoint folder holds the models (burnpack), the optimiser states (burnpack), the carried
-//! particle state where there is one (`.npz`) and `state.json` (stage, step, RNG state, config
-//! digest). The learning-rate schedules are pure functions of the step, so the step restores them.
+//! particle state where there is one (`.npz`) and `state.json` ([`CheckpointState`]: stage, step,
+//! the settings that shaped the state with their digest, and the stage's own small state such as
+//! its random stream). The learning-rate schedules are pure functions of the step, so the step
+//! restores them.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use burn::module::Module;
 use burn::optim::ModuleOptimizer;
-use serde::{Serialize, de::DeserializeOwned};
+use serde::{Deserialize, Serialize, de::DeserializeOwned};
+
+use crate::config::Settings;
+
+/// What `state.json` holds.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CheckpointState {
+    /// The stage that wrote it.
+    #[serde(default)]
+    pub stage: String,
+    /// Steps done.
+    pub step: u64,
+    /// Digest of `settings` (absent in checkpoints of the first release).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub settings_digest: Option<String>,
+    /// The settings that shaped the state (absent in checkpoints of the first release).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub settings: Option<Settings>,
+    /// The stage's own state (e.g. `"rng": …`), kept at the top level of the file.
+    #[serde(flatten)]
+    pub trainer: super::StageState,
+}
 
 /// Name of the current checkpoint folder inside a stage folder.
 const CURRENT: &str = "checkpoint";
@@ -59,6 +82,16 @@ pub fn write(
         std::fs::remove_dir_all(&previous)?;
     }
     Ok(current)
+}
+
+/// The first of `names` that exists in `dir` (files of an earlier release keep loading), or the
+/// first name when none does (so the error names the current file).
+pub fn first_existing(dir: &Path, names: &[&str]) -> PathBuf {
+    names
+        .iter()
+        .map(|n| dir.join(n))
+        .find(|p| p.is_file())
+        .unwrap_or_else(|| dir.join(names[0]))
 }
 
 /// Saves a module's parameters as burnpack.

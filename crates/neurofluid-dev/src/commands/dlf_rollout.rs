@@ -7,6 +7,7 @@ use anyhow::{Context, bail, ensure};
 use indicatif::{ProgressBar, ProgressStyle};
 use neurofluid_core::device::parse_device;
 use neurofluid_core::npz::{NpzReader, NpzWriter};
+use neurofluid_core::tensors::{points_tensor, tensor_points};
 use neurofluid_dlf::rollout::{count_outside, mean_coordinate, rollout};
 use neurofluid_dlf::{DlfConfig, load_dlf};
 
@@ -111,9 +112,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let steps: Vec<i32> = (0..states as i32).collect();
     out.add_i32("saved_steps", &[states], &steps);
     if args.steps > 0 {
-        out.add_f32("raw_output_step0", &[n, 3], &traj.raw_output_step0);
-        let nfn: Vec<i32> = traj
-            .num_fluid_neighbors_step0
+        // The first step again, with its trace: the rollout keeps only the states.
+        let (step0, trace) = net.step_traced(
+            points_tensor(&pos, &device),
+            points_tensor(&vel, &device),
+            &boundary,
+        );
+        let raw = tensor_points(&trace.raw_output);
+        out.add_f32("raw_output_step0", &[n, 3], raw.as_flattened());
+        let nfn: Vec<i32> = step0
+            .num_fluid_neighbors
             .iter()
             .map(|&c| c as i32)
             .collect();

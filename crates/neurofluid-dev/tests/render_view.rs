@@ -9,7 +9,7 @@ use burn::tensor::{DType, TensorData};
 use common::*;
 use neurofluid_physnerf::{render_image, save_png};
 
-fn particles(inputs: &neurofluid_physnerf::case::CaseInputs, device: &Device) -> Tensor<2> {
+fn particles(inputs: &neurofluid_dev::physnerf_case::CaseInputs, device: &Device) -> Tensor<2> {
     let flat: Vec<f32> = inputs
         .particles
         .iter()

@@ -1,0 +1,16 @@
+//! `neurofluid-dev`: the reference-case runners of NeuroFluid-rs.
+
+use clap::Parser;
+use neurofluid_dev::{cli, commands};
+
+fn main() -> std::process::ExitCode {
+    let cli = cli::Cli::parse();
+    cli::init_logging(cli.verbose);
+    match commands::dispatch(cli.command) {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(err) => {
+            eprintln!("error: {err:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}

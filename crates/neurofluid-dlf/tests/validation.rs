@@ -1,0 +1,35 @@
+//! DLF's validation errors: the pretrained model scores (numerically) zero error on its own
+//! rollout. (The supervised training loop is a stage of `neurofluid-train`, tested there.)
+
+mod common;
+
+use common::*;
+use neurofluid_dlf::rollout::rollout;
+use neurofluid_dlf::scene::{block_in_box, dlf_wall_spacing};
+use neurofluid_dlf::train::{TrainingSequence, validate};
+
+fn generated_sequence(frames: usize, seed: u64) -> TrainingSequence {
+    let device = cpu();
+    let net = pretrained(&device);
+    let s = block_in_box(216, dlf_wall_spacing(), [0.2, 0.0, -0.1], 0.002, seed, 0.02);
+    let boundary = net.boundary(&s.box_points, &s.box_normals, &device);
+    let traj = rollout(&net, &s.pos, &s.vel, &boundary, frames - 1, |_| {});
+    TrainingSequence::new(
+        format!("block216_seed{seed}"),
+        traj.pos,
+        traj.vel,
+        s.box_points,
+        s.box_normals,
+    )
+    .unwrap()
+}
+
+#[test]
+fn pretrained_model_has_zero_error_on_its_own_rollout() {
+    let seq = generated_sequence(8, 3);
+    let m = validate(&pretrained(&cpu()), &[seq], 2);
+    assert!(
+        m.err_n1 < 1e-6 && m.err_n2 < 1e-6 && m.whole_seq_err < 1e-6,
+        "{m:?}"
+    );
+}

@@ -1,0 +1,153 @@
+//! Configuration errors that name the file, the dotted key and, where the text is known, the
+//! line and column; and the serde entry points that produce them.
+
+use std::path::{Path, PathBuf};
+
+use serde::de::DeserializeOwned;
+
+/// A configuration error: which file, which key, where and what was expected.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// The file could not be read.
+    #[error("cannot read experiment file {}", path.display())]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// The IO error.
+        source: std::io::Error,
+    },
+    /// A file could not be written.
+    #[error("cannot write {}", path.display())]
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// The IO error.
+        source: std::io::Error,
+    },
+    /// A key is unknown, has the wrong type or an invalid value, or the TOML does not parse.
+    #[error("{}", invalid_message(path, *location, key, message))]
+    Invalid {
+        /// The file (or `<override>` / `<string>`).
+        path: PathBuf,
+        /// Line and column (1-based) when known.
+        location: Option<(usize, usize)>,
+        /// Dotted key, e.g. `joint.dlf_optim.lr` (empty for pure syntax errors).
+        key: String,
+        /// What went wrong and what was expected.
+        message: String,
+    },
+}
+
+fn invalid_message(
+    path: &Path,
+    location: Option<(usize, usize)>,
+    key: &str,
+    message: &str,
+) -> String {
+    let mut s = path.display().to_string();
+    if let Some((line, col)) = location {
+        s.push_str(&format!(":{line}:{col}"));
+    }
+    if !key.is_empty() {
+        s.push_str(&format!(": key `{key}`"));
+    }
+    s.push_str(&format!(": {message}"));
+    s
+}
+
+impl ConfigError {
+    /// The dotted key the error is about (empty when none).
+    pub fn key(&self) -> &str {
+        match self {
+            ConfigError::Invalid { key, .. } => key,
+            _ => "",
+        }
+    }
+
+    pub(crate) fn invalid(path: &Path, key: &str, message: impl Into<String>) -> Self {
+        ConfigError::Invalid {
+            path: path.to_path_buf(),
+            location: None,
+            key: key.to_string(),
+            message: message.into(),
+        }
+    }
+}
+
+/// 1-based line and column of byte `offset` in `text`.
+pub fn line_col(text: &str, offset: usize) -> (usize, usize) {
+    let offset = offset.min(text.len());
+    let before = &text[..offset];
+    let line = before.matches('\n').count() + 1;
+    let col = before.rfind('\n').map_or(before.chars().count(), |nl| {
+        before[nl + 1..].chars().count()
+    }) + 1;
+    (line, col)
+}
+
+/// Joins serde's path and the message into a dotted key: `unknown field `x`` at `joint`
+/// becomes `joint.x`; `missing field `name`` at `.` becomes `name`.
+fn dotted_key(path: &str, message: &str) -> String {
+    let base = if path == "." { "" } else { path };
+    for prefix in ["unknown field `", "missing field `"] {
+        if let Some(rest) = message.strip_prefix(prefix)
+            && let Some(end) = rest.find('`')
+        {
+            let field = &rest[..end];
+            if base == field || base.ends_with(&format!(".{field}")) {
+                return base.to_string();
+            }
+            return if base.is_empty() {
+                field.to_string()
+            } else {
+                format!("{base}.{field}")
+            };
+        }
+    }
+    base.to_string()
+}
+
+/// Deserializes `T` from TOML `text`; errors name `origin`, the dotted key and line:col.
+pub fn from_toml_str<T: DeserializeOwned>(text: &str, origin: &Path) -> Result<T, ConfigError> {
+    let de = toml::Deserializer::parse(text).map_err(|e| ConfigError::Invalid {
+        path: origin.to_path_buf(),
+        location: e.span().map(|s| line_col(text, s.start)),
+        key: String::new(),
+        message: format!("TOML syntax error: {}", e.message()),
+    })?;
+    serde_path_to_error::deserialize(de).map_err(|e| {
+        let path = e.path().to_string();
+        let inner = e.into_inner();
+        ConfigError::Invalid {
+            path: origin.to_path_buf(),
+            location: inner.span().map(|s| line_col(text, s.start)),
+            key: dotted_key(&path, inner.message()),
+            message: inner.message().to_string(),
+        }
+    })
+}
+
+/// Deserializes `T` from an in-memory TOML table (used after overrides).
+pub(crate) fn from_table<T: DeserializeOwned>(
+    table: toml::Table,
+    origin: &Path,
+) -> Result<T, ConfigError> {
+    serde_path_to_error::deserialize(toml::Value::Table(table)).map_err(|e| {
+        let path = e.path().to_string();
+        let inner = e.into_inner();
+        ConfigError::Invalid {
+            path: origin.to_path_buf(),
+            location: None,
+            key: dotted_key(&path, inner.message()),
+            message: inner.message().to_string(),
+        }
+    })
+}
+
+/// Reads a file, with an error naming it.
+pub(crate) fn read_text(path: &Path) -> Result<String, ConfigError> {
+    std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+        path: path.to_path_buf(),
+        source,
+    })
+}

@@ -1,0 +1,634 @@
+//! The experiment TOML: one file describes a whole run (scene, device, seed, models, stages).
+//!
+//! Every table denies unknown keys; every missing key takes the paper's setting (spec §4, §10),
+//! written once, where the setting is defined: the models' own configs are embedded as they are
+//! (`[physnerf]` is `PhysNerfConfig`, optimisers are [`OptimConfig`]s). Errors name the file,
+//! the dotted key (`joint.dlf_optim.lrr`) and, for parse errors, line:column. Keys of the
+//! previous release still load for one release, with a warning naming the new key.
+//! Relative paths are relative to the working directory the trainer runs in (the repo root).
+//!
+//! ```toml
+//! name = "quick-watercube"
+//! [scene]
+//! builtin = "watercube"          # or: path = "data/watercube"
+//! scale = "quick"
+//! [scene.generate]               # passed to the scene generator as it is
+//! seed = 3
+//! [physnerf]
+//! width = 128
+//! [warmup]
+//! iters = 300
+//! [joint.dlf_optim]
+//! lr = 1e-4
+//! ```
+
+mod errors;
+mod legacy;
+mod sections;
+pub mod settings;
+
+use std::path::{Path, PathBuf};
+
+use neurofluid_physnerf::PhysNerfConfig;
+use serde::{Deserialize, Serialize};
+
+pub use errors::{ConfigError, from_toml_str, line_col};
+pub(crate) use errors::{from_table, read_text};
+pub use sections::{
+    BuiltinScene, DlfSection, EvalSection, JointSection, PlyEncoding, SceneScale, SceneSection,
+    WarmupSection,
+};
+pub use settings::{Settings, StageKind};
+
+#[cfg(doc)]
+use crate::optim::OptimConfig;
+
+/// File name of the resolved configuration inside a run folder.
+pub const RESOLVED_FILE: &str = "config.resolved.toml";
+
+/// A whole experiment.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Experiment {
+    /// Name of the run (also the default output folder `runs/<name>`).
+    pub name: String,
+    /// Seed of every random choice (ray batches, initialisation). Default 10 (spec §4.5).
+    #[serde(default = "default_seed")]
+    pub seed: u64,
+    /// Device: `cpu`, `flex`, `ndarray`, `wgpu`, `cuda`, `cuda:N`. Default `cpu`.
+    #[serde(default = "default_device")]
+    pub device: String,
+    /// Output folder; default `runs/<name>` (see [`Experiment::out_dir`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub out_dir: Option<PathBuf>,
+    /// Which scene: an existing folder or a built-in one to generate.
+    pub scene: SceneSection,
+    /// DLF, the transition model.
+    #[serde(default)]
+    pub dlf: DlfSection,
+    /// PhysNeRF, the renderer (its own config; the ray segment comes from `[scene]`).
+    #[serde(default)]
+    pub physnerf: PhysNerfConfig,
+    /// PhysNeRF's warm-up on frame 0 (spec §4.1).
+    #[serde(default)]
+    pub warmup: WarmupSection,
+    /// Joint grounding (spec §4.2).
+    #[serde(default)]
+    pub joint: JointSection,
+    /// Evaluation (spec §6).
+    #[serde(default)]
+    pub eval: EvalSection,
+}
+
+fn default_seed() -> u64 {
+    10
+}
+fn default_device() -> String {
+    "cpu".into()
+}
+
+/// Moves the previous release's keys of `table` and warns about each.
+fn migrate_legacy(table: &mut toml::Table, origin: &Path) -> bool {
+    let moved = legacy::migrate(table);
+    for (old, new) in &moved {
+        tracing::warn!(
+            "{}: `{old}` is the previous release's key; write `{new}` (the old key is read until the next release)",
+            origin.display()
+        );
+    }
+    !moved.is_empty()
+}
+
+impl Experiment {
+    /// Reads and validates an experiment file.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = read_text(path)?;
+        Self::from_toml_str(&text, path)
+    }
+
+    /// Parses and validates TOML text (`origin` names the source in errors).
+    pub fn from_toml_str(text: &str, origin: &Path) -> Result<Self, ConfigError> {
+        // a file with keys of the previous release is migrated as a table (errors then carry
+        // no line numbers); a current file is read from its text, with line numbers
+        let legacy = toml::from_str::<toml::Table>(text)
+            .ok()
+            .and_then(|mut table| migrate_legacy(&mut table, origin).then_some(table));
+        let exp: Experiment = match legacy {
+            Some(table) => from_table(table, origin)?,
+            None => from_toml_str(text, origin)?,
+        };
+        exp.validate(origin)?;
+        Ok(exp)
+    }
+
+    /// The output folder: `out_dir`, or `runs/<name>`.
+    pub fn out_dir(&self) -> PathBuf {
+        self.out_dir
+            .clone()
+            .unwrap_or_else(|| PathBuf::from("runs").join(&self.name))
+    }
+
+    /// This experiment with every default written out (`out_dir` filled in).
+    pub fn resolved(&self) -> Self {
+        let mut r = self.clone();
+        r.out_dir = Some(self.out_dir());
+        r
+    }
+
+    /// The resolved configuration as TOML text.
+    pub fn to_toml_string(&self) -> String {
+        // Serialising plain structs, strings, numbers and tables cannot fail.
+        toml::to_string_pretty(&self.resolved()).expect("experiment serialises to TOML")
+    }
+
+    /// Writes the resolved configuration to `dir/config.resolved.toml` atomically; returns the path.
+    pub fn save_resolved(&self, dir: &Path) -> Result<PathBuf, ConfigError> {
+        let path = dir.join(RESOLVED_FILE);
+        let text = format!(
+            "# Resolved experiment (every default filled in), written by neurofluid-train.\n{}",
+            self.to_toml_string()
+        );
+        neurofluid_core::atomic::write_bytes(&path, text.as_bytes()).map_err(|source| {
+            ConfigError::Write {
+                path: path.clone(),
+                source,
+            }
+        })?;
+        Ok(path)
+    }
+
+    /// Applies a dotted override `key.path=value` (TOML value syntax; a bare word is taken as a
+    /// string): `joint.dlf_optim.lr=1e-4`, `physnerf.encoding.pc=false`, `scene.path=data/x`.
+    /// Unknown keys, wrong types and invalid values are errors naming the key.
+    pub fn apply_override(&mut self, spec: &str) -> Result<(), ConfigError> {
+        let origin = PathBuf::from(format!("override `{spec}`"));
+        let (key, value) = parse_override(spec, &origin)?;
+        let mut table =
+            toml::Table::try_from(&*self).expect("experiment serialises to a TOML table");
+        set_dotted(&mut table, &key, value, &origin)?;
+        migrate_legacy(&mut table, &origin);
+        let exp: Experiment = from_table(table, &origin)?;
+        exp.validate(&origin)?;
+        *self = exp;
+        Ok(())
+    }
+
+    /// Applies several overrides in order.
+    pub fn apply_overrides<S: AsRef<str>>(&mut self, specs: &[S]) -> Result<(), ConfigError> {
+        specs
+            .iter()
+            .try_for_each(|s| self.apply_override(s.as_ref()))
+    }
+
+    /// Checks values serde cannot: ranges, exclusive choices, ordering.
+    pub fn validate(&self, origin: &Path) -> Result<(), ConfigError> {
+        let bad = |key: &str, msg: &str| Err(ConfigError::invalid(origin, key, msg));
+        let name = self.name.trim();
+        if name.is_empty() || name == "." || name == ".." || self.name.contains(['/', '\\']) {
+            return bad(
+                "name",
+                "expected a name that is one folder name (not empty, `.` or `..`, no slashes)",
+            );
+        }
+        match (&self.scene.path, &self.scene.builtin) {
+            (Some(_), Some(_)) => {
+                return bad(
+                    "scene",
+                    "give either `path` (an existing scene) or `builtin` (generate one), not both",
+                );
+            }
+            (None, None) => {
+                return bad(
+                    "scene",
+                    "expected `path = \"<scene dir>\"` or `builtin = \"watercube\" | \"watersphere\" | \"honeycone\" | \"waterbunny\"`",
+                );
+            }
+            (Some(_), None) if !self.scene.generate.is_empty() => {
+                return bad(
+                    "scene.generate",
+                    "generator settings need `builtin`, not `path`",
+                );
+            }
+            _ => {}
+        }
+        for reserved in ["name", "scale", "out"] {
+            if self.scene.generate.contains_key(reserved) {
+                return bad(
+                    &format!("scene.generate.{reserved}"),
+                    "set this as `scene.builtin` / `scene.scale` / `scene.dir` instead",
+                );
+            }
+        }
+        let s = &self.scene;
+        for (key, v) in [("scene.near", s.near), ("scene.far", s.far)] {
+            if v.is_some_and(|v| !(v.is_finite() && v >= 0.0)) {
+                return bad(key, "expected a finite distance ≥ 0");
+            }
+        }
+        if let (Some(n), Some(f)) = (s.near, s.far)
+            && n >= f
+        {
+            return bad("scene.far", "expected far > near");
+        }
+        let r = &self.physnerf;
+        if r.n_samples < 3 {
+            return bad("physnerf.n_samples", "expected at least 3");
+        }
+        if !(r.search_radius.is_finite() && r.search_radius > 0.0) {
+            return bad("physnerf.search_radius", "expected a positive radius");
+        }
+        if r.k == 0 {
+            return bad("physnerf.k", "expected at least 1");
+        }
+        if r.chunk == 0 {
+            return bad("physnerf.chunk", "expected at least 1");
+        }
+        if r.depth < 2 {
+            return bad("physnerf.depth", "expected an MLP of depth ≥ 2");
+        }
+        if r.width == 0 {
+            return bad("physnerf.width", "expected an MLP of width ≥ 1");
+        }
+        if r.skip == 0 || r.skip >= r.depth {
+            return bad("physnerf.skip", "expected 0 < skip < depth");
+        }
+        let w = &self.warmup;
+        if w.rays == 0 {
+            return bad("warmup.rays", "expected at least 1");
+        }
+        if let Some((key, msg)) = w.optim.problem() {
+            return bad(&format!("warmup.optim.{key}"), msg);
+        }
+        check_frac(w.precrop_frac, "warmup.precrop_frac", origin)?;
+        if w.views.as_ref().is_some_and(Vec::is_empty) {
+            return bad("warmup.views", "expected at least one view");
+        }
+        let j = &self.joint;
+        if j.rays == 0 {
+            return bad("joint.rays", "expected at least 1");
+        }
+        if j.bptt_steps == 0 {
+            return bad("joint.bptt_steps", "expected at least 1");
+        }
+        if let Some((key, msg)) = j.physnerf_optim.problem() {
+            return bad(&format!("joint.physnerf_optim.{key}"), msg);
+        }
+        if let Some((key, msg)) = j.dlf_optim.problem() {
+            return bad(&format!("joint.dlf_optim.{key}"), msg);
+        }
+        if !(j.boundary_weight.is_finite() && j.boundary_weight >= 0.0) {
+            return bad("joint.boundary_weight", "expected a weight ≥ 0");
+        }
+        check_frac(j.precrop_frac, "joint.precrop_frac", origin)?;
+        let e = &self.eval;
+        if !(e.image_scale.is_finite() && e.image_scale > 0.0 && e.image_scale <= 1.0) {
+            return bad("eval.image_scale", "expected a scale in (0, 1]");
+        }
+        if e.render_every == 0 {
+            return bad("eval.render_every", "expected at least 1");
+        }
+        if e.views.as_ref().is_some_and(Vec::is_empty) {
+            return bad("eval.views", "expected at least one view");
+        }
+        Ok(())
+    }
+}
+
+fn check_frac(v: f64, key: &str, origin: &Path) -> Result<(), ConfigError> {
+    if v.is_finite() && v > 0.0 && v <= 1.0 {
+        Ok(())
+    } else {
+        Err(ConfigError::invalid(
+            origin,
+            key,
+            "expected a fraction in (0, 1]",
+        ))
+    }
+}
+
+/// Splits `key=value` and parses the value as TOML (a bare word becomes a string).
+pub(crate) fn parse_override(
+    spec: &str,
+    origin: &Path,
+) -> Result<(Vec<String>, toml::Value), ConfigError> {
+    let (key, raw) = spec.split_once('=').ok_or_else(|| {
+        ConfigError::invalid(
+            origin,
+            "",
+            "expected `key.path=value`, e.g. `joint.epochs=2`",
+        )
+    })?;
+    let key = key.trim();
+    let parts: Vec<String> = key.split('.').map(|p| p.trim().to_string()).collect();
+    if parts.iter().any(String::is_empty) {
+        return Err(ConfigError::invalid(
+            origin,
+            key,
+            "expected a dotted key like `joint.dlf_optim.lr`",
+        ));
+    }
+    let raw = raw.trim();
+    let value = match toml::from_str::<toml::Table>(&format!("v = {raw}")) {
+        Ok(mut t) => t.remove("v").expect("parsed table holds `v`"),
+        Err(_) => toml::Value::String(raw.to_string()),
+    };
+    Ok((parts, value))
+}
+
+/// Sets `value` at the dotted `key` inside `table`, creating missing tables on the way.
+pub(crate) fn set_dotted(
+    table: &mut toml::Table,
+    key: &[String],
+    value: toml::Value,
+    origin: &Path,
+) -> Result<(), ConfigError> {
+    let (last, parents) = key.split_last().expect("non-empty key");
+    let mut cur = table;
+    for (i, part) in parents.iter().enumerate() {
+        let entry = cur
+            .entry(part.clone())
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        cur = match entry {
+            toml::Value::Table(t) => t,
+            _ => {
+                return Err(ConfigError::invalid(
+                    origin,
+                    &key[..=i].join("."),
+                    "is a value, not a table",
+                ));
+            }
+        };
+    }
+    cur.insert(last.clone(), value);
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(text: &str) -> Result<Experiment, ConfigError> {
+        Experiment::from_toml_str(text, Path::new("exp.toml"))
+    }
+
+    const MINIMAL: &str = "name = \"t\"\n[scene]\nbuiltin = \"watercube\"\n";
+
+    #[test]
+    fn defaults_are_the_papers_settings() {
+        let e = parse(MINIMAL).unwrap();
+        assert_eq!(e.seed, 10);
+        assert_eq!(e.device, "cpu");
+        assert_eq!(e.out_dir(), PathBuf::from("runs/t"));
+        assert_eq!(e.scene.scene_dir(), PathBuf::from("data/watercube_quick"));
+        assert_eq!(
+            e.dlf.weights,
+            PathBuf::from("assets/dlf_pretrained/pretrained_model_weights.pt")
+        );
+        assert_eq!(e.dlf.geometry, neurofluid_dlf::GeometryMode::Constant);
+        assert_eq!(e.joint.bptt_steps, 1);
+        assert_eq!(e.scene.bounds(9.0, 13.0), (9.0, 13.0));
+        let r = &e.physnerf;
+        assert_eq!((r.n_samples, r.n_importance, r.k), (64, 128, 20));
+        assert_eq!(r.search_radius, 0.225);
+        assert_eq!(
+            r.selection,
+            neurofluid_physnerf::NeighborSelection::LowestIndex
+        );
+        assert!(!r.stratified);
+        assert_eq!((r.depth, r.width, r.skip), (8, 256, 4));
+        assert_eq!(e.eval.render_every, 1);
+        assert_eq!(r.encoding, neurofluid_physnerf::EncodingTerms::all());
+        assert!(r.encoding.pc && r.encoding.sigma_p && r.encoding.vd && r.encoding.dc);
+        let w = &e.warmup;
+        assert_eq!((w.iters, w.rays, w.precrop_iters), (100_000, 1024, 500));
+        assert_eq!(
+            w.optim.schedule,
+            crate::optim::Schedule::Exponential {
+                decay_steps: 10_000
+            }
+        );
+        assert_eq!((w.optim.lr, w.precrop_frac), (5e-4, 0.5));
+        let j = &e.joint;
+        assert_eq!((j.epochs, j.rays), (20_000, 1024));
+        assert_eq!((j.physnerf_optim.lr, j.dlf_optim.lr), (3e-4, 1e-5));
+        assert_eq!(
+            j.physnerf_optim.schedule,
+            crate::optim::Schedule::MultiStep {
+                milestones: vec![10_000, 75_000, 150_000],
+                gamma: 0.5
+            }
+        );
+        assert_eq!(
+            j.dlf_optim.schedule,
+            crate::optim::Schedule::MultiStep {
+                milestones: vec![10_000, 30_000, 50_000, 100_000, 300_000],
+                gamma: 0.5
+            }
+        );
+        assert_eq!(j.boundary_weight, 1.0);
+        assert!(e.eval.render && e.eval.write_ply);
+        assert_eq!(e.eval.image_scale, 1.0);
+        // the schedules built from the config are the reference's
+        assert!((w.optim.lr_at(10_000) - 5e-5).abs() < 1e-18);
+        assert_eq!(j.physnerf_optim.lr_at(10_001), 1.5e-4);
+        assert_eq!(w.precrop_at(499), Some(0.5));
+        assert_eq!(w.precrop_at(500), None);
+    }
+
+    #[test]
+    fn unknown_key_names_the_dotted_key_file_and_line() {
+        let text = format!("{MINIMAL}[joint]\nepochs = 2\nbptt_step = 1\n");
+        let err = parse(&text).unwrap_err();
+        assert_eq!(err.key(), "joint.bptt_step");
+        let msg = err.to_string();
+        assert!(msg.starts_with("exp.toml:6:"), "{msg}");
+        assert!(msg.contains("joint.bptt_step"), "{msg}");
+        assert!(
+            msg.contains("bptt_steps"),
+            "should list the expected keys: {msg}"
+        );
+        // nested tables, down into the model's own config and an optimiser group
+        let text = format!("{MINIMAL}[physnerf.encoding]\npc = true\npq = false\n");
+        let err = parse(&text).unwrap_err();
+        assert_eq!(err.key(), "physnerf.encoding.pq");
+        let text = format!("{MINIMAL}[joint.dlf_optim]\nlrr = 1e-4\n");
+        let err = parse(&text).unwrap_err();
+        assert_eq!(err.key(), "joint.dlf_optim.lrr");
+        assert!(err.to_string().starts_with("exp.toml:5:"), "{err}");
+        // top level
+        let err = parse(&format!("seeed = 3\n{MINIMAL}")).unwrap_err();
+        assert_eq!(err.key(), "seeed");
+        assert!(err.to_string().starts_with("exp.toml:1:"), "{err}");
+    }
+
+    #[test]
+    fn wrong_type_names_the_key_and_line() {
+        let text = format!("{MINIMAL}[warmup]\niters = \"many\"\n");
+        let err = parse(&text).unwrap_err();
+        assert_eq!(err.key(), "warmup.iters");
+        assert!(err.to_string().starts_with("exp.toml:5:"), "{err}");
+        let err = parse("name = \"t\"\n[scene]\nbuiltin = \"lavalamp\"\n").unwrap_err();
+        assert_eq!(err.key(), "scene.builtin");
+        assert!(err.to_string().contains("watercube"), "{err}");
+    }
+
+    #[test]
+    fn missing_required_key_and_syntax_errors_are_named() {
+        let err = parse("[scene]\nbuiltin = \"watercube\"\n").unwrap_err();
+        assert_eq!(err.key(), "name");
+        let err = parse("name = \"t\"\n").unwrap_err();
+        assert_eq!(err.key(), "scene");
+        let err = parse("name = \"t\n").unwrap_err();
+        assert!(err.to_string().starts_with("exp.toml:1:"), "{err}");
+        assert!(err.to_string().contains("syntax"), "{err}");
+    }
+
+    #[test]
+    fn missing_file_names_the_path() {
+        let err = Experiment::load(Path::new("no/such/experiment.toml")).unwrap_err();
+        assert!(matches!(err, ConfigError::Read { .. }));
+        assert!(err.to_string().contains("no/such/experiment.toml"), "{err}");
+    }
+
+    #[test]
+    fn validation_names_the_key() {
+        let cases = [
+            ("[scene]\npath = \"d\"\nbuiltin = \"watercube\"\n", "scene"),
+            (
+                "[scene]\nbuiltin = \"watercube\"\n[joint]\nbptt_steps = 0\n",
+                "joint.bptt_steps",
+            ),
+            (
+                "[scene]\nbuiltin = \"watercube\"\n[warmup]\nprecrop_frac = 1.5\n",
+                "warmup.precrop_frac",
+            ),
+            (
+                "[scene]\nbuiltin = \"watercube\"\n[joint.physnerf_optim.schedule]\nkind = \"multi_step\"\nmilestones = [5, 3]\ngamma = 0.5\n",
+                "joint.physnerf_optim.schedule",
+            ),
+            (
+                "[scene]\nbuiltin = \"watercube\"\nnear = 5.0\nfar = 4.0\n",
+                "scene.far",
+            ),
+            (
+                "[scene]\nbuiltin = \"watercube\"\n[physnerf]\nwidth = 0\n",
+                "physnerf.width",
+            ),
+            ("[scene]\nbuiltin = \"watercube\"\n", "name"),
+            (
+                "[scene]\nbuiltin = \"watercube\"\n[scene.generate]\nname = \"x\"\n",
+                "scene.generate.name",
+            ),
+            (
+                "[scene]\npath = \"d\"\n[scene.generate]\nseed = 1\n",
+                "scene.generate",
+            ),
+        ];
+        for (body, key) in cases {
+            let name = if key == "name" { ".." } else { "t" };
+            let err = parse(&format!("name = \"{name}\"\n{body}")).unwrap_err();
+            assert_eq!(err.key(), key, "{err}");
+            assert!(err.to_string().contains("exp.toml"), "{err}");
+        }
+    }
+
+    #[test]
+    fn overrides_set_values_and_reject_unknown_keys() {
+        let mut e = parse(MINIMAL).unwrap();
+        e.apply_overrides(&[
+            "joint.physnerf_optim.lr=1e-4",
+            "physnerf.encoding.pc=false",
+            "warmup.iters = 7",
+            "joint.physnerf_optim.schedule.milestones=[1, 2]",
+            "eval.views=[\"view_5\", \"view_6\"]",
+            "scene.near=8",
+        ])
+        .unwrap();
+        assert_eq!(e.joint.physnerf_optim.lr, 1e-4);
+        assert!(!e.physnerf.encoding.pc);
+        assert_eq!(e.warmup.iters, 7);
+        assert_eq!(
+            e.joint.physnerf_optim.schedule,
+            crate::optim::Schedule::MultiStep {
+                milestones: vec![1, 2],
+                gamma: 0.5
+            }
+        );
+        assert_eq!(e.scene.near, Some(8.0));
+        assert_eq!(e.eval.views.as_deref().unwrap(), ["view_5", "view_6"]);
+        // bare words are strings; generator keys pass through
+        e.apply_override("scene.dir=data/elsewhere").unwrap();
+        assert_eq!(e.scene.scene_dir(), PathBuf::from("data/elsewhere"));
+        e.apply_override("scene.generate.image_size=32").unwrap();
+        let g = e.scene.generator_table().unwrap();
+        assert_eq!(g["image_size"].as_integer(), Some(32));
+        assert_eq!(g["name"].as_str(), Some("watercube"));
+        assert_eq!(g["out"].as_str(), Some("data/elsewhere"));
+
+        let before = e.clone();
+        let err = e.apply_override("joint.lr_renderr=1").unwrap_err();
+        assert_eq!(err.key(), "joint.lr_renderr");
+        let err = e.apply_override("physnerf.near=1").unwrap_err();
+        assert_eq!(err.key(), "physnerf.near");
+        let err = e.apply_override("warmup.iters=lots").unwrap_err();
+        assert_eq!(err.key(), "warmup.iters");
+        let err = e.apply_override("warmup.iters.x=1").unwrap_err();
+        assert_eq!(err.key(), "warmup.iters");
+        let err = e.apply_override("joint.bptt_steps=0").unwrap_err();
+        assert_eq!(err.key(), "joint.bptt_steps");
+        assert!(e.apply_override("no_equals_sign").is_err());
+        assert_eq!(e, before, "failed overrides leave the experiment unchanged");
+    }
+
+    #[test]
+    fn resolved_config_round_trips_with_defaults_filled() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut e = parse(MINIMAL).unwrap();
+        e.apply_override("joint.epochs=3").unwrap();
+        let path = e.save_resolved(dir.path()).unwrap();
+        assert_eq!(path, dir.path().join(RESOLVED_FILE));
+        let text = std::fs::read_to_string(&path).unwrap();
+        for needle in [
+            "out_dir = \"runs/t\"",
+            "lr = 0.00001",
+            "epochs = 3",
+            "[physnerf.encoding]",
+            "[joint.dlf_optim.schedule]",
+        ] {
+            assert!(text.contains(needle), "missing {needle} in\n{text}");
+        }
+        let back = Experiment::load(&path).unwrap();
+        assert_eq!(back, e.resolved());
+    }
+
+    #[test]
+    fn keys_of_the_previous_release_still_load() {
+        let old = format!(
+            "{MINIMAL}[renderer]\nwidth = 128\njitter = true\nnear = 8.0\n[dlf]\ngeometry_grad = true\nbptt_steps = 3\n\
+             [warmup]\nlr = 1e-3\ndecay_steps = 800\neval_every = 5\n[joint]\nlr_transition = 1e-4\nlr_renderer = 2e-4\n"
+        );
+        let e = parse(&old).unwrap();
+        let new = parse(&format!(
+            "{MINIMAL}near = 8.0\n[physnerf]\nwidth = 128\nstratified = true\n[dlf]\ngeometry = \"differentiable\"\n\
+             [warmup]\npreview_every = 5\n[warmup.optim]\nlr = 1e-3\n[warmup.optim.schedule]\nkind = \"exponential\"\ndecay_steps = 800\n\
+             [joint]\nbptt_steps = 3\n[joint.dlf_optim]\nlr = 1e-4\n[joint.physnerf_optim]\nlr = 2e-4\n"
+        ))
+        .unwrap();
+        assert_eq!(e, new);
+        // and as overrides
+        let mut o = parse(MINIMAL).unwrap();
+        o.apply_overrides(&["joint.lr_transition=1e-4", "renderer.encoding.vd=false"])
+            .unwrap();
+        assert_eq!(o.joint.dlf_optim.lr, 1e-4);
+        assert!(!o.physnerf.encoding.vd);
+    }
+
+    #[test]
+    fn line_col_counts_from_one() {
+        let t = "ab\ncd\n";
+        assert_eq!(line_col(t, 0), (1, 1));
+        assert_eq!(line_col(t, 1), (1, 2));
+        assert_eq!(line_col(t, 3), (2, 1));
+        assert_eq!(line_col(t, 4), (2, 2));
+    }
+}

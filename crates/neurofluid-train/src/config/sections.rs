@@ -1,0 +1,299 @@
+//! The tables of an experiment file. The models' own settings are embedded as they are
+//! (`[physnerf]` is [`PhysNerfConfig`], `[dlf].geometry` is [`GeometryMode`], every optimiser is
+//! an [`OptimConfig`]); the tables here hold only what the trainer itself decides.
+
+use std::fmt;
+use std::path::PathBuf;
+
+use neurofluid_dlf::GeometryMode;
+use serde::{Deserialize, Serialize};
+
+use crate::optim::{JointDlfGroup, JointPhysNerfGroup, OptimConfig, WarmupGroup};
+
+/// Built-in scenes the generator knows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum BuiltinScene {
+    /// A water cube dropped into the box.
+    Watercube,
+    /// A water sphere.
+    Watersphere,
+    /// A honey cone.
+    Honeycone,
+    /// A water bunny.
+    Waterbunny,
+}
+
+impl BuiltinScene {
+    /// Lower-case name as written in the TOML.
+    pub fn name(self) -> &'static str {
+        match self {
+            BuiltinScene::Watercube => "watercube",
+            BuiltinScene::Watersphere => "watersphere",
+            BuiltinScene::Honeycone => "honeycone",
+            BuiltinScene::Waterbunny => "waterbunny",
+        }
+    }
+}
+
+impl fmt::Display for BuiltinScene {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// Size class of a generated scene.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SceneScale {
+    /// Small: minutes on 2 CPU cores.
+    #[default]
+    Quick,
+    /// The paper's size (400×400 images, ~10k particles).
+    Paper,
+}
+
+impl SceneScale {
+    /// Lower-case name.
+    pub fn name(self) -> &'static str {
+        match self {
+            SceneScale::Quick => "quick",
+            SceneScale::Paper => "paper",
+        }
+    }
+}
+
+/// `[scene]`: exactly one of `path` (an existing scene folder) or `builtin` (generate one), and
+/// the ray segment the renderer samples.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SceneSection {
+    /// An existing scene folder in NeuroFluid's layout (spec §5.1).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub path: Option<PathBuf>,
+    /// A built-in scene, generated into `dir` when that folder holds no scene yet.
+    #[serde(default, alias = "name", skip_serializing_if = "Option::is_none")]
+    pub builtin: Option<BuiltinScene>,
+    /// Scale of the generated scene (`quick` default, or `paper`).
+    #[serde(default)]
+    pub scale: SceneScale,
+    /// Where the generated scene lives; default `data/<builtin>_<scale>`.
+    #[serde(default, alias = "out", skip_serializing_if = "Option::is_none")]
+    pub dir: Option<PathBuf>,
+    /// Near end of the ray segment; unset = the scene manifest's (9 for the released scenes).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub near: Option<f32>,
+    /// Far end of the ray segment; unset = the scene manifest's (13 for the released scenes).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub far: Option<f32>,
+    /// Further generator settings, passed through to the scene generator unchanged
+    /// (e.g. `seed`, `image_size`, `train_frames`, `test_frames`).
+    #[serde(default, skip_serializing_if = "toml::Table::is_empty")]
+    pub generate: toml::Table,
+}
+
+impl SceneSection {
+    /// The scene folder: `path`, or `dir`, or `data/<builtin>_<scale>`.
+    pub fn scene_dir(&self) -> PathBuf {
+        if let Some(p) = &self.path {
+            return p.clone();
+        }
+        if let Some(d) = &self.dir {
+            return d.clone();
+        }
+        let name = self.builtin.map_or("scene", BuiltinScene::name);
+        PathBuf::from(format!("data/{name}_{}", self.scale.name()))
+    }
+
+    /// The generator's `[scene]` table: `name`, `scale`, `out` plus the `[scene.generate]`
+    /// keys (deserialize the scene generator's config from it). `None` when `path` is used.
+    pub fn generator_table(&self) -> Option<toml::Table> {
+        let builtin = self.builtin?;
+        let mut t = self.generate.clone();
+        t.insert("name".into(), builtin.name().into());
+        t.insert("scale".into(), self.scale.name().into());
+        t.insert(
+            "out".into(),
+            self.scene_dir().to_string_lossy().into_owned().into(),
+        );
+        Some(t)
+    }
+
+    /// The ray segment: the experiment's bounds where set, else the scene manifest's.
+    pub fn bounds(&self, manifest_near: f32, manifest_far: f32) -> (f32, f32) {
+        (
+            self.near.unwrap_or(manifest_near),
+            self.far.unwrap_or(manifest_far),
+        )
+    }
+}
+
+/// `[dlf]`: where DLF's weights come from and how its conv geometry enters autodiff.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DlfSection {
+    /// Pretrained weights (`.pt`, `.safetensors` or one of our `.bpk` checkpoints).
+    pub weights: PathBuf,
+    /// `constant` (Open3D, the reference) or `differentiable` (gradients through the geometry).
+    pub geometry: GeometryMode,
+}
+
+impl Default for DlfSection {
+    fn default() -> Self {
+        Self {
+            weights: PathBuf::from("assets/dlf_pretrained/pretrained_model_weights.pt"),
+            geometry: GeometryMode::Constant,
+        }
+    }
+}
+
+/// `[warmup]`: PhysNeRF alone on frame 0 (spec §4.1).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct WarmupSection {
+    /// Iterations (100 000).
+    pub iters: u64,
+    /// Rays per view per iteration (1024).
+    pub rays: usize,
+    /// PhysNeRF's Adam and schedule (5e-4, ×0.1 per 10 000 steps).
+    pub optim: OptimConfig<WarmupGroup>,
+    /// Iterations with s < precrop_iters draw pixels from the central window (500).
+    pub precrop_iters: u64,
+    /// Size of the central window as a fraction of the image side (0.5).
+    pub precrop_frac: f64,
+    /// Warm-up views; unset = the scene manifest's (view_1..view_4).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub views: Option<Vec<String>>,
+    /// Log a metrics row every this many iterations.
+    pub log_every: u64,
+    /// Checkpoint every this many iterations (0 = only at the end).
+    pub ckpt_every: u64,
+    /// Render the held-out view every this many iterations (0 = never).
+    pub preview_every: u64,
+}
+
+impl Default for WarmupSection {
+    fn default() -> Self {
+        Self {
+            iters: 100_000,
+            rays: 1024,
+            optim: OptimConfig::default(),
+            precrop_iters: 500,
+            precrop_frac: 0.5,
+            views: None,
+            log_every: 100,
+            ckpt_every: 500,
+            preview_every: 5000,
+        }
+    }
+}
+
+impl WarmupSection {
+    /// The precrop fraction for 0-based iteration `step` (`None` = the full image).
+    pub fn precrop_at(&self, step: u64) -> Option<f64> {
+        (step < self.precrop_iters).then_some(self.precrop_frac)
+    }
+}
+
+/// `[joint]`: DLF and PhysNeRF grounded together (spec §4.2).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct JointSection {
+    /// Epochs over the training frames (20 000; one epoch = frames − 1 iterations).
+    pub epochs: u64,
+    /// Rays per iteration (1024).
+    pub rays: usize,
+    /// Transitions unrolled per optimiser step (1 = the reference's truncated BPTT).
+    pub bptt_steps: usize,
+    /// PhysNeRF's Adam and schedule (3e-4, halved after 10k, 75k, 150k).
+    pub physnerf_optim: OptimConfig<JointPhysNerfGroup>,
+    /// DLF's Adam and schedule (1e-5, halved after 10k, 30k, 50k, 100k, 300k).
+    pub dlf_optim: OptimConfig<JointDlfGroup>,
+    /// Weight of the box L1 penalty (1.0).
+    pub boundary_weight: f64,
+    /// Iterations with s < precrop_iters draw pixels from the central window (500).
+    pub precrop_iters: u64,
+    /// Central window fraction (0.5).
+    pub precrop_frac: f64,
+    /// Training view; unset = the scene manifest's (view_1).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub view: Option<String>,
+    /// Log a metrics row every this many iterations.
+    pub log_every: u64,
+    /// Checkpoint every this many iterations (500; 0 = only at the end).
+    pub ckpt_every: u64,
+    /// Render the training view from the prediction every this many iterations (0 = never).
+    pub preview_every: u64,
+}
+
+impl Default for JointSection {
+    fn default() -> Self {
+        Self {
+            epochs: 20_000,
+            rays: 1024,
+            bptt_steps: 1,
+            physnerf_optim: OptimConfig::default(),
+            dlf_optim: OptimConfig::default(),
+            boundary_weight: 1.0,
+            precrop_iters: 500,
+            precrop_frac: 0.5,
+            view: None,
+            log_every: 49,
+            ckpt_every: 500,
+            preview_every: 500,
+        }
+    }
+}
+
+impl JointSection {
+    /// The precrop fraction for 0-based iteration `step` (`None` = the full image).
+    pub fn precrop_at(&self, step: u64) -> Option<f64> {
+        (step < self.precrop_iters).then_some(self.precrop_frac)
+    }
+}
+
+/// How particle files are encoded.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PlyEncoding {
+    /// Binary little-endian (compact, the default).
+    #[default]
+    Binary,
+    /// ASCII (readable).
+    Ascii,
+}
+
+/// `[eval]`: evaluation outputs (spec §6).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EvalSection {
+    /// Render the test view(s) and compute PSNR/SSIM.
+    pub render: bool,
+    /// Render every this many rollout steps (1 = every frame, as the paper's `eval_e2e.py`).
+    pub render_every: usize,
+    /// Image scale of the evaluation renders (1.0 = full size).
+    pub image_scale: f64,
+    /// Write predicted particles per frame as PLY.
+    pub write_ply: bool,
+    /// PLY encoding.
+    pub ply_format: PlyEncoding,
+    /// Also roll out the pretrained DLF (the paper's baseline).
+    pub baseline: bool,
+    /// Test views; unset = the scene manifest's (view_5).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub views: Option<Vec<String>>,
+}
+
+impl Default for EvalSection {
+    fn default() -> Self {
+        Self {
+            render: true,
+            render_every: 1,
+            image_scale: 1.0,
+            write_ply: true,
+            ply_format: PlyEncoding::Binary,
+            baseline: true,
+            views: None,
+        }
+    }
+}

@@ -1,0 +1,219 @@
+//! The settings that shape a stage's state, as flat `dotted.key = value` pairs with a digest.
+//!
+//! A checkpoint stores them; a run that resumes from it must have the same ones, or it would
+//! continue a different experiment from the saved state. Settings that only decide what is
+//! logged, when, and where (cadences, evaluation, the device, where a stage stops) never shape
+//! the state and may change between sessions; they are recorded in the run folder instead.
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+
+use super::Experiment;
+
+/// Keys that never shape a training state (prefix match on whole key segments).
+const FREE: &[&str] = &[
+    "name",
+    "device",
+    "out_dir",
+    "eval",
+    "physnerf.chunk",
+    "warmup.log_every",
+    "warmup.ckpt_every",
+    "warmup.preview_every",
+    "joint.log_every",
+    "joint.ckpt_every",
+    "joint.preview_every",
+];
+
+/// The stages whose state the settings shape.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StageKind {
+    /// PhysNeRF's warm-up: seed, scene, PhysNeRF, warm-up (not where it stops).
+    Warmup,
+    /// Joint grounding: everything the warm-up's state depends on and how long it ran, DLF and
+    /// the joint settings (not where it stops).
+    Joint,
+}
+
+impl StageKind {
+    fn covers(self, key: &str) -> bool {
+        let under = |prefix: &str| key == prefix || key.starts_with(&format!("{prefix}."));
+        if FREE.iter().any(|p| under(p)) {
+            return false;
+        }
+        let warmup = ["seed", "scene", "physnerf", "warmup"]
+            .iter()
+            .any(|p| under(p));
+        match self {
+            StageKind::Warmup => warmup && !under("warmup.iters"),
+            StageKind::Joint => {
+                (warmup || under("dlf") || under("joint")) && !under("joint.epochs")
+            }
+        }
+    }
+}
+
+/// Flat settings with a digest.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Settings(pub BTreeMap<String, String>);
+
+/// A setting that differs between two [`Settings`].
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Change {
+    /// The dotted key.
+    pub key: String,
+    /// Its value before (`None`: not set).
+    pub before: Option<String>,
+    /// Its value now (`None`: not set).
+    pub after: Option<String>,
+}
+
+impl std::fmt::Display for Change {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let show = |v: &Option<String>| v.clone().unwrap_or_else(|| "(unset)".into());
+        write!(
+            f,
+            "{}: {} → {}",
+            self.key,
+            show(&self.before),
+            show(&self.after)
+        )
+    }
+}
+
+fn flatten(prefix: &str, value: &toml::Value, out: &mut BTreeMap<String, String>) {
+    match value {
+        toml::Value::Table(t) => {
+            for (k, v) in t {
+                let key = if prefix.is_empty() {
+                    k.clone()
+                } else {
+                    format!("{prefix}.{k}")
+                };
+                flatten(&key, v, out);
+            }
+        }
+        other => {
+            out.insert(prefix.to_string(), other.to_string());
+        }
+    }
+}
+
+impl Settings {
+    /// The settings of anything that serialises to a TOML table (the flags of a command).
+    pub fn of<T: Serialize>(value: &T) -> Self {
+        let value = toml::Value::try_from(value).expect("settings serialise to TOML");
+        let mut out = BTreeMap::new();
+        flatten("", &value, &mut out);
+        Self(out)
+    }
+
+    /// Every setting of the resolved experiment.
+    pub fn all(exp: &Experiment) -> Self {
+        Self::of(&exp.resolved())
+    }
+
+    /// The settings that shape `stage`'s state.
+    pub fn of_stage(exp: &Experiment, stage: StageKind) -> Self {
+        let mut all = Self::all(exp);
+        all.0.retain(|k, _| stage.covers(k));
+        all
+    }
+
+    /// A 64-bit FNV-1a digest of the pairs, as 16 hex digits.
+    pub fn digest(&self) -> String {
+        let mut h: u64 = 0xCBF2_9CE4_8422_2325;
+        for (k, v) in &self.0 {
+            for b in k.bytes().chain([b'=']).chain(v.bytes()).chain([b'\n']) {
+                h = (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01B3);
+            }
+        }
+        format!("{h:016x}")
+    }
+
+    /// The keys whose values differ from `before`'s, in key order.
+    pub fn changes_since(&self, before: &Settings) -> Vec<Change> {
+        let mut keys: Vec<&String> = self.0.keys().chain(before.0.keys()).collect();
+        keys.sort();
+        keys.dedup();
+        keys.into_iter()
+            .filter_map(|k| {
+                let (b, a) = (before.0.get(k), self.0.get(k));
+                (b != a).then(|| Change {
+                    key: k.clone(),
+                    before: b.cloned(),
+                    after: a.cloned(),
+                })
+            })
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::Path;
+
+    fn exp(overrides: &[&str]) -> Experiment {
+        let mut e = Experiment::from_toml_str(
+            "name = \"t\"\n[scene]\nbuiltin = \"watercube\"\n",
+            Path::new("t.toml"),
+        )
+        .unwrap();
+        e.apply_overrides(overrides).unwrap();
+        e
+    }
+
+    #[test]
+    fn state_shaping_keys_change_the_digest_and_are_named() {
+        let base = Settings::of_stage(&exp(&[]), StageKind::Joint);
+        let lr = Settings::of_stage(&exp(&["joint.dlf_optim.lr=1e-4"]), StageKind::Joint);
+        assert_ne!(base.digest(), lr.digest());
+        let changes = lr.changes_since(&base);
+        assert_eq!(changes.len(), 1);
+        assert_eq!(changes[0].key, "joint.dlf_optim.lr");
+        assert_eq!(
+            changes[0].to_string(),
+            "joint.dlf_optim.lr: 0.00001 → 0.0001"
+        );
+        // the renderer's width shapes both stages; the DLF learning rate only the joint one
+        let wide = exp(&["physnerf.width=64"]);
+        for stage in [StageKind::Warmup, StageKind::Joint] {
+            let s = Settings::of_stage(&wide, stage);
+            assert_eq!(
+                s.changes_since(&Settings::of_stage(&exp(&[]), stage)).len(),
+                1
+            );
+        }
+        let w = Settings::of_stage(&exp(&["joint.dlf_optim.lr=1e-4"]), StageKind::Warmup);
+        assert_eq!(w, Settings::of_stage(&exp(&[]), StageKind::Warmup));
+    }
+
+    #[test]
+    fn cadence_evaluation_device_and_stops_are_free() {
+        let base = exp(&[]);
+        let free = exp(&[
+            "joint.log_every=3",
+            "warmup.preview_every=9",
+            "eval.render=false",
+            "device=flex",
+            "physnerf.chunk=77",
+            "joint.epochs=5",
+            "warmup.iters=9",
+        ]);
+        assert_eq!(
+            Settings::of_stage(&free, StageKind::Warmup),
+            Settings::of_stage(&base, StageKind::Warmup)
+        );
+        // how long the warm-up ran shapes the joint stage that starts from it
+        let joint = Settings::of_stage(&free, StageKind::Joint)
+            .changes_since(&Settings::of_stage(&base, StageKind::Joint));
+        let keys: Vec<&str> = changes_keys(&joint);
+        assert_eq!(keys, ["warmup.iters"]);
+    }
+
+    fn changes_keys(c: &[Change]) -> Vec<&str> {
+        c.iter().map(|c| c.key.as_str()).collect()
+    }
+}

@@ -1,0 +1,192 @@
+//! A run: the resolved experiment, its run folder, the device and the opened scene.
+//!
+//! Side effects have their own names: [`Run::prepare`] (for training: may generate the scene,
+//! writes the run folder), [`Run::open_existing`] (for evaluation: reads only) and
+//! [`reset_run_folder`] (for `--fresh`).
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use burn::prelude::*;
+use neurofluid_core::scene::{MANIFEST_FILE, Scene, UpAxis};
+use neurofluid_dlf::{DlfConfig, DlfNet};
+use neurofluid_physnerf::PhysNerfConfig;
+
+use super::scene_source::generate_scene_if_missing;
+use crate::config::{Experiment, RESOLVED_FILE, Settings, StageKind};
+use crate::metrics_log::{CSV_FILE, JSONL_FILE, MetricsLog};
+use crate::trainer::checkpoint;
+
+/// File in the run folder that records each setting changed between sessions.
+pub const HISTORY_FILE: &str = "config.history";
+
+/// What a run folder holds (and `--fresh` removes): stage folders and run-level files.
+const RUN_CONTENTS: &[&str] = &[
+    super::warmup::STAGE,
+    super::joint::STAGE,
+    super::eval::STAGE,
+    CSV_FILE,
+    JSONL_FILE,
+    super::CURVES_FILE,
+    RESOLVED_FILE,
+    HISTORY_FILE,
+];
+
+/// An experiment ready to run.
+#[derive(Debug)]
+pub struct Run {
+    /// The resolved experiment (the ray segment filled in from the scene).
+    pub exp: Experiment,
+    /// `runs/<name>` (or the configured folder).
+    pub dir: PathBuf,
+    /// The device with autodiff enabled.
+    pub device: Device,
+    /// The scene the experiment trains on.
+    pub scene: Scene,
+}
+
+impl Run {
+    /// For training: generates the built-in scene if its folder holds none, creates the run
+    /// folder, writes the resolved config and appends any setting that changed since the
+    /// previous session to `config.history`.
+    pub fn prepare(exp: Experiment) -> anyhow::Result<Self> {
+        generate_scene_if_missing(&exp)?;
+        let run = Self::open_existing(exp)?;
+        std::fs::create_dir_all(&run.dir)
+            .with_context(|| format!("creating {}", run.dir.display()))?;
+        run.record_config()?;
+        Ok(run)
+    }
+
+    /// For evaluation and inspection: the scene must exist; nothing is written.
+    pub fn open_existing(mut exp: Experiment) -> anyhow::Result<Self> {
+        let device = neurofluid_core::device::parse_device(&exp.device)
+            .with_context(|| format!("the experiment's device `{}`", exp.device))?
+            .autodiff();
+        let scene_dir = exp.scene.scene_dir();
+        anyhow::ensure!(
+            scene_dir.join(MANIFEST_FILE).is_file() || scene_dir.is_dir(),
+            "the scene folder {} does not exist; `neurofluid-train run` or `generate` makes a \
+             built-in scene",
+            scene_dir.display()
+        );
+        let scene = Scene::open(&scene_dir)
+            .with_context(|| format!("opening the scene {}", scene_dir.display()))?;
+        let m = scene.manifest();
+        let (near, far) = exp.scene.bounds(m.near, m.far);
+        exp.scene.near = Some(near);
+        exp.scene.far = Some(far);
+        let dir = exp.out_dir();
+        Ok(Self {
+            exp,
+            dir,
+            device,
+            scene,
+        })
+    }
+
+    /// Writes the resolved config; settings that differ from the previous session's go to
+    /// `config.history` with the time (seconds since the Unix epoch).
+    fn record_config(&self) -> anyhow::Result<()> {
+        let path = self.dir.join(RESOLVED_FILE);
+        if path.is_file() {
+            match Experiment::load(&path) {
+                Ok(before) => {
+                    let changes =
+                        Settings::all(&self.exp).changes_since(&Settings::all(&before.resolved()));
+                    if !changes.is_empty() {
+                        let now = std::time::SystemTime::now()
+                            .duration_since(std::time::UNIX_EPOCH)
+                            .map_or(0, |d| d.as_secs());
+                        let history = self.dir.join(HISTORY_FILE);
+                        let mut f = std::fs::OpenOptions::new()
+                            .create(true)
+                            .append(true)
+                            .open(&history)
+                            .with_context(|| format!("opening {}", history.display()))?;
+                        for c in &changes {
+                            tracing::info!("setting changed since the last session: {c}");
+                            writeln!(f, "{now} {c}")
+                                .with_context(|| format!("writing {}", history.display()))?;
+                        }
+                    }
+                }
+                Err(e) => tracing::warn!("the previous resolved config is unreadable: {e}"),
+            }
+        }
+        self.exp.save_resolved(&self.dir)?;
+        Ok(())
+    }
+
+    /// The run's metrics log, without the rows a resumed stage will log again (those after its
+    /// latest checkpoint), so an interrupted run leaves no duplicate steps.
+    pub fn open_log(&self) -> anyhow::Result<MetricsLog> {
+        let warmup = checkpoint::saved_step(&self.stage_dir(super::warmup::STAGE));
+        let joint = checkpoint::saved_step(&self.stage_dir(super::joint::STAGE));
+        let log = MetricsLog::open_resumed(&self.dir, |row| {
+            match row.stage.trim_end_matches("-preview") {
+                s if s == super::warmup::STAGE => row.step <= warmup,
+                s if s == super::joint::STAGE => row.step <= joint,
+                _ => true,
+            }
+        })?;
+        Ok(log)
+    }
+
+    /// The folder of one stage inside the run folder.
+    pub fn stage_dir(&self, stage: &str) -> PathBuf {
+        self.dir.join(stage)
+    }
+
+    /// The settings that shape a stage's state (checked when a checkpoint is resumed).
+    pub fn settings(&self, stage: StageKind) -> Settings {
+        Settings::of_stage(&self.exp, stage)
+    }
+
+    /// PhysNeRF's config: the experiment's `[physnerf]` with the scene's ray segment.
+    pub fn physnerf_config(&self) -> PhysNerfConfig {
+        let (near, far) = {
+            let m = self.scene.manifest();
+            self.exp.scene.bounds(m.near, m.far)
+        };
+        PhysNerfConfig {
+            near: near as f64,
+            far: far as f64,
+            ..self.exp.physnerf.clone()
+        }
+    }
+
+    /// DLF's config: gravity along the scene's up axis, the frame rotation that lets the y-up
+    /// public weights run on a z-up scene, the scene's time step, the experiment's geometry.
+    pub fn dlf_config(&self) -> DlfConfig {
+        let mut cfg = match self.scene.up_axis() {
+            UpAxis::Z => DlfConfig::z_up(),
+            _ => DlfConfig::default(),
+        };
+        cfg.dt = 1.0 / self.scene.manifest().fps;
+        cfg.geometry = self.exp.dlf.geometry;
+        cfg
+    }
+
+    /// Loads DLF from `path` (`.pt`, `.safetensors` or one of our checkpoints).
+    pub fn load_dlf(&self, path: &Path) -> anyhow::Result<DlfNet> {
+        neurofluid_dlf::load_dlf(path, self.dlf_config(), &self.device)
+            .with_context(|| format!("loading DLF weights {}", path.display()))
+    }
+}
+
+/// Removes what the experiment's run folder holds (stage folders, metrics, plots, configs) and
+/// nothing else, so the next run starts over.
+pub fn reset_run_folder(exp: &Experiment) -> anyhow::Result<()> {
+    let dir = exp.out_dir();
+    for name in RUN_CONTENTS {
+        let p = dir.join(name);
+        if p.is_dir() {
+            std::fs::remove_dir_all(&p).with_context(|| format!("removing {}", p.display()))?;
+        } else if p.is_file() {
+            std::fs::remove_file(&p).with_context(|| format!("removing {}", p.display()))?;
+        }
+    }
+    Ok(())
+}

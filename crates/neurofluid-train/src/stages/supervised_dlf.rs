@@ -1,0 +1,184 @@
+//! Supervised DLF training (spec/dlf.md §5; the paper's DLF† when started from weights): each
+//! step averages DLF's 2-step unrolled loss over a batch of random windows, each rotated by a
+//! random angle about the gravity axis, and takes one Adam step (ε = 1e-6) on DLF's piecewise
+//! schedule. Its evaluation is DLF's validation errors.
+
+use std::path::Path;
+
+use burn::optim::{GradientsAccumulator, GradientsParams, ModuleOptimizer};
+use burn::prelude::*;
+use neurofluid_dlf::DlfNet;
+use neurofluid_dlf::loss::LOSS_SCALE;
+use neurofluid_dlf::train::{TrainingSequence, rotation_about, supervised_loss, validate};
+use rand::Rng as _;
+use serde::Serialize;
+
+use crate::optim::{OptimConfig, OptimDefaults, Schedule};
+use crate::sampler::Rng;
+use crate::trainer::checkpoint;
+use crate::trainer::{Evaluation, StageState, StepStats, Trainer};
+
+/// Folder of the stage.
+pub const STAGE: &str = "pretrain-dlf";
+
+/// Settings of supervised training; the command-line flags of `pretrain-dlf`, with DLF's
+/// published settings as defaults.
+#[derive(Debug, Clone, PartialEq, Serialize, clap::Args)]
+pub struct SupervisedConfig {
+    /// Optimiser steps (DLF: 50000).
+    #[arg(long, default_value_t = 50_000)]
+    pub iterations: u64,
+    /// Samples per step (DLF: 16).
+    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u64).range(1..))]
+    pub batch_size: u64,
+    /// Base learning rate (DLF: 1e-3; the piecewise decay is applied on top).
+    #[arg(long, default_value_t = 1e-3)]
+    pub lr: f64,
+    /// Validate (and checkpoint) every this many steps.
+    #[arg(long, default_value_t = 1000)]
+    pub validate_every: u64,
+    /// Frame skip of the validation errors (DLF training: 20, `evaluate_network.py`: 5).
+    #[arg(long, default_value_t = 20)]
+    pub frame_skip: usize,
+    /// Turn off the random rotation about the gravity axis (DLF's dambreak setting).
+    #[arg(long)]
+    pub no_rotation: bool,
+    /// Seed of sample order, rotations and initialisation.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+}
+
+/// DLF's own optimiser group: Adam with ε = 1e-6 (the schedule depends on the run length).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct SupervisedDlfGroup;
+impl OptimDefaults for SupervisedDlfGroup {
+    const LR: f64 = 1e-3;
+    const EPSILON: f64 = 1e-6;
+    fn schedule() -> Schedule {
+        Schedule::dlf(50_000)
+    }
+}
+
+impl SupervisedConfig {
+    /// The optimiser group: this learning rate on DLF's schedule for this run length.
+    pub fn optim(&self) -> OptimConfig<SupervisedDlfGroup> {
+        let mut optim = OptimConfig::default();
+        optim.lr = self.lr;
+        optim.schedule = Schedule::dlf(self.iterations);
+        optim
+    }
+}
+
+/// DLF, its Adam and the sample stream, trained on ground-truth sequences.
+pub struct SupervisedDlfTrainer {
+    cfg: SupervisedConfig,
+    net: DlfNet,
+    opt: ModuleOptimizer,
+    rng: Rng,
+    train: Vec<TrainingSequence>,
+    val: Vec<TrainingSequence>,
+    /// (sequence, first frame) of every usable 3-frame window.
+    samples: Vec<(usize, usize)>,
+}
+
+impl SupervisedDlfTrainer {
+    /// Training of `net` (on an autodiff device) on `train`, validated on `val`.
+    pub fn new(
+        cfg: &SupervisedConfig,
+        net: DlfNet,
+        train: Vec<TrainingSequence>,
+        val: Vec<TrainingSequence>,
+    ) -> anyhow::Result<Self> {
+        let samples: Vec<(usize, usize)> = train
+            .iter()
+            .enumerate()
+            .flat_map(|(s, seq)| seq.windows().into_iter().map(move |t| (s, t)))
+            .collect();
+        anyhow::ensure!(
+            !samples.is_empty(),
+            "the training data holds no window of 3 consecutive frames with a constant \
+             particle count"
+        );
+        Ok(Self {
+            opt: cfg.optim().adam(),
+            rng: Rng::stream(cfg.seed, STAGE),
+            cfg: cfg.clone(),
+            net,
+            train,
+            val,
+            samples,
+        })
+    }
+
+    /// The trained DLF.
+    pub fn into_dlf(self) -> DlfNet {
+        self.net
+    }
+}
+
+impl Trainer for SupervisedDlfTrainer {
+    fn stage(&self) -> &'static str {
+        STAGE
+    }
+
+    fn total_steps(&self) -> u64 {
+        self.cfg.iterations
+    }
+
+    fn step(&mut self, step: u64) -> anyhow::Result<StepStats> {
+        // DLF's LambdaLR counts from 1 here: the factor of the step being taken
+        let lr = self.cfg.optim().lr_at(step + 1);
+        let batch = self.cfg.batch_size.max(1);
+        let gravity = self.net.config.gravity;
+        let mut accum = GradientsAccumulator::<DlfNet>::new();
+        let mut batch_loss = 0.0;
+        for _ in 0..batch {
+            let (s, t) = self.samples[self.rng.below(self.samples.len() as u64) as usize];
+            let rot = (!self.cfg.no_rotation).then(|| {
+                rotation_about(gravity, self.rng.random_range(0.0..std::f32::consts::TAU))
+            });
+            let loss =
+                supervised_loss(&self.net, &self.train[s], t, rot) * (LOSS_SCALE / batch as f32);
+            batch_loss += loss.clone().into_scalar::<f32>() as f64;
+            let grads = GradientsParams::from_grads(loss.backward(), &self.net);
+            accum.accumulate(&self.net, grads);
+        }
+        if batch_loss.is_finite() {
+            self.net = self.opt.step(lr, self.net.clone(), accum.grads());
+        }
+        Ok(StepStats {
+            loss: batch_loss,
+            lr_dlf: Some(lr),
+            updated: true,
+            ..StepStats::default()
+        })
+    }
+
+    fn evaluate(&mut self, _done: u64) -> anyhow::Result<Option<Evaluation>> {
+        if self.val.is_empty() {
+            return Ok(None);
+        }
+        let m = validate(&self.net.valid(), &self.val, self.cfg.frame_skip);
+        Ok(Some(Evaluation {
+            scores: vec![
+                ("err_n1", m.err_n1),
+                ("err_n2", m.err_n2),
+                ("whole_seq_err", m.whole_seq_err),
+            ],
+            ..Evaluation::default()
+        }))
+    }
+
+    fn save(&self, dir: &Path) -> anyhow::Result<StageState> {
+        checkpoint::save_module(&self.net, &dir.join("dlf.bpk"))?;
+        checkpoint::save_optimizer(&self.opt, &dir.join("optim_dlf.bpk"))?;
+        Ok(self.rng.to_state())
+    }
+
+    fn load(&mut self, dir: &Path, _done: u64, state: StageState) -> anyhow::Result<()> {
+        self.net = checkpoint::load_module(self.net.clone(), &dir.join("dlf.bpk"))?;
+        self.opt = checkpoint::load_optimizer(self.cfg.optim().adam(), &dir.join("optim_dlf.bpk"))?;
+        self.rng = Rng::from_stage_state(&state, dir)?;
+        Ok(())
+    }
+}

@@ -1,0 +1,105 @@
+//! Scene data as the stages use it: a view's camera and image, rays and target colours,
+//! checked particle states, and the held-out render every stage previews with.
+
+use burn::module::Module;
+use burn::prelude::*;
+use neurofluid_core::camera::Camera;
+use neurofluid_core::metrics::{RgbImage, psnr};
+use neurofluid_core::scene::{Image, Particles, Role, Scene};
+use neurofluid_physnerf::{PhysNerf, RayBatch, render_image};
+
+use crate::trainer::{Evaluation, Picture};
+
+/// One view of one frame: camera and target image.
+#[derive(Debug, Clone)]
+pub struct ViewFrame {
+    /// The camera.
+    pub camera: Camera,
+    /// The image composited on white.
+    pub image: Image,
+}
+
+impl ViewFrame {
+    /// Loads view `view` at frame `t` of `role`'s split.
+    pub fn load(scene: &Scene, role: Role, view: &str, t: usize) -> anyhow::Result<Self> {
+        Ok(Self {
+            camera: scene.camera(role, view, t)?,
+            image: scene.image(role, view, t)?,
+        })
+    }
+
+    /// Rays and target colours `[R, 3]` of the given pixels.
+    pub fn batch(&self, pixels: &[u32], device: &Device) -> (RayBatch, Tensor<2>) {
+        let rays = RayBatch::from(&self.camera.rays(pixels));
+        let mut target = Vec::with_capacity(pixels.len() * 3);
+        for &p in pixels {
+            let i = p as usize * 3;
+            target.extend_from_slice(&self.image.rgb[i..i + 3]);
+        }
+        let target = Tensor::from_data(TensorData::new(target, [pixels.len(), 3]), device);
+        (rays, target)
+    }
+}
+
+pub use neurofluid_core::tensors::{points_tensor, tensor_points};
+
+/// Checks a particle state read from a scene: finite values, matching lengths.
+pub fn check_particles(p: &Particles, what: &str) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        p.pos.len() == p.vel.len(),
+        "{what}: {} positions but {} velocities",
+        p.pos.len(),
+        p.vel.len()
+    );
+    anyhow::ensure!(!p.pos.is_empty(), "{what}: no particles");
+    if let Some(i) = p
+        .pos
+        .iter()
+        .chain(&p.vel)
+        .position(|v| !v.iter().all(|x| x.is_finite()))
+    {
+        anyhow::bail!("{what}: particle {} is not finite", i % p.pos.len());
+    }
+    Ok(())
+}
+
+/// Scalar value of a one-element tensor.
+pub fn scalar(t: &Tensor<1>) -> f64 {
+    t.clone().into_scalar::<f32>() as f64
+}
+
+/// `[a | b]`: two images of the same size side by side.
+pub fn side_by_side(a: &RgbImage, b: &RgbImage) -> Picture {
+    let (w, h) = (a.width, a.height);
+    let mut rgb = Vec::with_capacity(2 * w * h * 3);
+    for row in 0..h {
+        rgb.extend_from_slice(&a.data[row * w * 3..(row + 1) * w * 3]);
+        rgb.extend_from_slice(&b.data[row * w * 3..(row + 1) * w * 3]);
+    }
+    Picture {
+        width: 2 * w as u32,
+        height: h as u32,
+        rgb,
+    }
+}
+
+/// Renders `particles` (`[N, 3]`) from `view` with PhysNeRF (no gradients) and compares the
+/// render with the view's image: the PSNR and `[render | truth]`.
+pub fn render_beside_truth(
+    physnerf: &PhysNerf,
+    view: &ViewFrame,
+    particles: &Tensor<2>,
+) -> anyhow::Result<Evaluation> {
+    let physnerf = physnerf.valid();
+    let cam = &view.camera;
+    let chunk = physnerf.config.chunk;
+    let image = render_image(&physnerf, cam, particles, chunk, &mut |_, _| {})?;
+    let (w, h) = (cam.width as usize, cam.height as usize);
+    let pred = RgbImage::new(w, h, image.best().to_vec())?;
+    let truth = RgbImage::new(w, h, view.image.rgb.clone())?;
+    Ok(Evaluation {
+        psnr: Some(psnr(&pred, &truth)?),
+        picture: Some(side_by_side(&pred, &truth)),
+        scores: Vec::new(),
+    })
+}

@@ -1,0 +1,85 @@
+//! The shape every training stage shares.
+//!
+//! A stage is a [`Trainer`]: it owns its models, optimisers, schedules and random stream, takes
+//! one step at a time and reports [`StepStats`], can look at itself on held-out data
+//! ([`Evaluation`]) and save or restore its state. The [`Driver`] owns everything around the
+//! steps: where to start (resume from a checkpoint, guarded by the settings), where to stop,
+//! when to log, evaluate and checkpoint, and what counts as divergence. It tells the outside
+//! world through [`Event`]s; progress bars, the metrics log and preview pictures are
+//! [`EventSink`]s, never code inside a loop.
+
+pub mod checkpoint;
+mod driver;
+mod events;
+pub mod sinks;
+
+use std::path::Path;
+
+pub use driver::{Cadence, Driver};
+pub use events::{Event, EventSink};
+
+/// A stage's own small state (e.g. its random stream), stored in its checkpoint's `state.json`.
+pub type StageState = serde_json::Map<String, serde_json::Value>;
+
+/// What one step did.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct StepStats {
+    /// The loss of the step (of the whole window when several transitions share one update).
+    pub loss: f64,
+    /// PSNR (dB) of the step's image batch, where there is one.
+    pub psnr: Option<f64>,
+    /// PhysNeRF's learning rate of the update.
+    pub lr_physnerf: Option<f64>,
+    /// DLF's learning rate of the update.
+    pub lr_dlf: Option<f64>,
+    /// Rays rendered in the step.
+    pub rays: usize,
+    /// Whether the step ended with an optimiser update. A step inside a window of several
+    /// transitions (multi-step BPTT) does not: its loss waits for the window's end, and the
+    /// driver logs, evaluates and checkpoints only after updates.
+    pub updated: bool,
+}
+
+/// A picture: `[render | truth]` side by side, RGB in [0, 1], row-major.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Picture {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// `width · height · 3` values.
+    pub rgb: Vec<f32>,
+}
+
+/// A look at the model on data it does not train on.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Evaluation {
+    /// PSNR (dB) of the render, where there is one.
+    pub psnr: Option<f64>,
+    /// The render beside the truth.
+    pub picture: Option<Picture>,
+    /// Further named scores (e.g. DLF's validation errors).
+    pub scores: Vec<(&'static str, f64)>,
+}
+
+/// A training stage.
+pub trait Trainer {
+    /// The stage's name: its folder in the run folder and its rows in the metrics log.
+    fn stage(&self) -> &'static str;
+
+    /// The number of steps of the whole stage.
+    fn total_steps(&self) -> u64;
+
+    /// Runs step `step` (0-based).
+    fn step(&mut self, step: u64) -> anyhow::Result<StepStats>;
+
+    /// Evaluates the model after `done` steps (`None` when the stage has nothing to show).
+    fn evaluate(&mut self, done: u64) -> anyhow::Result<Option<Evaluation>>;
+
+    /// Writes the models, optimisers and any carried state into the folder `dir`; returns the
+    /// stage's own small state (e.g. its random stream) for `state.json`.
+    fn save(&self, dir: &Path) -> anyhow::Result<StageState>;
+
+    /// Restores what [`Trainer::save`] wrote after `done` steps.
+    fn load(&mut self, dir: &Path, done: u64, state: StageState) -> anyhow::Result<()>;
+}

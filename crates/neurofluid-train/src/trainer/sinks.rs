@@ -1,0 +1,183 @@
+//! The sinks the CLI attaches to a stage: a progress bar, the metrics log, the preview pictures.
+
+use std::path::PathBuf;
+
+use indicatif::{ProgressBar, ProgressStyle};
+use neurofluid_physnerf::save_png;
+
+use super::{Event, EventSink};
+use crate::metrics_log::{MetricsLog, MetricsRow};
+
+/// A progress bar per stage with the latest loss, PSNR and throughput (hidden when stderr is
+/// not a terminal, e.g. in CI logs).
+#[derive(Debug, Default)]
+pub struct ProgressBars {
+    bar: Option<ProgressBar>,
+    rays_per_s: Option<f64>,
+}
+
+impl ProgressBars {
+    /// No bar until a stage starts.
+    pub fn new() -> Self {
+        Self::default()
+    }
+}
+
+impl EventSink for ProgressBars {
+    fn on_event(&mut self, event: &Event<'_>) -> anyhow::Result<()> {
+        match event {
+            Event::Started {
+                stage,
+                start,
+                total,
+                ..
+            } => {
+                let bar = ProgressBar::new(*total);
+                bar.set_style(
+                    ProgressStyle::with_template(
+                        "{prefix:>8} [{elapsed_precise}] {wide_bar} {pos}/{len} ({eta}) {msg}",
+                    )
+                    .expect("valid template"),
+                );
+                bar.set_prefix(stage.to_string());
+                bar.set_position(*start);
+                self.bar = Some(bar);
+            }
+            Event::Step { done, stats, .. } => {
+                if let Some(bar) = &self.bar {
+                    bar.set_position(*done);
+                    let mut msg = format!("loss {:.5}", stats.loss);
+                    if let Some(p) = stats.psnr {
+                        msg.push_str(&format!("  PSNR {p:.2} dB"));
+                    }
+                    if let Some(r) = self.rays_per_s {
+                        msg.push_str(&format!("  {r:.0} rays/s"));
+                    }
+                    bar.set_message(msg);
+                }
+            }
+            Event::Logged(row) => self.rays_per_s = row.rays_per_s,
+            Event::Evaluated {
+                stage,
+                done,
+                evaluation,
+                ..
+            } => {
+                let mut line = format!("{stage} step {done}:");
+                if let Some(p) = evaluation.psnr {
+                    line.push_str(&format!(" held-out PSNR {p:.2} dB"));
+                }
+                for (name, v) in &evaluation.scores {
+                    line.push_str(&format!(" {name} {v:.6}"));
+                }
+                match &self.bar {
+                    Some(bar) => bar.println(line),
+                    None => tracing::info!("{line}"),
+                }
+            }
+            Event::Diverged { message, .. } => {
+                if let Some(bar) = &self.bar {
+                    bar.abandon_with_message(message.to_string());
+                }
+            }
+            Event::Finished { .. } => {
+                if let Some(bar) = self.bar.take() {
+                    bar.finish();
+                }
+            }
+            Event::Checkpointed { .. } => {}
+        }
+        Ok(())
+    }
+}
+
+/// The run's metrics log: the driver's rows, and one `<stage>-preview` row per evaluation with
+/// a PSNR (its loss is the MSE that PSNR stands for).
+#[derive(Debug)]
+pub struct MetricsSink<'a>(pub &'a mut MetricsLog);
+
+impl EventSink for MetricsSink<'_> {
+    fn on_event(&mut self, event: &Event<'_>) -> anyhow::Result<()> {
+        match event {
+            Event::Logged(row) => self.0.append(row)?,
+            Event::Evaluated {
+                stage,
+                done,
+                time_s,
+                evaluation,
+            } => {
+                if let Some(psnr) = evaluation.psnr {
+                    let mse = 10f64.powf(-psnr / 10.0);
+                    let mut row = MetricsRow::new(&format!("{stage}-preview"), *done, mse, *time_s);
+                    row.psnr = Some(psnr);
+                    self.0.append(&row)?;
+                }
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+}
+
+/// Writes every evaluation's picture to `<run>/<stage>/previews/<stage>_<step>.png`.
+#[derive(Debug)]
+pub struct PreviewWriter {
+    run_dir: PathBuf,
+}
+
+impl PreviewWriter {
+    /// Pictures go under the stage folders of `run_dir`.
+    pub fn new(run_dir: impl Into<PathBuf>) -> Self {
+        Self {
+            run_dir: run_dir.into(),
+        }
+    }
+}
+
+impl EventSink for PreviewWriter {
+    fn on_event(&mut self, event: &Event<'_>) -> anyhow::Result<()> {
+        if let Event::Evaluated {
+            stage,
+            done,
+            evaluation,
+            ..
+        } = event
+            && let Some(p) = &evaluation.picture
+        {
+            let path = self
+                .run_dir
+                .join(stage)
+                .join("previews")
+                .join(format!("{stage}_{done:07}.png"));
+            save_png(&path, p.width, p.height, &p.rgb)?;
+            tracing::info!(stage, step = done, psnr = evaluation.psnr, "preview");
+        }
+        Ok(())
+    }
+}
+
+/// Redraws `curves.png` from the metrics log whenever a stage finishes.
+#[derive(Debug)]
+pub struct CurvesPlot {
+    jsonl: PathBuf,
+    png: PathBuf,
+}
+
+impl CurvesPlot {
+    /// Plots the rows of `jsonl` into `png`.
+    pub fn new(jsonl: impl Into<PathBuf>, png: impl Into<PathBuf>) -> Self {
+        Self {
+            jsonl: jsonl.into(),
+            png: png.into(),
+        }
+    }
+}
+
+impl EventSink for CurvesPlot {
+    fn on_event(&mut self, event: &Event<'_>) -> anyhow::Result<()> {
+        if let Event::Finished { .. } = event {
+            crate::plot::plot_metrics_file(&self.jsonl, &self.png)?;
+        }
+        Ok(())
+    }
+}
