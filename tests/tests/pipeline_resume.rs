@@ -107,3 +107,32 @@ fn resumed_metrics_log_has_no_duplicate_steps() {
         .collect();
     assert_eq!(steps, (1..=run.exp.warmup.iters).collect::<Vec<_>>());
 }
+
+#[test]
+fn resume_refuses_changed_settings_and_records_safe_changes() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let run = Run::prepare(experiment(tmp.path(), "guard")).unwrap();
+    let mut log = run.open_log().unwrap();
+    warmup::run_until(&run, &mut log, Some(2)).unwrap();
+    drop(log);
+
+    // a learning rate shapes the state: refused, naming the key and the way out
+    let mut changed = experiment(tmp.path(), "guard");
+    changed.apply_override("warmup.optim.lr=1e-3").unwrap();
+    let run2 = Run::prepare(changed).unwrap();
+    let mut log = run2.open_log().unwrap();
+    let err = warmup::run(&run2, &mut log).unwrap_err().to_string();
+    assert!(err.contains("warmup.optim.lr"), "{err}");
+    assert!(err.contains("--fresh"), "{err}");
+    drop(log);
+
+    // the logging cadence does not: resumed, and the change is recorded
+    let mut safe = experiment(tmp.path(), "guard");
+    safe.apply_override("warmup.log_every=2").unwrap();
+    let run3 = Run::prepare(safe).unwrap();
+    let mut log = run3.open_log().unwrap();
+    warmup::run(&run3, &mut log).unwrap();
+    let history = std::fs::read_to_string(run3.dir.join("config.history")).unwrap();
+    assert!(history.contains("warmup.log_every"), "{history}");
+}

@@ -208,7 +208,7 @@ impl Trainer for JointTrainer {
         });
         self.state = (pred.pos, pred.vel);
         let done = step + 1;
-        let window_end = done % self.cfg.bptt_steps.max(1) as u64 == 0
+        let window_end = done.is_multiple_of(self.cfg.bptt_steps.max(1) as u64)
             || (t + 1) as u64 == transitions
             || done == self.total_steps();
         let mut stats = StepStats {
@@ -278,7 +278,7 @@ impl Trainer for JointTrainer {
             &first_existing(dir, &["optim_dlf.bpk", "optim_transition.bpk"]),
         )?;
         self.rng = Rng::from_stage_state(&state, dir)?;
-        if done % self.data.transitions() != 0 {
+        if !done.is_multiple_of(self.data.transitions()) {
             let mut r = NpzReader::open(dir.join("carried_state.npz"))?;
             self.state = (
                 points_tensor(&r.points("pos")?, &device),
