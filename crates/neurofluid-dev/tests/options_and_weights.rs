@@ -4,7 +4,7 @@
 mod common;
 
 use burn::prelude::*;
-use burn::tensor::{DType, TensorData};
+use burn::tensor::DType;
 use common::*;
 use neurofluid_physnerf::safetensors_file::{StFile, StWriter};
 use neurofluid_physnerf::{EncodingTerms, NeighborSelection, PhysNerf, PhysNerfConfig, RayBatch};
@@ -22,16 +22,6 @@ fn centre_rays(inputs: &neurofluid_dev::physnerf_case::CaseInputs) -> RayBatch {
     }
 }
 
-fn particles(inputs: &neurofluid_dev::physnerf_case::CaseInputs, device: &Device) -> Tensor<2> {
-    let flat: Vec<f32> = inputs
-        .particles
-        .iter()
-        .flatten()
-        .map(|&v| v as f32)
-        .collect();
-    Tensor::from_data(TensorData::new(flat, [inputs.particles.len(), 3]), device)
-}
-
 #[test]
 fn gated_only_evaluation_gives_the_same_colours_and_gradients() {
     let (inputs, _) = case();
@@ -46,7 +36,7 @@ fn gated_only_evaluation_gives_the_same_colours_and_gradients() {
         };
         let model =
             PhysNerf::from_nerf_pl(inputs.weights_path(), cfg, &device, DType::F32).unwrap();
-        let p = particles(&inputs, &device).require_grad();
+        let p = inputs.particles_tensor(&device, DType::F32).require_grad();
         let out = model.render_rays(&p, &rays, None).unwrap();
         let evaluated = out.coarse.evaluated;
         let rgb = vals(out.final_rgb());
@@ -76,7 +66,7 @@ fn stratified_jitter_needs_an_rng_and_stays_in_its_intervals() {
     };
     let model =
         PhysNerf::from_nerf_pl(inputs.weights_path(), cfg.clone(), &device, DType::F32).unwrap();
-    let p = particles(&inputs, &device);
+    let p = inputs.particles_tensor(&device, DType::F32);
     assert!(
         model.render_rays(&p, &rays, None).is_err(),
         "stratified without an RNG must be an error"
@@ -118,7 +108,7 @@ fn ablations_change_the_input_widths_and_nearest_k_changes_the_picture() {
     let (inputs, _) = case();
     let device = Device::flex();
     let rays = centre_rays(&inputs);
-    let p = particles(&inputs, &device);
+    let p = inputs.particles_tensor(&device, DType::F32);
     for flags in [
         EncodingTerms::none(),
         EncodingTerms {

@@ -5,26 +5,16 @@
 mod common;
 
 use burn::prelude::*;
-use burn::tensor::{DType, TensorData};
+use burn::tensor::DType;
 use common::*;
 use neurofluid_physnerf::{render_image, save_png};
-
-fn particles(inputs: &neurofluid_dev::physnerf_case::CaseInputs, device: &Device) -> Tensor<2> {
-    let flat: Vec<f32> = inputs
-        .particles
-        .iter()
-        .flatten()
-        .map(|&v| v as f32)
-        .collect();
-    Tensor::from_data(TensorData::new(flat, [inputs.particles.len(), 3]), device)
-}
 
 #[test]
 fn chunked_view_matches_reference_and_chunk_size() {
     let (inputs, file) = case();
     let device = Device::flex();
     let model = model(&inputs, &device, DType::F32);
-    let p = particles(&inputs, &device);
+    let p = inputs.particles_tensor(&device, DType::F32);
     let cam = inputs.camera(None);
     let mut calls = 0;
     let a = render_image(&model, &cam, &p, 37, &mut |_, _| calls += 1).expect("render");
@@ -68,7 +58,7 @@ fn blob_is_opaque_on_white_and_png_roundtrips() {
     let (inputs, _) = case();
     let device = Device::flex();
     let model = model(&inputs, &device, DType::F32);
-    let p = particles(&inputs, &device);
+    let p = inputs.particles_tensor(&device, DType::F32);
     let cam = inputs.camera(Some([24, 24]));
     let img = render_image(&model, &cam, &p, 256, &mut |_, _| {}).expect("render");
     let px = |r: usize, c: usize| &img.fine[(r * 24 + c) * 3..(r * 24 + c) * 3 + 3];
@@ -117,7 +107,7 @@ fn renders_from_an_autodiff_model() {
     let (inputs, _) = case();
     let device = Device::flex().autodiff();
     let model = model(&inputs, &device, DType::F32);
-    let p = particles(&inputs, &device).require_grad();
+    let p = inputs.particles_tensor(&device, DType::F32).require_grad();
     let cam = inputs.camera(Some([8, 8]));
     let img = render_image(&model, &cam, &p, 16, &mut |_, _| {}).expect("render");
     assert_eq!(img.fine.len(), 8 * 8 * 3);

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use burn::prelude::*;
-use neurofluid_core::scene::{MANIFEST_FILE, Scene, UpAxis};
+use neurofluid_core::scene::{Scene, UpAxis};
 use neurofluid_dlf::{DlfConfig, DlfNet};
 use neurofluid_physnerf::PhysNerfConfig;
 
@@ -66,7 +66,7 @@ impl Run {
             .autodiff();
         let scene_dir = exp.scene.scene_dir();
         anyhow::ensure!(
-            scene_dir.join(MANIFEST_FILE).is_file() || scene_dir.is_dir(),
+            scene_dir.is_dir(),
             "the scene folder {} does not exist; `neurofluid-train run` or `generate` makes a \
              built-in scene",
             scene_dir.display()

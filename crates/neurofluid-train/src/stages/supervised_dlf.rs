@@ -72,6 +72,7 @@ impl SupervisedConfig {
 /// DLF, its Adam and the sample stream, trained on ground-truth sequences.
 pub struct SupervisedDlfTrainer {
     cfg: SupervisedConfig,
+    optim: OptimConfig<SupervisedDlfGroup>,
     net: DlfNet,
     opt: ModuleOptimizer,
     rng: Rng,
@@ -99,8 +100,10 @@ impl SupervisedDlfTrainer {
             "the training data holds no window of 3 consecutive frames with a constant \
              particle count"
         );
+        let optim = cfg.optim();
         Ok(Self {
-            opt: cfg.optim().adam(),
+            opt: optim.adam(),
+            optim,
             rng: Rng::stream(cfg.seed, STAGE),
             cfg: cfg.clone(),
             net,
@@ -127,7 +130,7 @@ impl Trainer for SupervisedDlfTrainer {
 
     fn step(&mut self, step: u64) -> anyhow::Result<StepStats> {
         // DLF's LambdaLR counts from 1 here: the factor of the step being taken
-        let lr = self.cfg.optim().lr_at(step + 1);
+        let lr = self.optim.lr_at(step + 1);
         let batch = self.cfg.batch_size.max(1);
         let gravity = self.net.config.gravity;
         let mut accum = GradientsAccumulator::<DlfNet>::new();
@@ -177,7 +180,7 @@ impl Trainer for SupervisedDlfTrainer {
 
     fn load(&mut self, dir: &Path, _done: u64, state: StageState) -> anyhow::Result<()> {
         self.net = checkpoint::load_module(self.net.clone(), &dir.join("dlf.bpk"))?;
-        self.opt = checkpoint::load_optimizer(self.cfg.optim().adam(), &dir.join("optim_dlf.bpk"))?;
+        self.opt = checkpoint::load_optimizer(self.optim.adam(), &dir.join("optim_dlf.bpk"))?;
         self.rng = Rng::from_stage_state(&state, dir)?;
         Ok(())
     }
