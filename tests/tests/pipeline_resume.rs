@@ -7,7 +7,7 @@ use std::path::Path;
 use neurofluid_tests::{params, seeded_turn, tiny_experiment};
 use neurofluid_train::config::Experiment;
 use neurofluid_train::metrics_log::MetricsLog;
-use neurofluid_train::stages::{Run, eval, joint, warmup};
+use neurofluid_train::stages::{Run, Start, eval, joint, warmup};
 
 fn experiment(tmp: &Path, name: &str) -> Experiment {
     let mut e = tiny_experiment(tmp, name);
@@ -26,12 +26,12 @@ fn resumed_run_matches_uninterrupted_run() {
     let _turn = seeded_turn();
     let tmp = tempfile::tempdir().unwrap();
 
-    let straight = Run::prepare(experiment(tmp.path(), "straight")).unwrap();
+    let straight = Run::prepare(experiment(tmp.path(), "straight"), Start::Resume).unwrap();
     let mut log = MetricsLog::open(&straight.dir).unwrap();
     warmup::run(&straight, &mut log).unwrap();
     let a = joint::run(&straight, &mut log).unwrap();
 
-    let pieces = Run::prepare(experiment(tmp.path(), "pieces")).unwrap();
+    let pieces = Run::prepare(experiment(tmp.path(), "pieces"), Start::Resume).unwrap();
     let mut log = MetricsLog::open(&pieces.dir).unwrap();
     let warm_iters = pieces.exp.warmup.iters;
     assert!(warm_iters >= 2);
@@ -74,7 +74,7 @@ fn stratified_jitter_is_seeded_and_reproducible() {
     for name in ["jitter-a", "jitter-b"] {
         let mut e = experiment(tmp.path(), name);
         e.apply_overrides(&["physnerf.stratified=true"]).unwrap();
-        let run = Run::prepare(e).unwrap();
+        let run = Run::prepare(e, Start::Resume).unwrap();
         let mut log = MetricsLog::open(&run.dir).unwrap();
         params_of.push(params(&warmup::run(&run, &mut log).unwrap()));
     }
@@ -88,7 +88,7 @@ fn stratified_jitter_is_seeded_and_reproducible() {
 fn resumed_metrics_log_has_no_duplicate_steps() {
     let _turn = seeded_turn();
     let tmp = tempfile::tempdir().unwrap();
-    let run = Run::prepare(experiment(tmp.path(), "log")).unwrap();
+    let run = Run::prepare(experiment(tmp.path(), "log"), Start::Resume).unwrap();
     let mut log = run.open_log().unwrap();
     warmup::run_until(&run, &mut log, Some(2)).unwrap();
     // a row logged after the last checkpoint, as a crash would leave it
@@ -112,25 +112,32 @@ fn resumed_metrics_log_has_no_duplicate_steps() {
 fn resume_refuses_changed_settings_and_records_safe_changes() {
     let _turn = seeded_turn();
     let tmp = tempfile::tempdir().unwrap();
-    let run = Run::prepare(experiment(tmp.path(), "guard")).unwrap();
+    let run = Run::prepare(experiment(tmp.path(), "guard"), Start::Resume).unwrap();
     let mut log = run.open_log().unwrap();
     warmup::run_until(&run, &mut log, Some(2)).unwrap();
     drop(log);
+    // the run folder is locked while a run holds it
+    let err = Run::prepare(experiment(tmp.path(), "guard"), Start::Resume)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("in use by another process"), "{err}");
+    drop(run);
 
     // a learning rate shapes the state: refused, naming the key and the way out
     let mut changed = experiment(tmp.path(), "guard");
     changed.apply_override("warmup.optim.lr=1e-3").unwrap();
-    let run2 = Run::prepare(changed).unwrap();
+    let run2 = Run::prepare(changed, Start::Resume).unwrap();
     let mut log = run2.open_log().unwrap();
     let err = warmup::run(&run2, &mut log).unwrap_err().to_string();
     assert!(err.contains("warmup.optim.lr"), "{err}");
     assert!(err.contains("--fresh"), "{err}");
     drop(log);
+    drop(run2);
 
     // the logging cadence does not: resumed, and the change is recorded
     let mut safe = experiment(tmp.path(), "guard");
     safe.apply_override("warmup.log_every=2").unwrap();
-    let run3 = Run::prepare(safe).unwrap();
+    let run3 = Run::prepare(safe, Start::Resume).unwrap();
     let mut log = run3.open_log().unwrap();
     warmup::run(&run3, &mut log).unwrap();
     let history = std::fs::read_to_string(run3.dir.join("config.history")).unwrap();

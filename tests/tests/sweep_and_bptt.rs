@@ -4,7 +4,7 @@
 use neurofluid_tests::{params, seeded_turn, tiny_experiment, workspace_root};
 use neurofluid_train::commands::sweep;
 use neurofluid_train::metrics_log::MetricsLog;
-use neurofluid_train::stages::{Run, joint, warmup};
+use neurofluid_train::stages::{Run, Start, joint, warmup};
 
 #[test]
 fn sweep_writes_a_row_per_variant() {
@@ -57,7 +57,7 @@ fn multi_step_bptt_with_differentiable_geometry_trains() {
         "joint.rays=512",
     ])
     .unwrap();
-    let run = Run::prepare(e).unwrap();
+    let run = Run::prepare(e, Start::Resume).unwrap();
     let mut log = MetricsLog::open(&run.dir).unwrap();
     warmup::run(&run, &mut log).unwrap();
     let before = params(&run.load_dlf(&run.exp.dlf.weights).unwrap());

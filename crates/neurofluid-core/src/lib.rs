@@ -10,5 +10,6 @@ pub mod device;
 pub mod metrics;
 pub mod neighbors;
 pub mod npz;
+pub mod params;
 pub mod scene;
 pub mod tensors;

@@ -322,6 +322,11 @@ pub fn save_checkpoint(net: &DlfNet, path: &Path) -> Result<(), WeightsError> {
         path: path.to_path_buf(),
         reason,
     };
+    if let Some(name) = neurofluid_core::params::first_non_finite(net) {
+        return Err(werr(format!(
+            "not written: parameter `{name}` holds NaN or infinite values"
+        )));
+    }
     let bytes = net
         .clone()
         .into_record()
@@ -349,7 +354,15 @@ pub fn load_checkpoint(
     let bytes = std::fs::read(path).map_err(|e| read_err(path, e))?;
     let record = burn::store::ModuleRecord::from_bytes(burn::tensor::Bytes::from_bytes_vec(bytes))
         .map_err(|e| read_err(path, e))?;
-    DlfNet::new(config, device)
+    let net = DlfNet::new(config, device)
         .try_load_record(record)
-        .map_err(|e| read_err(path, e))
+        .map_err(|e| read_err(path, e))?;
+    match neurofluid_core::params::first_non_finite(&net) {
+        Some(name) => Err(WeightsError::Value {
+            path: path.to_path_buf(),
+            name,
+            reason: "holds NaN or infinite values".into(),
+        }),
+        None => Ok(net),
+    }
 }

@@ -50,6 +50,19 @@ impl EncodingTerms {
     }
 }
 
+/// How a network's raw density output becomes the density σ ≥ 0 that is composited.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DensityActivation {
+    /// `relu(σ)` (the paper code, as in the original NeRF). A network whose raw output is
+    /// negative on every sample renders nothing and receives no gradient: it can start dead.
+    #[default]
+    Relu,
+    /// `softplus(σ − 1)` (mip-NeRF's choice): positive everywhere, so a gradient always reaches
+    /// the density, and a network cannot start dead.
+    Softplus,
+}
+
 /// Positional-encoding frequency counts L of each encoded term.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -111,6 +124,8 @@ pub struct PhysNerfConfig {
     pub stratified: bool,
     /// Composite on a white background (true in the paper code).
     pub white_background: bool,
+    /// The density activation (ReLU in the paper code).
+    pub density: DensityActivation,
     /// Encoding-term switches (the paper's Table 5 ablations).
     pub encoding: EncodingTerms,
     /// Encoding frequency counts.
@@ -141,6 +156,7 @@ impl Default for PhysNerfConfig {
             selection: NeighborSelection::LowestIndex,
             stratified: false,
             white_background: true,
+            density: DensityActivation::Relu,
             encoding: EncodingTerms::all(),
             frequencies: Frequencies::default(),
             depth: 8,
@@ -176,37 +192,64 @@ impl PhysNerfConfig {
 
     /// Checks the values for consistency.
     pub fn validate(&self) -> Result<(), String> {
-        if !(self.near.is_finite() && self.far.is_finite() && self.far > self.near) {
-            return Err(format!(
-                "near/far must be finite with far > near, got {}/{}",
-                self.near, self.far
+        match self.problem() {
+            Some((field, message)) => Err(format!("{field}: {message}")),
+            None => Ok(()),
+        }
+    }
+
+    /// The first field with an invalid value, and what was expected.
+    pub fn problem(&self) -> Option<(&'static str, String)> {
+        let ok = |v: f64| v.is_finite();
+        if !(ok(self.near) && ok(self.far) && self.near >= 0.0) {
+            return Some((
+                "near",
+                format!("expected finite bounds ≥ 0, got {}/{}", self.near, self.far),
+            ));
+        }
+        if self.far <= self.near {
+            return Some((
+                "far",
+                format!("expected far > near, got {}/{}", self.near, self.far),
             ));
         }
         if self.n_samples < 3 {
-            return Err(format!(
-                "n_samples must be at least 3, got {}",
-                self.n_samples
+            return Some((
+                "n_samples",
+                format!("expected at least 3, got {}", self.n_samples),
             ));
         }
-        if !(self.search_radius.is_finite() && self.search_radius > 0.0) {
-            return Err(format!(
-                "search_radius must be positive, got {}",
-                self.search_radius
+        if !(ok(self.search_radius) && self.search_radius > 0.0) {
+            return Some((
+                "search_radius",
+                format!("expected a positive radius, got {}", self.search_radius),
             ));
         }
         if self.k == 0 {
-            return Err("k must be at least 1".into());
+            return Some(("k", "expected at least 1 neighbour slot".into()));
         }
         if self.chunk == 0 {
-            return Err("chunk must be at least 1".into());
+            return Some(("chunk", "expected at least 1 ray per chunk".into()));
         }
-        if self.depth == 0 || self.width == 0 || self.skip >= self.depth || self.skip == 0 {
-            return Err(format!(
-                "need depth ≥ 2, width ≥ 1 and 0 < skip < depth, got depth {} width {} skip {}",
-                self.depth, self.width, self.skip
+        if self.depth < 2 {
+            return Some((
+                "depth",
+                format!("expected an MLP of depth ≥ 2, got {}", self.depth),
             ));
         }
-        Ok(())
+        if self.width == 0 {
+            return Some(("width", "expected an MLP of width ≥ 1, got 0".into()));
+        }
+        if self.skip == 0 || self.skip >= self.depth {
+            return Some((
+                "skip",
+                format!(
+                    "expected 0 < skip < depth ({}), got {}",
+                    self.depth, self.skip
+                ),
+            ));
+        }
+        None
     }
 }
 

@@ -36,7 +36,9 @@ pub mod view;
 pub mod volume;
 pub mod weights;
 
-pub use config::{EncodingTerms, Frequencies, NeighborSelection, PhysNerfConfig};
+pub use config::{
+    DensityActivation, EncodingTerms, Frequencies, NeighborSelection, PhysNerfConfig,
+};
 pub use error::{PhysNerfError, Result};
 
 pub use mlp::NerfMlp;

@@ -2,7 +2,7 @@
 //! and `metrics.jsonl`, flushed after every row so a crashed or running job can be plotted.
 
 use std::fs::{File, OpenOptions};
-use std::io::{BufRead, BufReader, Write};
+use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
@@ -12,7 +12,8 @@ pub const CSV_FILE: &str = "metrics.csv";
 /// JSON-lines file name inside a run folder.
 pub const JSONL_FILE: &str = "metrics.jsonl";
 /// The CSV header.
-pub const CSV_HEADER: &str = "stage,step,loss,psnr,lr_physnerf,lr_dlf,rays_per_s,time_s";
+pub const CSV_HEADER: &str =
+    "stage,step,loss,psnr,lr_physnerf,lr_dlf,rays_per_s,time_s,grad_norm_physnerf,grad_norm_dlf";
 
 /// Errors of the metrics log.
 #[derive(Debug, thiserror::Error)]
@@ -68,6 +69,12 @@ pub struct MetricsRow {
     pub rays_per_s: Option<f64>,
     /// Seconds since the run (or stage) started.
     pub time_s: f64,
+    /// L2 norm of PhysNeRF's gradients in the update.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub grad_norm_physnerf: Option<f64>,
+    /// L2 norm of DLF's gradients in the update.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub grad_norm_dlf: Option<f64>,
 }
 
 impl MetricsRow {
@@ -82,6 +89,8 @@ impl MetricsRow {
             lr_dlf: None,
             rays_per_s: None,
             time_s,
+            grad_norm_physnerf: None,
+            grad_norm_dlf: None,
         }
     }
 
@@ -89,7 +98,7 @@ impl MetricsRow {
     pub fn csv_line(&self) -> String {
         let opt = |v: Option<f64>| v.map(|x| x.to_string()).unwrap_or_default();
         format!(
-            "{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{}",
             csv_escape(&self.stage),
             self.step,
             self.loss,
@@ -97,7 +106,9 @@ impl MetricsRow {
             opt(self.lr_physnerf),
             opt(self.lr_dlf),
             opt(self.rays_per_s),
-            self.time_s
+            self.time_s,
+            opt(self.grad_norm_physnerf),
+            opt(self.grad_norm_dlf)
         )
     }
 }
@@ -168,7 +179,10 @@ impl MetricsLog {
     ) -> Result<Self, MetricsError> {
         let jsonl_path = dir.join(JSONL_FILE);
         if jsonl_path.exists() {
-            let rows: Vec<MetricsRow> = read_jsonl(&jsonl_path)?.into_iter().filter(keep).collect();
+            let rows: Vec<MetricsRow> = read_rows(&jsonl_path, true)?
+                .into_iter()
+                .filter(keep)
+                .collect();
             let mut csv = format!("{CSV_HEADER}\n");
             let mut jsonl = String::new();
             for r in &rows {
@@ -211,19 +225,37 @@ impl MetricsLog {
 
 /// Reads every row of a `metrics.jsonl` file (blank lines skipped).
 pub fn read_jsonl(path: &Path) -> Result<Vec<MetricsRow>, MetricsError> {
-    let file = File::open(path).map_err(io(path))?;
+    read_rows(path, false)
+}
+
+/// Reads the rows; with `drop_torn_tail`, a last line without its newline that is not a row
+/// (a write cut short by a crash) is dropped with a warning instead of failing.
+fn read_rows(path: &Path, drop_torn_tail: bool) -> Result<Vec<MetricsRow>, MetricsError> {
+    let text = std::fs::read(path).map_err(io(path))?;
+    let text = String::from_utf8_lossy(&text);
+    let torn = !text.is_empty() && !text.ends_with('\n');
+    let lines: Vec<&str> = text.lines().collect();
     let mut rows = Vec::new();
-    for (i, line) in BufReader::new(file).lines().enumerate() {
-        let line = line.map_err(io(path))?;
+    for (i, line) in lines.iter().enumerate() {
         if line.trim().is_empty() {
             continue;
         }
-        let row = serde_json::from_str(&line).map_err(|e| MetricsError::Parse {
-            path: path.to_path_buf(),
-            line: i + 1,
-            message: e.to_string(),
-        })?;
-        rows.push(row);
+        match serde_json::from_str(line) {
+            Ok(row) => rows.push(row),
+            Err(_) if drop_torn_tail && torn && i + 1 == lines.len() => {
+                tracing::warn!(
+                    "{}: dropping the unfinished last line (a write cut short)",
+                    path.display()
+                );
+            }
+            Err(e) => {
+                return Err(MetricsError::Parse {
+                    path: path.to_path_buf(),
+                    line: i + 1,
+                    message: e.to_string(),
+                });
+            }
+        }
     }
     Ok(rows)
 }
@@ -266,8 +298,8 @@ mod tests {
         assert_eq!(lines.len(), 4, "{csv}");
         assert_eq!(lines[0], CSV_HEADER);
         assert_eq!(lines.iter().filter(|l| l.starts_with("stage,")).count(), 1);
-        assert_eq!(lines[1], "warmup,0,0.1,10,0.0005,,,0");
-        assert_eq!(lines[3], "joint,0,0.2,,,0.00001,,9");
+        assert_eq!(lines[1], "warmup,0,0.1,10,0.0005,,,0,,");
+        assert_eq!(lines[3], "joint,0,0.2,,,0.00001,,9,,");
         let rows = read_jsonl(&dir.path().join(JSONL_FILE)).unwrap();
         assert_eq!(rows.len(), 3);
         assert_eq!(rows[1], row("warmup", 10, 0.05));
@@ -290,6 +322,30 @@ mod tests {
         assert_eq!(rows[2].loss, 0.07);
         let csv = std::fs::read_to_string(dir.path().join(CSV_FILE)).unwrap();
         assert_eq!(csv.lines().count(), 4);
+    }
+
+    /// A crash in the middle of a row leaves a torn last line: resume drops it (and only it);
+    /// a plain read still reports it.
+    #[test]
+    fn resume_drops_a_torn_last_line() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut log = MetricsLog::open(dir.path()).unwrap();
+        for s in [1, 2] {
+            log.append(&row("warmup", s, 0.1)).unwrap();
+        }
+        drop(log);
+        let p = dir.path().join(JSONL_FILE);
+        let mut text = std::fs::read_to_string(&p).unwrap();
+        text.push_str("{\"stage\":\"warmup\",\"st");
+        std::fs::write(&p, &text).unwrap();
+        assert!(read_jsonl(&p).is_err());
+        let log = MetricsLog::open_resumed(dir.path(), |_| true).unwrap();
+        drop(log);
+        let rows = read_jsonl(&p).unwrap();
+        assert_eq!(rows.iter().map(|r| r.step).collect::<Vec<_>>(), [1, 2]);
+        // a bad line that is not the torn tail still fails
+        std::fs::write(&p, format!("not json\n{text}")).unwrap();
+        assert!(MetricsLog::open_resumed(dir.path(), |_| true).is_err());
     }
 
     #[test]

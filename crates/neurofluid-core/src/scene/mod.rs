@@ -82,6 +82,22 @@ impl ViewSplit {
         ))
     }
 
+    /// An image of this view must have the size of its first one (the camera's).
+    fn check_size(&self, path: &Path, size: (u32, u32)) -> Result<()> {
+        let (w, h) = self.image_size;
+        if size == (w, h) {
+            return Ok(());
+        }
+        Err(SceneError::field(
+            path,
+            "size",
+            format!(
+                "{w}×{h} pixels like the view's first image (its camera), found {}×{}",
+                size.0, size.1
+            ),
+        ))
+    }
+
     /// Image path of frame `t`.
     pub fn image_path(&self, t: usize) -> Result<PathBuf> {
         Ok(image_path(&self.dir, self.entry(t)?))
@@ -224,9 +240,14 @@ impl Scene {
         self.view_split(role, view)?.camera(t)
     }
 
-    /// Image of `view` at frame `t`, composited on white.
+    /// Image of `view` at frame `t`, composited on white. Every image of a view has the size
+    /// of the view's first image (its camera's).
     pub fn image(&self, role: Role, view: &str, t: usize) -> Result<Image> {
-        Image::read(&self.view_split(role, view)?.image_path(t)?)
+        let split = self.view_split(role, view)?;
+        let path = split.image_path(t)?;
+        let image = Image::read(&path)?;
+        split.check_size(&path, (image.width, image.height))?;
+        Ok(image)
     }
 
     /// Particles at frame `t` of `role` (from the role's first view, as the reference loader).

@@ -115,6 +115,13 @@ impl BoxParticles {
         let mut r = open(path)?;
         let points = rows3(path, &mut r, "box")?;
         let normals = rows3(path, &mut r, "box_normals")?;
+        if points.is_empty() {
+            return Err(SceneError::field(
+                path,
+                "box",
+                "at least one box particle (the walls DLF collides with), found none",
+            ));
+        }
         if points.len() != normals.len() {
             return Err(SceneError::field(
                 path,

@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 
 use crate::config::Experiment;
+use crate::stages::{Run, Start};
 
 /// An experiment file plus command-line overrides.
 #[derive(Debug, Clone, clap::Args)]
@@ -33,9 +34,16 @@ impl ExperimentArgs {
             exp.device = d.clone();
         }
         exp.validate(&self.experiment)?;
-        if self.fresh {
-            crate::stages::reset_run_folder(&exp)?;
-        }
         Ok(exp)
+    }
+
+    /// Loads the experiment and prepares its run for training (locked; emptied with `--fresh`).
+    pub fn prepare(&self) -> anyhow::Result<Run> {
+        let start = if self.fresh {
+            Start::Fresh
+        } else {
+            Start::Resume
+        };
+        Run::prepare(self.load()?, start)
     }
 }

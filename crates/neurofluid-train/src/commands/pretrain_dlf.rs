@@ -1,7 +1,8 @@
 //! `pretrain-dlf`: supervised (pre)training or fine-tuning (the paper's DLF†) of DLF on DLF
 //! `.msgpack.zst` records or a scene's particle sequence, with DLF's loss, rotations, schedule
-//! and validation errors. It checkpoints into `<output stem>.pretrain/` and resumes from there;
-//! the weights file is written at every checkpoint.
+//! and validation errors. It checkpoints into `<output stem>.pretrain/` (locked while it runs)
+//! and resumes from there; the weights file is written once the training has finished, so a
+//! diverged run never replaces it (fine-tuning in place, `--init X --output X`, is safe).
 //!
 //! On a scene folder only the frames DLF† may see are used: the training split (t < 50), so the
 //! prediction window stays unseen.
@@ -17,6 +18,7 @@ use serde::Serialize;
 
 use crate::config::Settings;
 use crate::stages::supervised_dlf::{STAGE, SupervisedConfig, SupervisedDlfTrainer};
+use crate::trainer::lock::FolderLock;
 use crate::trainer::sinks::ProgressBars;
 use crate::trainer::{Cadence, Driver, Event, EventSink, Trainer};
 
@@ -77,18 +79,37 @@ pub fn checkpoint_dir(output: &Path) -> PathBuf {
     output.with_extension("pretrain")
 }
 
-/// Copies the checkpoint's weights to the output file at every checkpoint.
-struct ExportWeights<'a>(&'a Path);
+/// Copies the final checkpoint's weights to the output file when the training has finished,
+/// so the output (possibly the `--init` file itself) is never replaced by an unfinished or
+/// diverged run.
+struct ExportWeights<'a> {
+    checkpoints: &'a Path,
+    output: &'a Path,
+}
 
 impl EventSink for ExportWeights<'_> {
     fn on_event(&mut self, event: &Event<'_>) -> anyhow::Result<()> {
-        if let Event::Checkpointed { dir, .. } = event {
-            let bytes = std::fs::read(dir.join("dlf.bpk"))?;
-            neurofluid_core::atomic::write_bytes(self.0, &bytes)
-                .with_context(|| format!("writing {}", self.0.display()))?;
+        if let Event::Finished { .. } = event {
+            let dir = crate::trainer::checkpoint::latest(self.checkpoints)
+                .with_context(|| format!("no checkpoint in {}", self.checkpoints.display()))?;
+            let source = dir.join("dlf.bpk");
+            let bytes =
+                std::fs::read(&source).with_context(|| format!("reading {}", source.display()))?;
+            neurofluid_core::atomic::write_bytes(self.output, &bytes)
+                .with_context(|| format!("writing {}", self.output.display()))?;
         }
         Ok(())
     }
+}
+
+/// Removes the checkpoints of an earlier run (`--fresh`), and nothing else of the folder.
+fn reset_checkpoints(dir: &Path) -> anyhow::Result<()> {
+    for p in [dir.join("checkpoint"), dir.join("checkpoint.old")] {
+        if p.is_dir() {
+            std::fs::remove_dir_all(&p).with_context(|| format!("removing {}", p.display()))?;
+        }
+    }
+    Ok(())
 }
 
 /// Runs the training.
@@ -116,8 +137,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         args.train.batch_size
     );
     let dir = checkpoint_dir(&args.output);
-    if args.fresh && dir.exists() {
-        std::fs::remove_dir_all(&dir).with_context(|| format!("removing {}", dir.display()))?;
+    let _lock = FolderLock::acquire(&dir)?;
+    if args.fresh {
+        reset_checkpoints(&dir)?;
     }
     let mut trainer = SupervisedDlfTrainer::new(&args.train, net, train, val)?;
     let mut bars = ProgressBars::new();
@@ -136,7 +158,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         evaluate_every: args.train.validate_every,
         checkpoint_every: args.train.validate_every,
     };
-    let mut export = ExportWeights(&args.output);
+    let mut export = ExportWeights {
+        checkpoints: &dir,
+        output: &args.output,
+    };
     Driver::new(&dir, cadence, Settings::of(&args))
         .with_sink(&mut bars)
         .with_sink(&mut export)
@@ -197,6 +222,57 @@ mod tests {
             checkpoint_dir(&output)
                 .join("checkpoint/state.json")
                 .is_file()
+        );
+
+        // fine-tuning in place with a learning rate that diverges: the run stops with a
+        // message and the weights it started from are untouched
+        let in_place = dir.path().join("in_place.bpk");
+        neurofluid_dlf::weights::save_checkpoint(&net, &in_place).unwrap();
+        let before = std::fs::read(&in_place).unwrap();
+        let err = run(Args {
+            data: dir.path().to_path_buf(),
+            val: None,
+            init: Some(in_place.clone()),
+            output: in_place.clone(),
+            train: SupervisedConfig {
+                iterations: 20,
+                batch_size: 1,
+                lr: 1e8,
+                validate_every: 1,
+                frame_skip: 1,
+                no_rotation: false,
+                seed: 1,
+            },
+            device: "cpu".into(),
+            fresh: false,
+        })
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("pretrain-dlf stopped at step"), "{err}");
+        assert_eq!(std::fs::read(&in_place).unwrap(), before);
+        // and every checkpoint left behind loads: finite parameters only
+        if let Some(ckpt) = crate::trainer::checkpoint::latest(&checkpoint_dir(&in_place)) {
+            load_dlf(&ckpt.join("dlf.bpk"), DlfConfig::default(), &device).unwrap();
+        }
+    }
+
+    /// `--lr` must be a finite positive number; `--batch-size` must fit the data.
+    #[test]
+    fn bad_learning_rates_are_refused_by_the_command_line() {
+        use clap::Parser;
+        #[derive(clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            train: SupervisedConfig,
+        }
+        for bad in ["NaN", "-1", "0", "inf", "fast"] {
+            assert!(Cli::try_parse_from(["x", "--lr", bad]).is_err(), "{bad}");
+        }
+        assert!(Cli::try_parse_from(["x", "--batch-size", "0"]).is_err());
+        assert!(Cli::try_parse_from(["x", "--iterations", "0"]).is_err());
+        assert_eq!(
+            Cli::try_parse_from(["x", "--lr", "1e-4"]).unwrap().train.lr,
+            1e-4
         );
     }
 }

@@ -1,5 +1,6 @@
 //! `warmup`, `joint` and `eval`: the stages of `run`, one at a time.
 
+use crate::stages::preflight::{self, Stage};
 use crate::stages::{Run, eval, joint, warmup};
 
 use super::experiment_args::ExperimentArgs;
@@ -13,7 +14,8 @@ pub struct Args {
 
 /// The renderer warm-up on frame 0.
 pub fn run_warmup(args: Args) -> anyhow::Result<()> {
-    let run = Run::prepare(args.exp.load()?)?;
+    let run = args.exp.prepare()?;
+    preflight::check(&run, &[Stage::Warmup])?;
     let mut log = run.open_log()?;
     warmup::run(&run, &mut log)?;
     println!(
@@ -25,7 +27,8 @@ pub fn run_warmup(args: Args) -> anyhow::Result<()> {
 
 /// Joint grounding (needs a finished warm-up).
 pub fn run_joint(args: Args) -> anyhow::Result<()> {
-    let run = Run::prepare(args.exp.load()?)?;
+    let run = args.exp.prepare()?;
+    preflight::check(&run, &[Stage::Joint])?;
     let mut log = run.open_log()?;
     joint::run(&run, &mut log)?;
     println!(
@@ -37,7 +40,9 @@ pub fn run_joint(args: Args) -> anyhow::Result<()> {
 
 /// Evaluation of a finished joint stage (reads the scene and checkpoints; simulates nothing).
 pub fn run_eval(args: Args) -> anyhow::Result<()> {
-    let run = Run::open_existing(args.exp.load()?)?;
+    let mut run = Run::open_existing(args.exp.load()?)?;
+    run.lock()?;
+    preflight::check(&run, &[Stage::Eval])?;
     let grounded = joint::load_trained(&run)?;
     let summary = eval::run(&run, &grounded)?;
     println!("{}", summary.markdown());

@@ -5,7 +5,8 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 
-use crate::stages::{Run, eval, joint, warmup};
+use crate::stages::preflight::{self, Stage};
+use crate::stages::{Run, Start, eval, joint, warmup};
 use crate::sweep::{Sweep, table_rows, write_table};
 
 /// Arguments of `sweep`.
@@ -38,7 +39,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         tracing::info!("variant {} ({})", variant.name, variant.label);
         let outcome = (|| -> anyhow::Result<_> {
-            let run = Run::prepare(exp)?;
+            let run = Run::prepare(exp, Start::Resume)?;
+            preflight::check(&run, &[Stage::Warmup, Stage::Joint, Stage::Eval])?;
             let mut log = run.open_log()?;
             warmup::run(&run, &mut log)?;
             let grounded = joint::run(&run, &mut log)?;

@@ -230,29 +230,13 @@ impl Experiment {
         {
             return bad("scene.far", "expected far > near");
         }
-        let r = &self.physnerf;
-        if r.n_samples < 3 {
-            return bad("physnerf.n_samples", "expected at least 3");
-        }
-        if !(r.search_radius.is_finite() && r.search_radius > 0.0) {
-            return bad("physnerf.search_radius", "expected a positive radius");
-        }
-        if r.k == 0 {
-            return bad("physnerf.k", "expected at least 1");
-        }
-        if r.chunk == 0 {
-            return bad("physnerf.chunk", "expected at least 1");
-        }
-        if r.depth < 2 {
-            return bad("physnerf.depth", "expected an MLP of depth ≥ 2");
-        }
-        if r.width == 0 {
-            return bad("physnerf.width", "expected an MLP of width ≥ 1");
-        }
-        if r.skip == 0 || r.skip >= r.depth {
-            return bad("physnerf.skip", "expected 0 < skip < depth");
+        if let Some((field, msg)) = self.physnerf.problem() {
+            return bad(&format!("physnerf.{field}"), &msg);
         }
         let w = &self.warmup;
+        if w.iters == 0 {
+            return bad("warmup.iters", "expected at least 1 iteration");
+        }
         if w.rays == 0 {
             return bad("warmup.rays", "expected at least 1");
         }
@@ -264,6 +248,9 @@ impl Experiment {
             return bad("warmup.views", "expected at least one view");
         }
         let j = &self.joint;
+        if j.epochs == 0 {
+            return bad("joint.epochs", "expected at least 1 epoch");
+        }
         if j.rays == 0 {
             return bad("joint.rays", "expected at least 1");
         }

@@ -16,7 +16,7 @@ use neurofluid_physnerf::{PhysNerf, render_image, save_png};
 
 use super::joint::Grounded;
 use super::run_folder::Run;
-use super::views::{ViewFrame, check_particles, points_tensor, side_by_side};
+use super::views::{ViewFrame, check_sequence, points_tensor, side_by_side};
 use crate::config::PlyEncoding;
 use crate::ply::{PlyFormat, write_ply};
 use crate::report::{EvalReport, FrameDistance, ImageScore, Windows};
@@ -96,6 +96,16 @@ fn render_and_score(
     Ok((psnr(&pred, &gt)?, ssim(&pred, &gt).unwrap_or(f64::NAN)))
 }
 
+/// The rollout steps rendered (of a test split of `frames` frames): every `every`-th and the
+/// last.
+pub fn rendered_steps(frames: usize, every: usize) -> Vec<usize> {
+    let steps = frames.saturating_sub(1);
+    let every = every.max(1);
+    (1..=steps)
+        .filter(|t| t % every == 0 || *t == steps)
+        .collect()
+}
+
 /// Runs the evaluation, writes `eval/` and returns the report.
 pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
     let scene = &run.scene;
@@ -103,7 +113,7 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
     let test = scene.frames(Role::Test);
     let train_len = scene.frames(Role::Train).len();
     let gt: Vec<_> = scene.particle_sequence(Role::Test)?;
-    check_particles(&gt[0], "first test frame")?;
+    check_sequence(&gt, test.start).context("the test split's particles")?;
     let steps = test.len() - 1;
     tracing::info!(steps, "evaluating: rollouts from the first test frame");
     let grounded = rollout_positions(
@@ -160,10 +170,7 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
     }
     if cfg.render {
         let physnerf = models.physnerf.valid();
-        let every = cfg.render_every.max(1);
-        let frames: Vec<usize> = (1..=steps)
-            .filter(|t| t % every == 0 || *t == steps)
-            .collect();
+        let frames = rendered_steps(test.len(), cfg.render_every);
         let views = cfg
             .views
             .clone()

@@ -28,7 +28,7 @@ use crate::config::{JointSection, StageKind};
 use crate::metrics_log::{MetricsLog, psnr_from_mse};
 use crate::sampler::Rng;
 use crate::trainer::checkpoint::{self, first_existing};
-use crate::trainer::{Cadence, Evaluation, StageState, StepStats, Trainer};
+use crate::trainer::{Cadence, Evaluation, StageState, StepStats, Trainer, guard};
 
 /// Folder of the stage inside the run folder.
 pub const STAGE: &str = "joint";
@@ -225,23 +225,51 @@ impl Trainer for JointTrainer {
         if !stats.loss.is_finite() {
             return Ok(stats);
         }
-        let mut grads = loss.backward();
-        let g_physnerf = GradientsParams::from_module(&mut grads, &self.physnerf);
-        let g_dlf = GradientsParams::from_module(&mut grads, &self.dlf);
         let (lr_p, lr_d) = (
             self.cfg.physnerf_optim.lr_at(step),
             self.cfg.dlf_optim.lr_at(step),
         );
-        self.physnerf = self
-            .opt_physnerf
-            .step(lr_p, self.physnerf.clone(), g_physnerf);
-        self.dlf = self.opt_dlf.step(lr_d, self.dlf.clone(), g_dlf);
+        let (mut norm_p, mut norm_d) = (0.0, 0.0);
+        if let Some(mut grads) = guard::backward(loss) {
+            let g_physnerf = GradientsParams::from_module(&mut grads, &self.physnerf);
+            let g_dlf = GradientsParams::from_module(&mut grads, &self.dlf);
+            norm_p = guard::grad_norm(&g_physnerf, &self.physnerf);
+            norm_d = guard::grad_norm(&g_dlf, &self.dlf);
+            if norm_p.is_finite() && norm_d.is_finite() {
+                self.physnerf = self
+                    .opt_physnerf
+                    .step(lr_p, self.physnerf.clone(), g_physnerf);
+                self.dlf = self.opt_dlf.step(lr_d, self.dlf.clone(), g_dlf);
+            }
+        }
+        stats.grad_norms = vec![("physnerf", norm_p), ("dlf", norm_d)];
         // the carried state leaves the graph: truncated backpropagation through time
         self.state = (self.state.0.clone().detach(), self.state.1.clone().detach());
         stats.lr_physnerf = Some(lr_p);
         stats.lr_dlf = Some(lr_d);
         stats.updated = true;
         Ok(stats)
+    }
+
+    /// The carried particles must stay finite and near the box: farther than one box size
+    /// outside it, the state has exploded (and so will everything trained on it).
+    fn check_state(&self) -> Result<(), String> {
+        let pos = tensor_points(&self.state.0);
+        let b = &self.data.interior;
+        let margin: f32 = (0..3).map(|a| b.max[a] - b.min[a]).fold(0.0, f32::max);
+        for (i, p) in pos.iter().enumerate() {
+            if !p.iter().all(|v| v.is_finite()) {
+                return Err(format!("predicted particle {i} is not finite ({p:?})"));
+            }
+            if (0..3).any(|a| p[a] < b.min[a] - margin || p[a] > b.max[a] + margin) {
+                return Err(format!(
+                    "predicted particle {i} left the box by more than its size (at {p:?}; the \
+                     box interior is {:?}–{:?})",
+                    b.min, b.max
+                ));
+            }
+        }
+        Ok(())
     }
 
     /// The training view at the frame just predicted, rendered from the prediction.
@@ -271,10 +299,12 @@ impl Trainer for JointTrainer {
         self.dlf = checkpoint::load_module(self.dlf.clone(), &dir.join("dlf.bpk"))?;
         self.opt_physnerf = checkpoint::load_optimizer(
             self.cfg.physnerf_optim.adam(),
+            &self.physnerf,
             &first_existing(dir, &["optim_physnerf.bpk", "optim_renderer.bpk"]),
         )?;
         self.opt_dlf = checkpoint::load_optimizer(
             self.cfg.dlf_optim.adam(),
+            &self.dlf,
             &first_existing(dir, &["optim_dlf.bpk", "optim_transition.bpk"]),
         )?;
         self.rng = Rng::from_stage_state(&state, dir)?;

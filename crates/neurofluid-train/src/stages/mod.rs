@@ -4,13 +4,14 @@
 
 pub mod eval;
 pub mod joint;
+pub mod preflight;
 pub mod run_folder;
 pub mod scene_source;
 pub mod supervised_dlf;
 pub mod views;
 pub mod warmup;
 
-pub use run_folder::{Run, reset_run_folder};
+pub use run_folder::{Run, Start};
 
 /// The loss and PSNR curves inside a run folder.
 pub const CURVES_FILE: &str = "curves.png";

@@ -1,8 +1,9 @@
 //! A run: the resolved experiment, its run folder, the device and the opened scene.
 //!
-//! Side effects have their own names: [`Run::prepare`] (for training: may generate the scene,
-//! writes the run folder), [`Run::open_existing`] (for evaluation: reads only) and
-//! [`reset_run_folder`] (for `--fresh`).
+//! Side effects have their own names: [`Run::prepare`] (for training: locks the run folder,
+//! empties it for [`Start::Fresh`], may generate the scene, writes the run folder),
+//! [`Run::open_existing`] (reads only) with [`Run::lock`] (before writing results) and
+//! [`reset_run_folder`].
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -17,6 +18,7 @@ use super::scene_source::generate_scene_if_missing;
 use crate::config::{Experiment, RESOLVED_FILE, Settings, StageKind};
 use crate::metrics_log::{CSV_FILE, JSONL_FILE, MetricsLog};
 use crate::trainer::checkpoint;
+use crate::trainer::lock::FolderLock;
 
 /// File in the run folder that records each setting changed between sessions.
 pub const HISTORY_FILE: &str = "config.history";
@@ -33,6 +35,15 @@ const RUN_CONTENTS: &[&str] = &[
     HISTORY_FILE,
 ];
 
+/// Whether a training run continues what its run folder holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Start {
+    /// Resume from the stages' checkpoints, if there are any.
+    Resume,
+    /// Remove what the run folder holds first (`--fresh`).
+    Fresh,
+}
+
 /// An experiment ready to run.
 #[derive(Debug)]
 pub struct Run {
@@ -44,19 +55,33 @@ pub struct Run {
     pub device: Device,
     /// The scene the experiment trains on.
     pub scene: Scene,
+    /// The run folder's lock, once taken.
+    lock: Option<FolderLock>,
 }
 
 impl Run {
-    /// For training: generates the built-in scene if its folder holds none, creates the run
-    /// folder, writes the resolved config and appends any setting that changed since the
-    /// previous session to `config.history`.
-    pub fn prepare(exp: Experiment) -> anyhow::Result<Self> {
+    /// For training: locks the run folder (one process per folder), empties it for
+    /// [`Start::Fresh`], generates the built-in scene if its folder holds none, writes the
+    /// resolved config and appends any setting that changed since the previous session to
+    /// `config.history`.
+    pub fn prepare(exp: Experiment, start: Start) -> anyhow::Result<Self> {
+        let lock = FolderLock::acquire(&exp.out_dir())?;
+        if start == Start::Fresh {
+            reset_run_folder(&exp)?;
+        }
         generate_scene_if_missing(&exp)?;
-        let run = Self::open_existing(exp)?;
-        std::fs::create_dir_all(&run.dir)
-            .with_context(|| format!("creating {}", run.dir.display()))?;
+        let mut run = Self::open_existing(exp)?;
+        run.lock = Some(lock);
         run.record_config()?;
         Ok(run)
+    }
+
+    /// Takes the run folder's lock (if this run does not hold it yet) before writing into it.
+    pub fn lock(&mut self) -> anyhow::Result<()> {
+        if self.lock.is_none() {
+            self.lock = Some(FolderLock::acquire(&self.dir)?);
+        }
+        Ok(())
     }
 
     /// For evaluation and inspection: the scene must exist; nothing is written.
@@ -83,6 +108,7 @@ impl Run {
             dir,
             device,
             scene,
+            lock: None,
         })
     }
 
@@ -177,8 +203,8 @@ impl Run {
 }
 
 /// Removes what the experiment's run folder holds (stage folders, metrics, plots, configs) and
-/// nothing else, so the next run starts over.
-pub fn reset_run_folder(exp: &Experiment) -> anyhow::Result<()> {
+/// nothing else, so the next run starts over. The caller holds the folder's lock.
+fn reset_run_folder(exp: &Experiment) -> anyhow::Result<()> {
     let dir = exp.out_dir();
     for name in RUN_CONTENTS {
         let p = dir.join(name);

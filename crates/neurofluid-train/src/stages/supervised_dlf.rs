@@ -16,7 +16,7 @@ use serde::Serialize;
 use crate::optim::{OptimConfig, OptimDefaults, Schedule};
 use crate::sampler::Rng;
 use crate::trainer::checkpoint;
-use crate::trainer::{Evaluation, StageState, StepStats, Trainer};
+use crate::trainer::{Evaluation, StageState, StepStats, Trainer, guard};
 
 /// Folder of the stage.
 pub const STAGE: &str = "pretrain-dlf";
@@ -26,19 +26,19 @@ pub const STAGE: &str = "pretrain-dlf";
 #[derive(Debug, Clone, PartialEq, Serialize, clap::Args)]
 pub struct SupervisedConfig {
     /// Optimiser steps (DLF: 50000).
-    #[arg(long, default_value_t = 50_000)]
+    #[arg(long, default_value_t = 50_000, value_parser = clap::value_parser!(u64).range(1..))]
     pub iterations: u64,
     /// Samples per step (DLF: 16).
     #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u64).range(1..))]
     pub batch_size: u64,
     /// Base learning rate (DLF: 1e-3; the piecewise decay is applied on top).
-    #[arg(long, default_value_t = 1e-3)]
+    #[arg(long, default_value_t = 1e-3, value_parser = positive_finite)]
     pub lr: f64,
     /// Validate (and checkpoint) every this many steps.
     #[arg(long, default_value_t = 1000)]
     pub validate_every: u64,
     /// Frame skip of the validation errors (DLF training: 20, `evaluate_network.py`: 5).
-    #[arg(long, default_value_t = 20)]
+    #[arg(long, default_value_t = 20, value_parser = at_least_one)]
     pub frame_skip: usize,
     /// Turn off the random rotation about the gravity axis (DLF's dambreak setting).
     #[arg(long)]
@@ -46,6 +46,24 @@ pub struct SupervisedConfig {
     /// Seed of sample order, rotations and initialisation.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+}
+
+/// A learning rate: a finite number > 0.
+fn positive_finite(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        Ok(v) => Err(format!("expected a finite learning rate > 0, got {v}")),
+        Err(e) => Err(format!("expected a number: {e}")),
+    }
+}
+
+/// A count of at least 1.
+fn at_least_one(s: &str) -> Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(v) if v >= 1 => Ok(v),
+        Ok(v) => Err(format!("expected at least 1, got {v}")),
+        Err(e) => Err(format!("expected a whole number: {e}")),
+    }
 }
 
 /// DLF's own optimiser group: Adam with ε = 1e-6 (the schedule depends on the run length).
@@ -100,6 +118,14 @@ impl SupervisedDlfTrainer {
             "the training data holds no window of 3 consecutive frames with a constant \
              particle count"
         );
+        anyhow::ensure!(
+            cfg.batch_size <= samples.len() as u64,
+            "--batch-size {} is larger than the {} training windows the data holds; expected \
+             at most {}",
+            cfg.batch_size,
+            samples.len(),
+            samples.len()
+        );
         let optim = cfg.optim();
         Ok(Self {
             opt: optim.adam(),
@@ -146,12 +172,15 @@ impl Trainer for SupervisedDlfTrainer {
             let grads = GradientsParams::from_grads(loss.backward(), &self.net);
             accum.accumulate(&self.net, grads);
         }
-        if batch_loss.is_finite() {
-            self.net = self.opt.step(lr, self.net.clone(), accum.grads());
+        let grads = accum.grads();
+        let grad_norm = guard::grad_norm(&grads, &self.net);
+        if batch_loss.is_finite() && grad_norm.is_finite() {
+            self.net = self.opt.step(lr, self.net.clone(), grads);
         }
         Ok(StepStats {
             loss: batch_loss,
             lr_dlf: Some(lr),
+            grad_norms: vec![("dlf", grad_norm)],
             updated: true,
             ..StepStats::default()
         })
@@ -180,7 +209,8 @@ impl Trainer for SupervisedDlfTrainer {
 
     fn load(&mut self, dir: &Path, _done: u64, state: StageState) -> anyhow::Result<()> {
         self.net = checkpoint::load_module(self.net.clone(), &dir.join("dlf.bpk"))?;
-        self.opt = checkpoint::load_optimizer(self.optim.adam(), &dir.join("optim_dlf.bpk"))?;
+        self.opt =
+            checkpoint::load_optimizer(self.optim.adam(), &self.net, &dir.join("optim_dlf.bpk"))?;
         self.rng = Rng::from_stage_state(&state, dir)?;
         Ok(())
     }

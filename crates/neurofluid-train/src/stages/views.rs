@@ -63,6 +63,22 @@ pub fn check_particles(p: &Particles, what: &str) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Checks a particle sequence (frames `first`, `first + 1`, …): every frame as
+/// [`check_particles`], and the fluid keeps its particle count.
+pub fn check_sequence(frames: &[Particles], first: usize) -> anyhow::Result<()> {
+    let n = frames.first().map_or(0, |f| f.pos.len());
+    for (i, f) in frames.iter().enumerate() {
+        let t = first + i;
+        check_particles(f, &format!("frame {t}"))?;
+        anyhow::ensure!(
+            f.pos.len() == n,
+            "frame {t} has {} particles, frame {first} has {n}: a fluid keeps its particles",
+            f.pos.len()
+        );
+    }
+    Ok(())
+}
+
 /// Scalar value of a one-element tensor.
 pub fn scalar(t: &Tensor<1>) -> f64 {
     t.clone().into_scalar::<f32>() as f64

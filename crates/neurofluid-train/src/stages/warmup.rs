@@ -17,7 +17,7 @@ use crate::config::{StageKind, WarmupSection};
 use crate::metrics_log::{MetricsLog, psnr_from_mse};
 use crate::sampler::Rng;
 use crate::trainer::checkpoint::{self, first_existing};
-use crate::trainer::{Cadence, Evaluation, StageState, StepStats, Trainer};
+use crate::trainer::{Cadence, Evaluation, StageState, StepStats, Trainer, guard};
 
 /// Folder of the stage inside the run folder.
 pub const STAGE: &str = "warmup";
@@ -131,9 +131,15 @@ impl Trainer for WarmupTrainer {
         }
         let total = total.context("the warm-up has no views")?;
         let loss = scalar(&total);
-        if loss.is_finite() {
-            let grads = GradientsParams::from_grads(total.backward(), &self.physnerf);
-            self.physnerf = self.opt.step(lr, self.physnerf.clone(), grads);
+        let mut grad_norm = 0.0;
+        if loss.is_finite()
+            && let Some(grads) = guard::backward(total)
+        {
+            let grads = GradientsParams::from_grads(grads, &self.physnerf);
+            grad_norm = guard::grad_norm(&grads, &self.physnerf);
+            if grad_norm.is_finite() {
+                self.physnerf = self.opt.step(lr, self.physnerf.clone(), grads);
+            }
         }
         Ok(StepStats {
             loss,
@@ -141,6 +147,7 @@ impl Trainer for WarmupTrainer {
             lr_physnerf: Some(lr),
             lr_dlf: None,
             rays: self.cfg.rays * self.data.views.len(),
+            grad_norms: vec![("physnerf", grad_norm)],
             updated: true,
         })
     }
@@ -165,6 +172,7 @@ impl Trainer for WarmupTrainer {
         )?;
         self.opt = checkpoint::load_optimizer(
             self.cfg.optim.adam(),
+            &self.physnerf,
             &first_existing(dir, &["optim_physnerf.bpk", "optim.bpk"]),
         )?;
         self.rng = Rng::from_stage_state(&state, dir)?;

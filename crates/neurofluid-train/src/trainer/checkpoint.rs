@@ -52,7 +52,8 @@ pub fn latest(stage_dir: &Path) -> Option<PathBuf> {
 }
 
 /// Writes a checkpoint of a stage: `fill` writes the files into a temporary folder, which then
-/// replaces the stage's checkpoint.
+/// replaces the stage's checkpoint. The replaced one is kept until [`confirm`] (the next step was
+/// healthy) or brought back by [`roll_back`] (it was not).
 pub fn write(
     stage_dir: &Path,
     fill: impl FnOnce(&Path) -> anyhow::Result<()>,
@@ -61,27 +62,59 @@ pub fn write(
         .with_context(|| format!("creating {}", stage_dir.display()))?;
     let tmp = stage_dir.join(format!("{CURRENT}.{}.tmp", std::process::id()));
     if tmp.exists() {
-        std::fs::remove_dir_all(&tmp)?;
+        std::fs::remove_dir_all(&tmp).with_context(|| format!("removing {}", tmp.display()))?;
     }
-    std::fs::create_dir_all(&tmp)?;
+    std::fs::create_dir_all(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
     if let Err(e) = fill(&tmp) {
         let _ = std::fs::remove_dir_all(&tmp);
         return Err(e);
     }
     let current = stage_dir.join(CURRENT);
     let previous = stage_dir.join(PREVIOUS);
-    if previous.exists() {
-        std::fs::remove_dir_all(&previous)?;
-    }
-    if current.exists() {
-        std::fs::rename(&current, &previous)?;
+    if current.join("state.json").is_file() {
+        if previous.exists() {
+            std::fs::remove_dir_all(&previous)
+                .with_context(|| format!("removing {}", previous.display()))?;
+        }
+        std::fs::rename(&current, &previous)
+            .with_context(|| format!("moving {} aside", current.display()))?;
+    } else if current.exists() {
+        std::fs::remove_dir_all(&current)
+            .with_context(|| format!("removing {}", current.display()))?;
     }
     std::fs::rename(&tmp, &current)
         .with_context(|| format!("moving the checkpoint into {}", current.display()))?;
-    if previous.exists() {
-        std::fs::remove_dir_all(&previous)?;
-    }
     Ok(current)
+}
+
+/// The newest checkpoint proved good (a healthy step followed it): the one it replaced goes.
+pub fn confirm(stage_dir: &Path) -> anyhow::Result<()> {
+    let previous = stage_dir.join(PREVIOUS);
+    if previous.exists() && stage_dir.join(CURRENT).join("state.json").is_file() {
+        std::fs::remove_dir_all(&previous)
+            .with_context(|| format!("removing {}", previous.display()))?;
+    }
+    Ok(())
+}
+
+/// The newest checkpoint is suspect (the step after it diverged): the one it replaced comes
+/// back, if it is still there. Returns the stage's checkpoint afterwards.
+pub fn roll_back(stage_dir: &Path) -> anyhow::Result<Option<PathBuf>> {
+    let current = stage_dir.join(CURRENT);
+    let previous = stage_dir.join(PREVIOUS);
+    if previous.join("state.json").is_file() {
+        if current.exists() {
+            std::fs::remove_dir_all(&current)
+                .with_context(|| format!("removing {}", current.display()))?;
+        }
+        std::fs::rename(&previous, &current)
+            .with_context(|| format!("restoring {}", previous.display()))?;
+    } else if current.exists() {
+        // no earlier checkpoint to fall back on: the stage starts over
+        std::fs::remove_dir_all(&current)
+            .with_context(|| format!("removing {}", current.display()))?;
+    }
+    Ok(latest(stage_dir))
 }
 
 /// The first of `names` that exists in `dir` (files of an earlier release keep loading), or the
@@ -94,37 +127,95 @@ pub fn first_existing(dir: &Path, names: &[&str]) -> PathBuf {
         .unwrap_or_else(|| dir.join(names[0]))
 }
 
-/// Saves a module's parameters as burnpack.
+/// Removes temporary checkpoint folders a killed process left in `stage_dir` (the caller owns
+/// the folder: its run folder is locked).
+pub fn remove_orphans(stage_dir: &Path) -> anyhow::Result<()> {
+    let Ok(entries) = std::fs::read_dir(stage_dir) else {
+        return Ok(());
+    };
+    for entry in entries.flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        if name.starts_with(&format!("{CURRENT}.")) && name.ends_with(".tmp") {
+            let path = entry.path();
+            tracing::info!("removing {}, left by an interrupted run", path.display());
+            std::fs::remove_dir_all(&path)
+                .with_context(|| format!("removing {}", path.display()))?;
+        }
+    }
+    Ok(())
+}
+
+/// Saves a module's parameters as burnpack; refuses (writing nothing) when a parameter holds a
+/// NaN or an infinity, so no weights file ever holds a diverged model.
 pub fn save_module<M: Module>(module: &M, path: &Path) -> anyhow::Result<()> {
+    if let Some(param) = neurofluid_core::params::first_non_finite(module) {
+        anyhow::bail!(
+            "{}: not written: parameter `{param}` holds NaN or infinite values",
+            path.display()
+        );
+    }
     module
         .clone()
         .save_file(path)
         .map_err(|e| anyhow::anyhow!("{}: {e:?}", path.display()))
 }
 
-/// Loads a module's parameters from burnpack into `module` (same architecture).
+/// Loads a module's parameters from burnpack into `module` (same architecture); refuses
+/// parameters that are not finite.
 pub fn load_module<M: Module>(module: M, path: &Path) -> anyhow::Result<M> {
-    module
+    anyhow::ensure!(path.is_file(), "{}: no such file", path.display());
+    let loaded = module
         .try_load_file(path)
-        .map_err(|e| anyhow::anyhow!("{}: not a checkpoint of this model: {e:?}", path.display()))
+        .map_err(|e| anyhow::anyhow!("{}: not a checkpoint of this model: {e}", path.display()))?;
+    if let Some(param) = neurofluid_core::params::first_non_finite(&loaded) {
+        anyhow::bail!(
+            "{}: parameter `{param}` holds NaN or infinite values (a diverged model)",
+            path.display()
+        );
+    }
+    Ok(loaded)
 }
 
 /// Saves an optimiser's state (Adam moments and step counts).
 pub fn save_optimizer(opt: &ModuleOptimizer, path: &Path) -> anyhow::Result<()> {
     opt.save(path)
-        .map_err(|e| anyhow::anyhow!("{}: {e:?}", path.display()))
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
 }
 
-/// Loads an optimiser's state into a freshly built optimiser of the same kind.
-pub fn load_optimizer(opt: ModuleOptimizer, path: &Path) -> anyhow::Result<ModuleOptimizer> {
+/// Loads the state of `owner`'s optimiser into a freshly built optimiser of the same kind. The
+/// file must hold the state of `owner`'s parameters: a file of another parameter group (say
+/// PhysNeRF's Adam given to DLF) is refused rather than silently dropped.
+pub fn load_optimizer<M: Module>(
+    opt: ModuleOptimizer,
+    owner: &M,
+    path: &Path,
+) -> anyhow::Result<ModuleOptimizer> {
+    anyhow::ensure!(path.is_file(), "{}: no such file", path.display());
+    let reader = burn_pack::Reader::from_file(path)
+        .map_err(|e| anyhow::anyhow!("{}: not an optimiser state: {e}", path.display()))?;
+    let ours: std::collections::HashSet<u64> =
+        neurofluid_core::params::ids(owner).into_iter().collect();
+    let foreign = reader
+        .scalars()
+        .keys()
+        .filter_map(|k| k.split_once('.').and_then(|(id, _)| id.parse::<u64>().ok()))
+        .filter(|id| !ours.contains(id))
+        .count();
+    anyhow::ensure!(
+        foreign == 0,
+        "{}: holds optimiser state for {foreign} parameters this model does not have (the file \
+         belongs to another parameter group or another model)",
+        path.display()
+    );
     opt.load(path)
-        .map_err(|e| anyhow::anyhow!("{}: {e:?}", path.display()))
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
 }
 
 /// Writes `state.json`.
 pub fn save_state<S: Serialize>(state: &S, dir: &Path) -> anyhow::Result<()> {
     let text = serde_json::to_string_pretty(state)?;
-    std::fs::write(dir.join("state.json"), text)?;
+    let path = dir.join("state.json");
+    std::fs::write(&path, text).with_context(|| format!("writing {}", path.display()))?;
     Ok(())
 }
 

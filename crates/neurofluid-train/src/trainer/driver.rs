@@ -4,6 +4,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use super::checkpoint::{self, CheckpointState};
+use super::guard::Guard;
 use super::{Event, EventSink, StepStats, Trainer};
 use crate::config::Settings;
 use crate::metrics_log::MetricsRow;
@@ -143,7 +144,28 @@ impl<'s> Driver<'s> {
         })
     }
 
-    fn diverged(&mut self, stage: &'static str, step: u64, what: String) -> anyhow::Error {
+    /// Stops the stage at `step`. A checkpoint written right before the step (`suspect`) holds
+    /// the parameters that produced the bad step: it is discarded for the one before it.
+    fn diverged(
+        &mut self,
+        stage: &'static str,
+        step: u64,
+        what: String,
+        suspect: bool,
+    ) -> anyhow::Error {
+        let mut discarded = String::new();
+        if suspect {
+            match checkpoint::roll_back(&self.stage_dir) {
+                Ok(_) => {
+                    discarded = format!(
+                        " (the checkpoint after step {} held the parameters of the bad step \
+                         and was discarded)",
+                        step - 1
+                    );
+                }
+                Err(e) => tracing::warn!("while discarding the suspect checkpoint: {e:#}"),
+            }
+        }
         let last = checkpoint::latest(&self.stage_dir).map_or_else(
             || "there is no checkpoint of this stage yet".to_string(),
             |dir| {
@@ -154,7 +176,7 @@ impl<'s> Driver<'s> {
                 )
             },
         );
-        let message = format!("{stage}: {what} at step {step}; {last}");
+        let message = format!("{stage} stopped at step {step}: {what}; {last}{discarded}");
         if let Err(e) = self.emit(Event::Diverged {
             stage,
             step,
@@ -171,6 +193,15 @@ impl<'s> Driver<'s> {
         row.lr_physnerf = stats.lr_physnerf;
         row.lr_dlf = stats.lr_dlf;
         row.rays_per_s = throughput.take_rate();
+        let norm = |group: &str| {
+            stats
+                .grad_norms
+                .iter()
+                .find(|(g, _)| *g == group)
+                .map(|(_, n)| *n)
+        };
+        row.grad_norm_physnerf = norm("physnerf");
+        row.grad_norm_dlf = norm("dlf");
         row
     }
 
@@ -179,6 +210,7 @@ impl<'s> Driver<'s> {
     pub fn run<T: Trainer>(&mut self, trainer: &mut T, stop: Option<u64>) -> anyhow::Result<u64> {
         let stage = trainer.stage();
         let total = trainer.total_steps();
+        checkpoint::remove_orphans(&self.stage_dir)?;
         let (start, resumed_from) = self.resume(trainer)?;
         if let Some(dir) = &resumed_from {
             tracing::info!(step = start, "resuming {stage} from {}", dir.display());
@@ -192,11 +224,20 @@ impl<'s> Driver<'s> {
         })?;
         let c = self.cadence;
         let mut throughput = Throughput::new();
+        let mut guard = Guard::new();
+        // a checkpoint is confirmed by the healthy step after it
+        let mut unconfirmed = false;
         for step in start..end {
             let stats = trainer.step(step)?;
             let done = step + 1;
-            if !stats.loss.is_finite() {
-                return Err(self.diverged(stage, done, format!("the loss is {}", stats.loss)));
+            if let Some(what) = guard
+                .check(&stats, total)
+                .or_else(|| trainer.check_state().err())
+            {
+                return Err(self.diverged(stage, done, what, unconfirmed));
+            }
+            if std::mem::take(&mut unconfirmed) {
+                checkpoint::confirm(&self.stage_dir)?;
             }
             throughput.rays += stats.rays;
             self.emit(Event::Step {
@@ -224,10 +265,12 @@ impl<'s> Driver<'s> {
             }
             if c.checkpoint_every > 0 && done % c.checkpoint_every == 0 && done < end {
                 self.checkpoint(trainer, done)?;
+                unconfirmed = true;
             }
         }
         if start < end {
             self.checkpoint(trainer, end)?;
+            checkpoint::confirm(&self.stage_dir)?;
         }
         self.emit(Event::Finished { stage, done: end })?;
         Ok(end.max(start))

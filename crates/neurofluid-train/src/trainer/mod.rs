@@ -11,6 +11,8 @@
 pub mod checkpoint;
 mod driver;
 mod events;
+pub mod guard;
+pub mod lock;
 pub mod sinks;
 
 use std::path::Path;
@@ -34,6 +36,9 @@ pub struct StepStats {
     pub lr_dlf: Option<f64>,
     /// Rays rendered in the step.
     pub rays: usize,
+    /// The L2 norm of each parameter group's gradients in the update (`"physnerf"`, `"dlf"`),
+    /// 0 for a group the loss did not depend on.
+    pub grad_norms: Vec<(&'static str, f64)>,
     /// Whether the step ended with an optimiser update. A step inside a window of several
     /// transitions (multi-step BPTT) does not: its loss waits for the window's end, and the
     /// driver logs, evaluates and checkpoints only after updates.
@@ -72,6 +77,12 @@ pub trait Trainer {
 
     /// Runs step `step` (0-based).
     fn step(&mut self, step: u64) -> anyhow::Result<StepStats>;
+
+    /// Checks the trainer's own state after a step (e.g. that carried particles stay finite and
+    /// near the box): `Err` names what is wrong, and the run stops before it is checkpointed.
+    fn check_state(&self) -> Result<(), String> {
+        Ok(())
+    }
 
     /// Evaluates the model after `done` steps (`None` when the stage has nothing to show).
     fn evaluate(&mut self, done: u64) -> anyhow::Result<Option<Evaluation>>;

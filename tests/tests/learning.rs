@@ -1,0 +1,76 @@
+//! The CI experiment learns, so a change that stops gradients cannot pass: the warm-up improves
+//! its renders, the joint stage changes both models, and NeuroFluid's rollout leaves DLF's. And
+//! a model that cannot learn (the paper's ReLU density starting dead) is stopped with a message
+//! instead of training nothing.
+
+use neurofluid_core::scene::Role;
+use neurofluid_tests::{params, seeded_turn, tiny_experiment};
+use neurofluid_train::stages::views::{ViewFrame, points_tensor, render_beside_truth};
+use neurofluid_train::stages::{Run, Start, eval, joint, warmup};
+
+/// PSNR of PhysNeRF's render of the first warm-up view of frame 0.
+fn warmup_view_psnr(run: &Run, physnerf: &neurofluid_physnerf::PhysNerf) -> f64 {
+    let view = &run.scene.views(Role::Warmup)[0];
+    let frame = ViewFrame::load(&run.scene, Role::Warmup, view, 0).unwrap();
+    let particles = run.scene.particles(Role::Warmup, 0).unwrap();
+    let p = points_tensor(&particles.pos, &run.device);
+    render_beside_truth(physnerf, &frame, &p)
+        .unwrap()
+        .psnr
+        .unwrap()
+}
+
+#[test]
+fn the_ci_experiment_learns() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let run = Run::prepare(tiny_experiment(tmp.path(), "learns"), Start::Resume).unwrap();
+    let mut log = run.open_log().unwrap();
+    let initial = warmup::new_physnerf(&run).unwrap();
+    let warmed = warmup::run(&run, &mut log).unwrap();
+    let (before, after) = (
+        warmup_view_psnr(&run, &initial),
+        warmup_view_psnr(&run, &warmed),
+    );
+    assert!(
+        after > before + 0.5,
+        "the warm-up did not improve its render: PSNR {before:.3} → {after:.3} dB"
+    );
+
+    let grounded = joint::run(&run, &mut log).unwrap();
+    assert!(
+        params(&grounded.physnerf) != params(&warmed),
+        "the joint stage left PhysNeRF unchanged"
+    );
+    let pretrained = run.load_dlf(&run.exp.dlf.weights).unwrap();
+    assert!(
+        params(&grounded.dlf) != params(&pretrained),
+        "the joint stage left DLF unchanged"
+    );
+    let s = eval::run(&run, &grounded).unwrap().summary();
+    let (nf, dlf) = (
+        s.grounding.neurofluid_d.unwrap(),
+        s.grounding.dlf_d.unwrap(),
+    );
+    assert!(
+        nf != dlf,
+        "NeuroFluid's rollout is DLF's (d {nf} for both): the grounding changed nothing"
+    );
+}
+
+#[test]
+fn a_model_that_starts_dead_is_stopped_with_the_reason() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let mut e = tiny_experiment(tmp.path(), "dead");
+    // the paper's ReLU density; with this seed both networks start with σ ≤ 0 everywhere
+    e.apply_override("physnerf.density=\"relu\"").unwrap();
+    let run = Run::prepare(e, Start::Resume).unwrap();
+    let mut log = run.open_log().unwrap();
+    let err = format!("{:#}", warmup::run(&run, &mut log).unwrap_err());
+    assert!(err.contains("physnerf received no gradient"), "{err}");
+    assert!(err.contains("physnerf.density"), "{err}");
+    // the rows logged so far show the zero gradients
+    let rows = neurofluid_train::metrics_log::read_jsonl(log.jsonl_path()).unwrap();
+    assert!(rows.iter().all(|r| r.grad_norm_physnerf == Some(0.0)));
+}
