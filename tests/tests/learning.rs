@@ -56,6 +56,38 @@ fn the_ci_experiment_learns() {
         nf != dlf,
         "NeuroFluid's rollout is DLF's (d {nf} for both): the grounding changed nothing"
     );
+
+    // what a person looks at: per test view an animation of truth | DLF | NeuroFluid over the
+    // rendered frames, and the particle sets at the first, last grounding and last frame
+    let view = &run.scene.views(Role::Test)[0];
+    let cam = run.scene.camera(Role::Test, view, 0).unwrap();
+    let dir = run.stage_dir(eval::STAGE).join(eval::ANIMATIONS);
+    let file = std::fs::File::open(dir.join(format!("{view}.png"))).unwrap();
+    let mut apng = png::Decoder::new(std::io::BufReader::new(file))
+        .read_info()
+        .unwrap();
+    let test_frames = run.scene.frames(Role::Test).len();
+    let rendered = eval::rendered_steps(test_frames, run.exp.eval.render_every).len();
+    assert_eq!(
+        apng.info().animation_control.unwrap().num_frames as usize,
+        rendered
+    );
+    assert_eq!(
+        (apng.info().width, apng.info().height),
+        (3 * cam.width, cam.height + 12)
+    );
+    let mut buf = vec![0; apng.output_buffer_size().unwrap()];
+    for _ in 0..rendered {
+        apng.next_frame(&mut buf).unwrap();
+    }
+    let (w, h) = image::image_dimensions(dir.join(format!("{view}_particles.png"))).unwrap();
+    let panel = 240u32.max(cam.width);
+    let rows = eval::picture_frames(run.scene.frames(Role::Train).len(), test_frames - 1).len();
+    assert_eq!(w, 3 * panel);
+    assert_eq!(
+        h as usize,
+        rows * (panel as usize * cam.height as usize / cam.width as usize + 12)
+    );
 }
 
 #[test]
@@ -70,7 +102,12 @@ fn a_model_that_starts_dead_is_stopped_with_the_reason() {
     let err = format!("{:#}", warmup::run(&run, &mut log).unwrap_err());
     assert!(err.contains("physnerf received no gradient"), "{err}");
     assert!(err.contains("physnerf.density"), "{err}");
-    // the rows logged so far show the zero gradients
+    // the rows logged so far show the zero gradients, and the message counts steps as they do
     let rows = neurofluid_train::metrics_log::read_jsonl(log.jsonl_path()).unwrap();
     assert!(rows.iter().all(|r| r.grad_norm_physnerf == Some(0.0)));
+    let last = rows.iter().map(|r| r.step).max().unwrap();
+    assert!(
+        err.contains(&format!("stopped at step {}", last + 1)),
+        "{err}"
+    );
 }

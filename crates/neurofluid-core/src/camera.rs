@@ -84,6 +84,24 @@ impl Camera {
         [d[0] / norm, d[1] / norm, d[2] / norm]
     }
 
+    /// Where the world point `p` appears: `(col, row, depth)` with the pixel coordinates of
+    /// [`Camera::ray_dir`] (fractional) and a depth along the viewing axis (scaled like c2w, for
+    /// ordering); `None` behind the camera.
+    pub fn project(&self, p: [f32; 3]) -> Option<(f32, f32, f32)> {
+        let o = self.origin();
+        let r = &self.c2w;
+        let v = [p[0] - o[0], p[1] - o[1], p[2] - o[2]];
+        // camera coordinates: the transpose of c2w's rotation applied to p − origin
+        let c: [f32; 3] = std::array::from_fn(|k| v[0] * r[0][k] + v[1] * r[1][k] + v[2] * r[2][k]);
+        let depth = -c[2];
+        if depth.is_nan() || depth <= 0.0 {
+            return None;
+        }
+        let col = self.focal * c[0] / depth + self.width as f32 / 2.0;
+        let row = -self.focal * c[1] / depth + self.height as f32 / 2.0;
+        Some((col, row, depth))
+    }
+
     /// Rays for the given pixels, each indexed row-major as `row·W + col`.
     ///
     /// # Panics
@@ -154,6 +172,35 @@ mod tests {
         assert!((f - 1225.9).abs() < 1.0, "{f}");
         // 90° field of view: f = W/2
         assert!((focal_from_angle_x(64, std::f32::consts::FRAC_PI_2) - 32.0).abs() < 1e-4);
+    }
+
+    /// Projecting a point on a pixel's ray lands on that pixel, for a scaled, rotated camera.
+    #[test]
+    fn projection_inverts_the_rays() {
+        let s = 0.4155f32;
+        let cam = Camera {
+            width: 40,
+            height: 30,
+            focal: 35.0,
+            c2w: [
+                [0.0, -s, 0.0, 1.0],
+                [s, 0.0, 0.0, -2.0],
+                [0.0, 0.0, s, 3.0],
+                [0.0, 0.0, 0.0, 1.0],
+            ],
+        };
+        let o = cam.origin();
+        for (row, col) in [(0, 0), (15, 20), (29, 3), (7, 39)] {
+            let d = cam.ray_dir(row, col);
+            for t in [0.5f32, 4.0] {
+                let p = std::array::from_fn(|k| o[k] + t * d[k]);
+                let (c, r, depth) = cam.project(p).unwrap();
+                assert!((c - col as f32).abs() < 1e-3 && (r - row as f32).abs() < 1e-3);
+                assert!(depth > 0.0);
+            }
+            let behind = std::array::from_fn(|k| o[k] - d[k]);
+            assert!(cam.project(behind).is_none());
+        }
     }
 
     #[test]

@@ -7,7 +7,6 @@
 use std::path::Path;
 
 use burn::prelude::*;
-use kiddo::{KdTree, SquaredEuclidean};
 
 use crate::loss::dlf_step_loss;
 use crate::net::{DlfNet, points_tensor, tensor_points};
@@ -192,15 +191,9 @@ fn mean_distance(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
         / a.len().max(1) as f64
 }
 
+/// Mean distance from each ground-truth particle to the nearest predicted one (world units).
 fn mean_nn_distance(gt: &[[f32; 3]], pred: &[[f32; 3]]) -> f64 {
-    let mut tree: KdTree<f32, 3> = KdTree::new();
-    for (i, p) in pred.iter().enumerate() {
-        tree.add(p, i as u64);
-    }
-    gt.iter()
-        .map(|q| (tree.nearest_one::<SquaredEuclidean>(q).distance as f64).sqrt())
-        .sum::<f64>()
-        / gt.len().max(1) as f64
+    neurofluid_core::metrics::gt_to_pred_distance(gt, pred).mean / 1000.0
 }
 
 /// Evaluates DLF's validation errors of `net` (any device; no gradients are taken).

@@ -6,6 +6,7 @@ pub mod commands;
 pub mod config;
 pub mod metrics_log;
 pub mod optim;
+pub mod pictures;
 pub mod plot;
 pub mod ply;
 pub mod report;

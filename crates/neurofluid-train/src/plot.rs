@@ -38,12 +38,20 @@ pub const LOSS_COLOUR: Rgb<u8> = Rgb([31, 90, 180]);
 /// Colour of the PSNR curves.
 pub const PSNR_COLOUR: Rgb<u8> = Rgb([200, 60, 30]);
 
-struct Canvas {
-    img: RgbImage,
+/// An RGB image to draw on (pixels outside it are ignored).
+pub(crate) struct Canvas {
+    pub(crate) img: RgbImage,
 }
 
 impl Canvas {
-    fn put(&mut self, x: i64, y: i64, c: Rgb<u8>) {
+    /// A white canvas.
+    pub(crate) fn white(width: u32, height: u32) -> Self {
+        Self {
+            img: RgbImage::from_pixel(width, height, WHITE),
+        }
+    }
+
+    pub(crate) fn put(&mut self, x: i64, y: i64, c: Rgb<u8>) {
         if x >= 0 && y >= 0 && (x as u32) < self.img.width() && (y as u32) < self.img.height() {
             self.img.put_pixel(x as u32, y as u32, c);
         }
@@ -76,7 +84,7 @@ impl Canvas {
     }
 
     /// Text with the 8×8 public-domain font; non-ASCII characters are drawn as `?`.
-    fn text(&mut self, x: i64, y: i64, s: &str, c: Rgb<u8>) {
+    pub(crate) fn text(&mut self, x: i64, y: i64, s: &str, c: Rgb<u8>) {
         for (i, ch) in s.chars().enumerate() {
             let code = if ch.is_ascii() {
                 ch as usize

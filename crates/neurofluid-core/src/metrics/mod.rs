@@ -4,4 +4,6 @@ mod image;
 mod particles;
 
 pub use image::{ImageError, RgbImage, psnr, ssim};
-pub use particles::{ParticleDistance, gt_to_pred_distance, index_matched_distance};
+pub use particles::{
+    ParticleDistance, gt_to_pred_distance, index_matched_distance, nearest_distances,
+};

@@ -40,22 +40,29 @@ fn summarise(mut d: Vec<f64>) -> ParticleDistance {
 
 /// NeuroFluid's particle distance d: for every **ground-truth** particle the Euclidean distance
 /// to the nearest **predicted** particle (a KD-tree over the prediction), × 1000.
-/// Returns NaN fields when either set is empty.
+/// Returns NaN fields when either set is empty or a predicted position is not finite (a
+/// diverged prediction has no distance).
 pub fn gt_to_pred_distance(gt: &[[f32; 3]], pred: &[[f32; 3]]) -> ParticleDistance {
-    if pred.is_empty() {
-        return summarise(Vec::new());
+    summarise(nearest_distances(gt, pred).unwrap_or_default())
+}
+
+/// For every point of `from`, the Euclidean distance to the nearest point of `to` (world
+/// units); `None` when `to` is empty or holds a non-finite point.
+pub fn nearest_distances(from: &[[f32; 3]], to: &[[f32; 3]]) -> Option<Vec<f64>> {
+    if to.is_empty() || !to.iter().flatten().all(|v| v.is_finite()) {
+        return None;
     }
-    let pts: Vec<[f64; 3]> = pred.iter().map(|p| p.map(f64::from)).collect();
+    let pts: Vec<[f64; 3]> = to.iter().map(|p| p.map(f64::from)).collect();
     let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&pts);
-    let d = gt
-        .par_iter()
-        .map(|g| {
-            tree.nearest_one::<SquaredEuclidean>(&g.map(f64::from))
-                .distance
-                .sqrt()
-        })
-        .collect();
-    summarise(d)
+    Some(
+        from.par_iter()
+            .map(|g| {
+                tree.nearest_one::<SquaredEuclidean>(&g.map(f64::from))
+                    .distance
+                    .sqrt()
+            })
+            .collect(),
+    )
 }
 
 /// Index-matched distance: mean over i of ‖pred_i − gt_i‖, × 1000 (both sets in the same order).
@@ -84,6 +91,15 @@ pub fn index_matched_distance(gt: &[[f32; 3]], pred: &[[f32; 3]]) -> ParticleDis
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_non_finite_prediction_has_no_distance() {
+        let gt = [[0.0f32, 0.0, 0.0], [1.0, 0.0, 0.0]];
+        for bad in [f32::NAN, f32::INFINITY] {
+            let pred = [[0.0f32, 0.0, 0.0], [bad, 0.0, 0.0]];
+            assert!(gt_to_pred_distance(&gt, &pred).mean.is_nan());
+        }
+    }
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 

@@ -199,15 +199,15 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         write_record(&dir.path().join("sim_0001_00.msgpack.zst"), &frames, 3).unwrap();
         let output = dir.path().join("ft.bpk");
-        run(Args {
+        let args = |init: Option<PathBuf>, output: &Path, iterations, batch_size, lr| Args {
             data: dir.path().to_path_buf(),
             val: Some(dir.path().to_path_buf()),
-            init: Some(weights),
-            output: output.clone(),
+            init,
+            output: output.to_path_buf(),
             train: SupervisedConfig {
-                iterations: 2,
-                batch_size: 1,
-                lr: 1e-5,
+                iterations,
+                batch_size,
+                lr,
                 validate_every: 1,
                 frame_skip: 1,
                 no_rotation: false,
@@ -215,8 +215,8 @@ mod tests {
             },
             device: "cpu".into(),
             fresh: false,
-        })
-        .unwrap();
+        };
+        run(args(Some(weights), &output, 2, 1, 1e-5)).unwrap();
         load_dlf(&output, DlfConfig::default(), &device).unwrap();
         assert!(
             checkpoint_dir(&output)
@@ -224,30 +224,21 @@ mod tests {
                 .is_file()
         );
 
+        // a batch larger than the data is refused at once, naming the flag
+        let big = dir.path().join("big.bpk");
+        let err = run(args(None, &big, 1, 100_000, 1e-5))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("--batch-size 100000"), "{err}");
+
         // fine-tuning in place with a learning rate that diverges: the run stops with a
         // message and the weights it started from are untouched
         let in_place = dir.path().join("in_place.bpk");
         neurofluid_dlf::weights::save_checkpoint(&net, &in_place).unwrap();
         let before = std::fs::read(&in_place).unwrap();
-        let err = run(Args {
-            data: dir.path().to_path_buf(),
-            val: None,
-            init: Some(in_place.clone()),
-            output: in_place.clone(),
-            train: SupervisedConfig {
-                iterations: 20,
-                batch_size: 1,
-                lr: 1e8,
-                validate_every: 1,
-                frame_skip: 1,
-                no_rotation: false,
-                seed: 1,
-            },
-            device: "cpu".into(),
-            fresh: false,
-        })
-        .unwrap_err()
-        .to_string();
+        let err = run(args(Some(in_place.clone()), &in_place, 20, 1, 1e8))
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("pretrain-dlf stopped at step"), "{err}");
         assert_eq!(std::fs::read(&in_place).unwrap(), before);
         // and every checkpoint left behind loads: finite parameters only

@@ -501,6 +501,22 @@ mod tests {
                 "[scene]\nbuiltin = \"watercube\"\n[physnerf]\nwidth = 0\n",
                 "physnerf.width",
             ),
+            (
+                "[scene]\nbuiltin = \"watercube\"\n[physnerf]\ndepth = 1\n",
+                "physnerf.depth",
+            ),
+            (
+                "[scene]\nbuiltin = \"watercube\"\n[physnerf]\nsearch_radius = -1.0\n",
+                "physnerf.search_radius",
+            ),
+            (
+                "[scene]\nbuiltin = \"watercube\"\n[warmup]\niters = 0\n",
+                "warmup.iters",
+            ),
+            (
+                "[scene]\nbuiltin = \"watercube\"\n[joint]\nepochs = 0\n",
+                "joint.epochs",
+            ),
             ("[scene]\nbuiltin = \"watercube\"\n", "name"),
             (
                 "[scene]\nbuiltin = \"watercube\"\n[scene.generate]\nname = \"x\"\n",
@@ -516,6 +532,14 @@ mod tests {
             let err = parse(&format!("name = \"{name}\"\n{body}")).unwrap_err();
             assert_eq!(err.key(), key, "{err}");
             assert!(err.to_string().contains("exp.toml"), "{err}");
+        }
+        // a run name is one folder name
+        for bad in ["..", ".", "", "a/b", "a\\b", "../x"] {
+            let err = parse(&format!(
+                "name = '{bad}'\n[scene]\nbuiltin = \"watercube\"\n"
+            ))
+            .unwrap_err();
+            assert_eq!(err.key(), "name", "{bad}: {err}");
         }
     }
 

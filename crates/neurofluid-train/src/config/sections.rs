@@ -279,6 +279,10 @@ pub struct EvalSection {
     pub ply_format: PlyEncoding,
     /// Also roll out the pretrained DLF (the paper's baseline).
     pub baseline: bool,
+    /// Write, per test view, an animation of truth | DLF | NeuroFluid over the rendered frames
+    /// and a picture of the particle sets coloured by their distance to the truth (renders the
+    /// baseline's particles too).
+    pub animate: bool,
     /// Test views; unset = the scene manifest's (view_5).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub views: Option<Vec<String>>,
@@ -293,6 +297,7 @@ impl Default for EvalSection {
             write_ply: true,
             ply_format: PlyEncoding::Binary,
             baseline: true,
+            animate: true,
             views: None,
         }
     }

@@ -8,7 +8,7 @@
 use anyhow::Context;
 use burn::module::Module;
 use neurofluid_core::camera::Camera;
-use neurofluid_core::metrics::{RgbImage, gt_to_pred_distance, psnr, ssim};
+use neurofluid_core::metrics::{RgbImage, gt_to_pred_distance, nearest_distances, psnr, ssim};
 use neurofluid_core::scene::Role;
 use neurofluid_dlf::DlfNet;
 use neurofluid_dlf::rollout::rollout;
@@ -18,8 +18,10 @@ use super::joint::Grounded;
 use super::run_folder::Run;
 use super::views::{ViewFrame, check_sequence, points_tensor, side_by_side};
 use crate::config::PlyEncoding;
+use crate::pictures::{TRUTH_COLOUR, column_of, particle_view, row_of, viridis, write_apng};
 use crate::ply::{PlyFormat, write_ply};
 use crate::report::{EvalReport, FrameDistance, ImageScore, Windows};
+use crate::trainer::Picture;
 
 /// Folder of the stage inside the run folder.
 pub const STAGE: &str = "eval";
@@ -67,33 +69,87 @@ fn scaled_view(view: &ViewFrame, scale: f64) -> (Camera, Vec<f32>) {
     (scaled, small.into_raw())
 }
 
-/// Renders `particles` from `view`, saves `[render | ground truth]` and scores it.
-fn render_and_score(
+/// Renders `particles` with PhysNeRF from `camera` (8-bit quantised, as saved PNGs are).
+fn render(
     physnerf: &PhysNerf,
-    view: &ViewFrame,
+    camera: &Camera,
     particles: &[[f32; 3]],
-    scale: f64,
-    png: &std::path::Path,
-) -> anyhow::Result<(f64, f64)> {
+) -> anyhow::Result<RgbImage> {
     let device = physnerf
         .devices()
         .into_iter()
         .next()
         .context("PhysNeRF has no device")?;
-    let (cam, gt_rgb) = scaled_view(view, scale);
-    let cam = &cam;
     let image = render_image(
         physnerf,
-        cam,
+        camera,
         &points_tensor(particles, &device),
         physnerf.config.chunk,
         &mut |_, _| {},
     )?;
-    let pred = as_image(cam.width, cam.height, image.best())?;
-    let gt = as_image(cam.width, cam.height, &gt_rgb)?;
-    let side = side_by_side(&pred, &gt);
-    save_png(png, side.width, side.height, &side.rgb)?;
-    Ok((psnr(&pred, &gt)?, ssim(&pred, &gt).unwrap_or(f64::NAN)))
+    as_image(camera.width, camera.height, image.best())
+}
+
+fn picture(image: &RgbImage) -> Picture {
+    Picture {
+        width: image.width as u32,
+        height: image.height as u32,
+        rgb: image.data.clone(),
+    }
+}
+
+/// The particle sets at frame `t` seen from `camera`: truth, then each prediction coloured by
+/// its particles' distances to the nearest true particle (0 → 4 particle radii, viridis), with
+/// its d in the label.
+fn particle_row(
+    camera: &Camera,
+    radius: f32,
+    t: usize,
+    truth: &[[f32; 3]],
+    predictions: &[(&str, &[[f32; 3]])],
+) -> Picture {
+    let mut pictures = vec![(
+        format!("truth t={t}"),
+        particle_view(camera, truth, radius, |_| TRUTH_COLOUR),
+    )];
+    for (name, pred) in predictions {
+        let d = nearest_distances(pred, truth);
+        let colour =
+            |i: usize| viridis(d.as_ref().map_or(f64::NAN, |d| d[i]) / (4.0 * radius as f64));
+        let mean = gt_to_pred_distance(truth, pred).mean;
+        pictures.push((
+            format!("{name} d={mean:.1}"),
+            particle_view(camera, pred, radius, colour),
+        ));
+    }
+    let labelled: Vec<(&str, &Picture)> = pictures.iter().map(|(l, p)| (l.as_str(), p)).collect();
+    row_of(&labelled)
+}
+
+/// The smallest width (pixels) of a particle picture's panels.
+const PARTICLE_PICTURE_WIDTH: u32 = 240;
+
+/// `camera` enlarged (same view) to at least `width` pixels wide.
+fn at_least_wide(camera: &Camera, width: u32) -> Camera {
+    let k = (width as f32 / camera.width as f32).max(1.0);
+    Camera {
+        width: (camera.width as f32 * k).round() as u32,
+        height: (camera.height as f32 * k).round() as u32,
+        focal: camera.focal * k,
+        c2w: camera.c2w,
+    }
+}
+
+/// Folder of the animations and particle pictures inside `eval/`.
+pub const ANIMATIONS: &str = "animations";
+
+/// The frames the particle pictures show: the first predicted one, the last of the grounding
+/// window and the last of the prediction window.
+pub fn picture_frames(train_frames: usize, steps: usize) -> Vec<usize> {
+    let mut t = vec![1, train_frames.saturating_sub(1), steps];
+    t.retain(|&t| (1..=steps).contains(&t));
+    t.dedup();
+    t
 }
 
 /// The rollout steps rendered (of a test split of `frames` frames): every `every`-th and the
@@ -175,23 +231,68 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
             .views
             .clone()
             .unwrap_or_else(|| scene.views(Role::Test).to_vec());
+        let radius = scene.manifest().particle_radius;
         for view in &views {
             let bar = indicatif::ProgressBar::new(frames.len() as u64)
                 .with_prefix(format!("render {view}"));
+            let mut animation = Vec::new();
             for &t in &frames {
                 let vf = ViewFrame::load(scene, Role::Test, view, test.start + t)?;
+                let (cam, gt_rgb) = scaled_view(&vf, cfg.image_scale);
+                let truth = as_image(cam.width, cam.height, &gt_rgb)?;
+                let pred = render(&physnerf, &cam, &grounded[t])?;
+                let side = side_by_side(&pred, &truth);
                 let png = dir.join(format!("renders/{view}/t{t:04}.png"));
-                let (psnr, ssim) =
-                    render_and_score(&physnerf, &vf, &grounded[t], cfg.image_scale, &png)?;
+                save_png(&png, side.width, side.height, &side.rgb)?;
                 report.images.push(ImageScore {
                     view: view.clone(),
                     t,
-                    psnr,
-                    ssim,
+                    psnr: psnr(&pred, &truth)?,
+                    ssim: ssim(&pred, &truth).unwrap_or(f64::NAN),
                 });
+                if cfg.animate {
+                    let mut panels = vec![("truth", picture(&truth))];
+                    if let Some(b) = &baseline {
+                        panels.push(("DLF", picture(&render(&physnerf, &cam, &b[t])?)));
+                    }
+                    panels.push(("NeuroFluid", picture(&pred)));
+                    let labelled: Vec<(&str, &Picture)> =
+                        panels.iter().map(|(l, p)| (*l, p)).collect();
+                    animation.push(row_of(&labelled));
+                }
                 bar.inc(1);
             }
             bar.finish_and_clear();
+            if cfg.animate {
+                write_apng(
+                    &dir.join(format!("{ANIMATIONS}/{view}.png")),
+                    &animation,
+                    // half speed: two frame intervals per rendered step
+                    (2000.0 * cfg.render_every.max(1) as f64 / f64::from(scene.manifest().fps))
+                        .round()
+                        .clamp(20.0, 5000.0) as u16,
+                )?;
+                let rows: Vec<Picture> = picture_frames(train_len, steps)
+                    .into_iter()
+                    .map(|t| -> anyhow::Result<Picture> {
+                        let vf = ViewFrame::load(scene, Role::Test, view, test.start + t)?;
+                        let cam = at_least_wide(&vf.camera, PARTICLE_PICTURE_WIDTH);
+                        let mut predictions: Vec<(&str, &[[f32; 3]])> = Vec::new();
+                        if let Some(b) = &baseline {
+                            predictions.push(("DLF", &b[t]));
+                        }
+                        predictions.push(("NeuroFluid", &grounded[t]));
+                        Ok(particle_row(&cam, radius, t, &gt[t].pos, &predictions))
+                    })
+                    .collect::<anyhow::Result<_>>()?;
+                let grid = column_of(&rows);
+                save_png(
+                    dir.join(format!("{ANIMATIONS}/{view}_particles.png")),
+                    grid.width,
+                    grid.height,
+                    &grid.rgb,
+                )?;
+            }
         }
     }
     report.write_all(&dir)?;
