@@ -247,6 +247,14 @@ proptest! {
     }
 
     #[test]
+    fn joblib_box_mutated(
+        pt in mutated(std::fs::read(workspace_root().join("tests/data/box/box_joblib-1.6.pt")).unwrap()),
+    ) {
+        let (_d, p) = file_with("box.pt", &pt);
+        names_file(BoxParticles::read(&p), &p)?;
+    }
+
+    #[test]
     fn images_and_arrays_mutated(
         png in mutated(seeds().png.clone()),
         particles in mutated(seeds().particles.clone()),

@@ -88,7 +88,11 @@ fn write_released(root: &Path) {
 fn released_layout_loads_with_defaults() {
     let root = tmp("watercube");
     write_released(&root);
-    std::fs::write(root.join("box.pt"), b"\x80\x04joblib pickle stand-in").unwrap();
+    std::fs::copy(
+        neurofluid_tests::workspace_root().join("tests/data/box/box_joblib-1.1.pt"),
+        root.join("box.pt"),
+    )
+    .unwrap();
     let scene = Scene::open(&root).unwrap();
     assert!(!scene.has_manifest_file());
     assert_eq!(
@@ -135,13 +139,9 @@ fn released_layout_loads_with_defaults() {
         assert!((x - e).abs() < 1e-6, "{:?}", img.rgb);
     }
     assert_eq!(img.alpha[0], 0.0);
-    // joblib box.pt: a clear error naming the file and the conversion
-    let err = scene.boundary().unwrap_err().to_string();
-    assert!(
-        err.contains("box.pt") && err.contains("box.npz") && err.contains("joblib"),
-        "{err}"
-    );
-    // a converted box.npz next to it is used
+    // the released joblib box.pt is read directly
+    assert_eq!(scene.boundary().unwrap().points.len(), 5);
+    // a box.npz next to it is preferred
     let walls = BoxParticles {
         points: vec![[-1.0, -1.0, -1.0], [1.0, 1.0, 2.455]],
         normals: vec![[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]],

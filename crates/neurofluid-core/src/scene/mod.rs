@@ -19,6 +19,7 @@ mod manifest;
 mod particles;
 mod pickle;
 mod transforms;
+mod unpickle;
 
 use std::collections::BTreeMap;
 use std::ops::Range;

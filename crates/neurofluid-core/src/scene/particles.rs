@@ -86,35 +86,43 @@ impl BoxParticles {
         )
     }
 
-    /// Reads the box: `box.npz` (`box`, `box_normals`); for a joblib `box.pt` the sibling
-    /// `box.npz` is used when present, otherwise an error explains the one-line conversion.
+    /// Reads the box: `box.npz` (`box`, `box_normals`), or the released scenes' `box.pt` (a
+    /// joblib or plain pickle of the same dict; its `box.npz` sibling is used when present).
     pub fn read(path: &Path) -> Result<Self> {
         if path.extension().is_some_and(|e| e == "pt") {
             let npz = path.with_extension("npz");
             if npz.is_file() {
                 return Self::read(&npz);
             }
-            if !path.exists() {
-                return Err(SceneError::io(
-                    path,
-                    std::io::Error::new(std::io::ErrorKind::NotFound, "no such file"),
-                ));
-            }
-            return Err(SceneError::field(
-                path,
-                "box",
-                format!(
-                    "a joblib pickle cannot be read here; convert it once with \
-                     python -c \"import joblib, numpy as np; d = joblib.load('{p}'); \
-                     np.savez('{n}', box=d['box'], box_normals=d['box_normals'])\"",
-                    p = path.display(),
-                    n = npz.display()
-                ),
-            ));
+            let bytes = std::fs::read(path).map_err(|e| SceneError::io(path, e))?;
+            let arrays = super::unpickle::pickled_arrays(&bytes)
+                .map_err(|message| SceneError::field(path, "box", message))?;
+            let rows = |key: &str| -> Result<Vec<[f32; 3]>> {
+                let a = arrays.get(key).ok_or_else(|| {
+                    SceneError::field(path, key, "an (N, 3) float array in the pickled dict")
+                })?;
+                if a.shape.len() != 2 || a.shape[1] != 3 {
+                    return Err(SceneError::field(
+                        path,
+                        key,
+                        format!("shape (N, 3), found {:?}", a.shape),
+                    ));
+                }
+                Ok(a.data
+                    .chunks_exact(3)
+                    .map(|c| [c[0] as f32, c[1] as f32, c[2] as f32])
+                    .collect())
+            };
+            return Self::checked(path, rows("box")?, rows("box_normals")?);
         }
         let mut r = open(path)?;
         let points = rows3(path, &mut r, "box")?;
         let normals = rows3(path, &mut r, "box_normals")?;
+        Self::checked(path, points, normals)
+    }
+
+    /// A box read from `path`: non-empty, one finite normal per point.
+    fn checked(path: &Path, points: Vec<[f32; 3]>, normals: Vec<[f32; 3]>) -> Result<Self> {
         if points.is_empty() {
             return Err(SceneError::field(
                 path,
@@ -128,6 +136,15 @@ impl BoxParticles {
                 "box_normals",
                 format!("{} rows like `box`, got {}", points.len(), normals.len()),
             ));
+        }
+        for (key, rows) in [("box", &points), ("box_normals", &normals)] {
+            if let Some(i) = rows.iter().position(|r| !r.iter().all(|v| v.is_finite())) {
+                return Err(SceneError::field(
+                    path,
+                    format!("{key}[{i}]"),
+                    "finite numbers",
+                ));
+            }
         }
         Ok(Self { points, normals })
     }
