@@ -7,15 +7,13 @@ use std::path::{Path, PathBuf};
 use neurofluid_core::scene::{BoxParticles, Particles, Role, write_png_rgba};
 use neurofluid_tests::{seeded_turn, tiny_experiment};
 use neurofluid_train::config::Experiment;
-use neurofluid_train::stages::preflight::{self, Stage};
+use neurofluid_train::stages::preflight::Stage;
 use neurofluid_train::stages::{Run, Start, joint, warmup};
-
-const ALL: &[Stage] = &[Stage::Warmup, Stage::Joint, Stage::Eval];
 
 /// The tiny experiment with its scene generated.
 fn prepared(tmp: &Path, name: &str) -> Experiment {
     let e = tiny_experiment(tmp, name);
-    drop(Run::prepare(e.clone(), Start::Resume).unwrap());
+    drop(Run::prepare(e.clone(), Start::Resume, &Stage::ALL).unwrap());
     e
 }
 
@@ -28,8 +26,10 @@ fn image_path(run: &Run, role: Role, view: &str, t: usize) -> PathBuf {
 }
 
 fn preflight_error(e: Experiment) -> String {
-    let run = Run::prepare(e, Start::Resume).unwrap();
-    format!("{:#}", preflight::check(&run, ALL).unwrap_err())
+    format!(
+        "{:#}",
+        Run::prepare(e, Start::Resume, &Stage::ALL).unwrap_err()
+    )
 }
 
 #[test]
@@ -37,8 +37,7 @@ fn every_bad_input_is_listed_before_the_first_iteration() {
     let _turn = seeded_turn();
     let tmp = tempfile::tempdir().unwrap();
     let mut e = prepared(tmp.path(), "inputs");
-    let run = Run::prepare(e.clone(), Start::Resume).unwrap();
-    preflight::check(&run, ALL).unwrap();
+    let run = Run::prepare(e.clone(), Start::Resume, &Stage::ALL).unwrap();
     // a larger test image, a smaller training image (each view's first image sets its size), a
     // test frame missing particles, a missing weights file and a view the scene does not have
     let big = image_path(&run, Role::Test, "view_5", 1);
@@ -82,18 +81,22 @@ fn a_wrong_size_image_is_refused_when_read() {
     let _turn = seeded_turn();
     let tmp = tempfile::tempdir().unwrap();
     let e = prepared(tmp.path(), "size");
-    let run = Run::prepare(e, Start::Resume).unwrap();
-    let path = image_path(&run, Role::Warmup, "view_1", 0);
+    // a training frame larger than its view's first frame (which sets the camera's size)
+    let run = Run::prepare(e, Start::Resume, &[]).unwrap();
+    let path = image_path(&run, Role::Train, "view_1", 2);
     write_png_rgba(&path, 33, 32, &vec![255; 33 * 32 * 4]).unwrap();
     let err = run
         .scene
-        .image(Role::Warmup, "view_1", 0)
+        .image(Role::Train, "view_1", 2)
         .unwrap_err()
         .to_string();
     assert!(err.contains(&path.display().to_string()), "{err}");
-    // and the warm-up, run without the preflight, stops on it instead of panicking
+    assert!(err.contains("33×32"), "{err}");
+    // and the joint stage, run without the preflight, stops on it, naming the file
     let mut log = run.open_log().unwrap();
-    assert!(warmup::run(&run, &mut log).is_err());
+    warmup::run(&run, &mut log).unwrap();
+    let err = format!("{:#}", joint::run(&run, &mut log).unwrap_err());
+    assert!(err.contains(&path.display().to_string()), "{err}");
 }
 
 #[test]
@@ -101,7 +104,7 @@ fn a_box_without_particles_is_refused() {
     let _turn = seeded_turn();
     let tmp = tempfile::tempdir().unwrap();
     let e = prepared(tmp.path(), "box");
-    let run = Run::prepare(e.clone(), Start::Resume).unwrap();
+    let run = Run::prepare(e.clone(), Start::Resume, &Stage::ALL).unwrap();
     let path = run.scene.box_path();
     let npz = path.with_extension("npz");
     BoxParticles {
@@ -121,13 +124,20 @@ fn a_box_without_particles_is_refused() {
 fn a_loss_without_parameters_stops_with_the_reason() {
     let _turn = seeded_turn();
     let tmp = tempfile::tempdir().unwrap();
-    let mut e = prepared(tmp.path(), "radius");
-    e.apply_override("physnerf.search_radius=1e-6").unwrap();
-    let run = Run::prepare(e, Start::Resume).unwrap();
-    let mut log = run.open_log().unwrap();
-    let err = format!("{:#}", warmup::run(&run, &mut log).unwrap_err());
-    assert!(err.contains("received no gradient"), "{err}");
-    assert!(err.contains("physnerf.search_radius"), "{err}");
+    // a radius no sample can use, and a ray segment that starts behind the fluid
+    for (name, setting) in [
+        ("radius", "physnerf.search_radius=1e-6"),
+        ("near", "scene.near=5.0"),
+    ] {
+        let mut e = prepared(tmp.path(), name);
+        e.apply_override(setting).unwrap();
+        let run = Run::prepare(e, Start::Resume, &Stage::ALL).unwrap();
+        let mut log = run.open_log().unwrap();
+        let err = format!("{:#}", warmup::run(&run, &mut log).unwrap_err());
+        assert!(err.contains("received no gradient"), "{setting}: {err}");
+        assert!(err.contains("physnerf.search_radius"), "{setting}: {err}");
+        assert!(err.contains("scene.near"), "{setting}: {err}");
+    }
 }
 
 /// DLF exploding in the joint stage is stopped by the state check, and no checkpoint holds the
@@ -139,12 +149,15 @@ fn an_exploding_joint_stage_stops_before_checkpointing_it() {
     let mut e = prepared(tmp.path(), "explode");
     e.apply_overrides(&["joint.dlf_optim.lr=1e4", "joint.ckpt_every=1"])
         .unwrap();
-    let run = Run::prepare(e, Start::Resume).unwrap();
+    let run = Run::prepare(e, Start::Resume, &Stage::ALL).unwrap();
     let mut log = run.open_log().unwrap();
     warmup::run(&run, &mut log).unwrap();
     let err = format!("{:#}", joint::run(&run, &mut log).unwrap_err());
-    assert!(err.contains("joint stopped at step"), "{err}");
+    assert!(err.contains("joint stopped at step 2"), "{err}");
+    // the checkpoint after step 1 held the update that exploded: discarded, none is left
+    assert!(err.contains("discarded"), "{err}");
     let stage = run.stage_dir(joint::STAGE);
+    assert!(neurofluid_train::trainer::checkpoint::latest(&stage).is_none());
     if let Some(ckpt) = neurofluid_train::trainer::checkpoint::latest(&stage)
         && let Ok(state) = Particles::read(&ckpt.join("carried_state.npz"))
     {
@@ -165,7 +178,7 @@ fn swapped_optimiser_files_are_refused() {
     let _turn = seeded_turn();
     let tmp = tempfile::tempdir().unwrap();
     let e = prepared(tmp.path(), "swap");
-    let run = Run::prepare(e, Start::Resume).unwrap();
+    let run = Run::prepare(e, Start::Resume, &Stage::ALL).unwrap();
     let mut log = run.open_log().unwrap();
     warmup::run(&run, &mut log).unwrap();
     joint::run_until(&run, &mut log, Some(2)).unwrap();
@@ -186,7 +199,7 @@ fn orphan_checkpoint_folders_are_removed() {
     let _turn = seeded_turn();
     let tmp = tempfile::tempdir().unwrap();
     let e = prepared(tmp.path(), "orphan");
-    let run = Run::prepare(e, Start::Resume).unwrap();
+    let run = Run::prepare(e, Start::Resume, &Stage::ALL).unwrap();
     let orphan = run.stage_dir(warmup::STAGE).join("checkpoint.99999.tmp");
     std::fs::create_dir_all(&orphan).unwrap();
     std::fs::write(orphan.join("physnerf.bpk"), b"half").unwrap();

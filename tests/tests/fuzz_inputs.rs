@@ -70,6 +70,16 @@ fn file_with(name: &str, bytes: &[u8]) -> (tempfile::TempDir, PathBuf) {
     (dir, path)
 }
 
+/// `cases` cases from a fixed seed: CI explores the same inputs on every run.
+fn fixed(cases: u32) -> ProptestConfig {
+    ProptestConfig {
+        cases,
+        rng_seed: proptest::test_runner::RngSeed::Fixed(0x5eed_f1d0),
+        failure_persistence: None,
+        ..ProptestConfig::default()
+    }
+}
+
 /// An error must name the file it is about.
 fn names_file<T, E: std::fmt::Display>(r: Result<T, E>, path: &Path) -> Result<(), TestCaseError> {
     if let Err(e) = r {
@@ -204,7 +214,7 @@ fn experiment_from(text: &str) -> Result<(), TestCaseError> {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(256))]
+    #![proptest_config(fixed(256))]
 
     #[test]
     fn experiment_toml_mutated(bytes in mutated(tiny_ci_toml().into_bytes())) {
@@ -271,7 +281,7 @@ proptest! {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(48))]
+    #![proptest_config(fixed(48))]
 
     #[test]
     fn weights_and_records_mutated(
@@ -307,7 +317,7 @@ fn published_weights() -> &'static (Vec<u8>, Vec<u8>) {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(24))]
+    #![proptest_config(fixed(24))]
 
     #[test]
     fn published_dlf_weights_mutated(

@@ -5,6 +5,7 @@
 
 use neurofluid_core::scene::Role;
 use neurofluid_tests::{params, seeded_turn, tiny_experiment};
+use neurofluid_train::stages::preflight::Stage;
 use neurofluid_train::stages::views::{ViewFrame, points_tensor, render_beside_truth};
 use neurofluid_train::stages::{Run, Start, eval, joint, warmup};
 
@@ -24,7 +25,12 @@ fn warmup_view_psnr(run: &Run, physnerf: &neurofluid_physnerf::PhysNerf) -> f64 
 fn the_ci_experiment_learns() {
     let _turn = seeded_turn();
     let tmp = tempfile::tempdir().unwrap();
-    let run = Run::prepare(tiny_experiment(tmp.path(), "learns"), Start::Resume).unwrap();
+    let run = Run::prepare(
+        tiny_experiment(tmp.path(), "learns"),
+        Start::Resume,
+        &Stage::ALL,
+    )
+    .unwrap();
     let mut log = run.open_log().unwrap();
     let initial = warmup::new_physnerf(&run).unwrap();
     let warmed = warmup::run(&run, &mut log).unwrap();
@@ -97,7 +103,7 @@ fn a_model_that_starts_dead_is_stopped_with_the_reason() {
     let mut e = tiny_experiment(tmp.path(), "dead");
     // the paper's ReLU density; with this seed both networks start with σ ≤ 0 everywhere
     e.apply_override("physnerf.density=\"relu\"").unwrap();
-    let run = Run::prepare(e, Start::Resume).unwrap();
+    let run = Run::prepare(e, Start::Resume, &Stage::ALL).unwrap();
     let mut log = run.open_log().unwrap();
     let err = format!("{:#}", warmup::run(&run, &mut log).unwrap_err());
     assert!(err.contains("physnerf received no gradient"), "{err}");
@@ -105,9 +111,8 @@ fn a_model_that_starts_dead_is_stopped_with_the_reason() {
     // the rows logged so far show the zero gradients, and the message counts steps as they do
     let rows = neurofluid_train::metrics_log::read_jsonl(log.jsonl_path()).unwrap();
     assert!(rows.iter().all(|r| r.grad_norm_physnerf == Some(0.0)));
+    // (a session shorter than the patience is judged after its last, logged, step)
     let last = rows.iter().map(|r| r.step).max().unwrap();
-    assert!(
-        err.contains(&format!("stopped at step {}", last + 1)),
-        "{err}"
-    );
+    assert_eq!(last, run.exp.warmup.iters);
+    assert!(err.contains(&format!("stopped at step {last}")), "{err}");
 }

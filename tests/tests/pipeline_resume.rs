@@ -7,6 +7,7 @@ use std::path::Path;
 use neurofluid_tests::{params, seeded_turn, tiny_experiment};
 use neurofluid_train::config::Experiment;
 use neurofluid_train::metrics_log::MetricsLog;
+use neurofluid_train::stages::preflight::Stage;
 use neurofluid_train::stages::{Run, Start, eval, joint, warmup};
 
 fn experiment(tmp: &Path, name: &str) -> Experiment {
@@ -26,12 +27,18 @@ fn resumed_run_matches_uninterrupted_run() {
     let _turn = seeded_turn();
     let tmp = tempfile::tempdir().unwrap();
 
-    let straight = Run::prepare(experiment(tmp.path(), "straight"), Start::Resume).unwrap();
+    let straight = Run::prepare(
+        experiment(tmp.path(), "straight"),
+        Start::Resume,
+        &Stage::ALL,
+    )
+    .unwrap();
     let mut log = MetricsLog::open(&straight.dir).unwrap();
     warmup::run(&straight, &mut log).unwrap();
     let a = joint::run(&straight, &mut log).unwrap();
 
-    let pieces = Run::prepare(experiment(tmp.path(), "pieces"), Start::Resume).unwrap();
+    let pieces =
+        Run::prepare(experiment(tmp.path(), "pieces"), Start::Resume, &Stage::ALL).unwrap();
     let mut log = MetricsLog::open(&pieces.dir).unwrap();
     let warm_iters = pieces.exp.warmup.iters;
     assert!(warm_iters >= 2);
@@ -74,7 +81,7 @@ fn stratified_jitter_is_seeded_and_reproducible() {
     for name in ["jitter-a", "jitter-b"] {
         let mut e = experiment(tmp.path(), name);
         e.apply_overrides(&["physnerf.stratified=true"]).unwrap();
-        let run = Run::prepare(e, Start::Resume).unwrap();
+        let run = Run::prepare(e, Start::Resume, &Stage::ALL).unwrap();
         let mut log = MetricsLog::open(&run.dir).unwrap();
         params_of.push(params(&warmup::run(&run, &mut log).unwrap()));
     }
@@ -88,7 +95,7 @@ fn stratified_jitter_is_seeded_and_reproducible() {
 fn resumed_metrics_log_has_no_duplicate_steps() {
     let _turn = seeded_turn();
     let tmp = tempfile::tempdir().unwrap();
-    let run = Run::prepare(experiment(tmp.path(), "log"), Start::Resume).unwrap();
+    let run = Run::prepare(experiment(tmp.path(), "log"), Start::Resume, &Stage::ALL).unwrap();
     let mut log = run.open_log().unwrap();
     warmup::run_until(&run, &mut log, Some(2)).unwrap();
     // a row logged after the last checkpoint, as a crash would leave it
@@ -112,32 +119,62 @@ fn resumed_metrics_log_has_no_duplicate_steps() {
 fn resume_refuses_changed_settings_and_records_safe_changes() {
     let _turn = seeded_turn();
     let tmp = tempfile::tempdir().unwrap();
-    let run = Run::prepare(experiment(tmp.path(), "guard"), Start::Resume).unwrap();
+    let run = Run::prepare(experiment(tmp.path(), "guard"), Start::Resume, &Stage::ALL).unwrap();
     let mut log = run.open_log().unwrap();
     warmup::run_until(&run, &mut log, Some(2)).unwrap();
     drop(log);
     // the run folder is locked while a run holds it
-    let err = Run::prepare(experiment(tmp.path(), "guard"), Start::Resume)
+    let err = Run::prepare(experiment(tmp.path(), "guard"), Start::Resume, &Stage::ALL)
         .unwrap_err()
         .to_string();
     assert!(err.contains("in use by another process"), "{err}");
     drop(run);
 
-    // a learning rate shapes the state: refused, naming the key and the way out
+    // a learning rate shapes the state: refused before anything runs, naming the key and the
+    // way out; and the stage itself refuses it too
     let mut changed = experiment(tmp.path(), "guard");
     changed.apply_override("warmup.optim.lr=1e-3").unwrap();
-    let run2 = Run::prepare(changed, Start::Resume).unwrap();
+    let err = format!(
+        "{:#}",
+        Run::prepare(changed.clone(), Start::Resume, &Stage::ALL).unwrap_err()
+    );
+    assert!(err.contains("warmup.optim.lr"), "{err}");
+    assert!(err.contains("--fresh"), "{err}");
+    let run2 = Run::prepare(changed, Start::Resume, &[]).unwrap();
     let mut log = run2.open_log().unwrap();
     let err = warmup::run(&run2, &mut log).unwrap_err().to_string();
     assert!(err.contains("warmup.optim.lr"), "{err}");
-    assert!(err.contains("--fresh"), "{err}");
     drop(log);
     drop(run2);
+
+    // --fresh of a later stage keeps the earlier ones; a folder the tool did not make is left
+    // alone
+    let run4 = Run::prepare(experiment(tmp.path(), "guard"), Start::Resume, &Stage::ALL).unwrap();
+    let mut log = run4.open_log().unwrap();
+    warmup::run(&run4, &mut log).unwrap();
+    drop(log);
+    std::fs::create_dir_all(run4.stage_dir("eval")).unwrap();
+    drop(run4);
+    let run5 = Run::prepare(
+        experiment(tmp.path(), "guard"),
+        Start::Fresh,
+        &[Stage::Joint],
+    )
+    .unwrap();
+    assert!(run5.stage_dir("warmup").join("checkpoint").is_dir());
+    assert!(!run5.stage_dir("eval").exists());
+    drop(run5);
+    let foreign = tmp.path().join("foreign");
+    std::fs::create_dir_all(foreign.join("warmup")).unwrap();
+    let mut e = experiment(tmp.path(), "foreign");
+    e.out_dir = Some(foreign.clone());
+    drop(Run::prepare(e, Start::Fresh, &Stage::ALL).unwrap());
+    assert!(foreign.join("warmup").is_dir());
 
     // the logging cadence does not: resumed, and the change is recorded
     let mut safe = experiment(tmp.path(), "guard");
     safe.apply_override("warmup.log_every=2").unwrap();
-    let run3 = Run::prepare(safe, Start::Resume).unwrap();
+    let run3 = Run::prepare(safe, Start::Resume, &Stage::ALL).unwrap();
     let mut log = run3.open_log().unwrap();
     warmup::run(&run3, &mut log).unwrap();
     let history = std::fs::read_to_string(run3.dir.join("config.history")).unwrap();

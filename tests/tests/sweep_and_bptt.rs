@@ -4,6 +4,7 @@
 use neurofluid_tests::{params, seeded_turn, tiny_experiment, workspace_root};
 use neurofluid_train::commands::sweep;
 use neurofluid_train::metrics_log::MetricsLog;
+use neurofluid_train::stages::preflight::Stage;
 use neurofluid_train::stages::{Run, Start, joint, warmup};
 
 #[test]
@@ -57,7 +58,7 @@ fn multi_step_bptt_with_differentiable_geometry_trains() {
         "joint.rays=512",
     ])
     .unwrap();
-    let run = Run::prepare(e, Start::Resume).unwrap();
+    let run = Run::prepare(e, Start::Resume, &Stage::ALL).unwrap();
     let mut log = MetricsLog::open(&run.dir).unwrap();
     warmup::run(&run, &mut log).unwrap();
     let before = params(&run.load_dlf(&run.exp.dlf.weights).unwrap());

@@ -312,7 +312,11 @@ impl NpzReader {
                 });
             }
         };
-        let mut buf = Vec::with_capacity(entry.size() as usize);
+        // the header's size is a hint a damaged file controls: reserve no more than the file
+        let hint = entry
+            .size()
+            .min(std::fs::metadata(&self.path).map_or(0, |m| m.len()) * 4);
+        let mut buf = Vec::with_capacity(hint as usize);
         entry.read_to_end(&mut buf).map_err(|source| NpzError::Io {
             path: self.path.clone(),
             source,

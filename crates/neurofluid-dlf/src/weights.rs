@@ -366,3 +366,30 @@ pub fn load_checkpoint(
         None => Ok(net),
     }
 }
+
+#[cfg(test)]
+mod non_finite_tests {
+    use super::*;
+
+    /// A model with a NaN parameter is not written, and a file holding one is not loaded.
+    #[test]
+    fn non_finite_weights_are_neither_written_nor_loaded() {
+        let device = neurofluid_core::device::cpu();
+        let net = DlfNet::new(DlfConfig::default(), &device);
+        let mut bad = net.clone();
+        bad.dense0_fluid.weight = bad.dense0_fluid.weight.map(|w| w.mul_scalar(f32::NAN));
+        let dir = std::env::temp_dir().join(format!("nf-dlf-nan-{}", std::process::id()));
+        let path = dir.join("bad.bpk");
+        let err = save_checkpoint(&bad, &path).unwrap_err().to_string();
+        assert!(err.contains("NaN") && !path.exists(), "{err}");
+        // written around the check, as a foreign tool could
+        std::fs::create_dir_all(&dir).unwrap();
+        let bytes = bad.clone().into_record().into_bytes().unwrap();
+        std::fs::write(&path, &bytes[..]).unwrap();
+        let err = load_dlf(&path, DlfConfig::default(), &device)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("bad.bpk") && err.contains("NaN"), "{err}");
+        let _ = std::fs::remove_dir_all(dir);
+    }
+}

@@ -99,11 +99,18 @@ impl PhysNerf {
                 names: extra,
             });
         }
-        Ok(Self {
+        let model = Self {
             coarse: load_net(&file, NETS[0], &config, device, dtype)?,
             fine: load_net(&file, NETS[1], &config, device, dtype)?,
             config,
-        })
+        };
+        if let Some(param) = neurofluid_core::params::first_non_finite(&model) {
+            return Err(PhysNerfError::Invalid(format!(
+                "{}: parameter `{param}` holds NaN or infinite values",
+                file.path().display()
+            )));
+        }
+        Ok(model)
     }
 
     /// Loads a file written by [`PhysNerf::save`] (the configuration comes from its metadata).
@@ -141,6 +148,12 @@ impl PhysNerf {
     /// Writes both networks in the nerf_pl layout (PyTorch `[out, in]` weights, F32, or F64 for
     /// an F64 model) with the configuration as metadata, atomically.
     pub fn save(&self, path: impl AsRef<Path>) -> Result<()> {
+        if let Some(param) = neurofluid_core::params::first_non_finite(self) {
+            return Err(PhysNerfError::Invalid(format!(
+                "{}: not written: parameter `{param}` holds NaN or infinite values",
+                path.as_ref().display()
+            )));
+        }
         let as_f64 = self.dtype() == DType::F64;
         let mut w = StWriter::new();
         for (prefix, net) in NETS.iter().zip([&self.coarse, &self.fine]) {

@@ -179,10 +179,7 @@ impl MetricsLog {
     ) -> Result<Self, MetricsError> {
         let jsonl_path = dir.join(JSONL_FILE);
         if jsonl_path.exists() {
-            let rows: Vec<MetricsRow> = read_rows(&jsonl_path, true)?
-                .into_iter()
-                .filter(keep)
-                .collect();
+            let rows: Vec<MetricsRow> = read_jsonl(&jsonl_path)?.into_iter().filter(keep).collect();
             let mut csv = format!("{CSV_HEADER}\n");
             let mut jsonl = String::new();
             for r in &rows {
@@ -223,14 +220,9 @@ impl MetricsLog {
     }
 }
 
-/// Reads every row of a `metrics.jsonl` file (blank lines skipped).
+/// Reads every row of a `metrics.jsonl` file (blank lines skipped). A last line without its
+/// newline that is not a row (a write in progress, or cut short by a crash) is left out.
 pub fn read_jsonl(path: &Path) -> Result<Vec<MetricsRow>, MetricsError> {
-    read_rows(path, false)
-}
-
-/// Reads the rows; with `drop_torn_tail`, a last line without its newline that is not a row
-/// (a write cut short by a crash) is dropped with a warning instead of failing.
-fn read_rows(path: &Path, drop_torn_tail: bool) -> Result<Vec<MetricsRow>, MetricsError> {
     let text = std::fs::read(path).map_err(io(path))?;
     let text = String::from_utf8_lossy(&text);
     let torn = !text.is_empty() && !text.ends_with('\n');
@@ -242,11 +234,8 @@ fn read_rows(path: &Path, drop_torn_tail: bool) -> Result<Vec<MetricsRow>, Metri
         }
         match serde_json::from_str(line) {
             Ok(row) => rows.push(row),
-            Err(_) if drop_torn_tail && torn && i + 1 == lines.len() => {
-                tracing::warn!(
-                    "{}: dropping the unfinished last line (a write cut short)",
-                    path.display()
-                );
+            Err(_) if torn && i + 1 == lines.len() => {
+                tracing::debug!("{}: leaving out the unfinished last line", path.display());
             }
             Err(e) => {
                 return Err(MetricsError::Parse {
@@ -324,8 +313,8 @@ mod tests {
         assert_eq!(csv.lines().count(), 4);
     }
 
-    /// A crash in the middle of a row leaves a torn last line: resume drops it (and only it);
-    /// a plain read still reports it.
+    /// A crash in the middle of a row leaves a torn last line: reads leave it out (and only it),
+    /// and a resume rewrites the file without it.
     #[test]
     fn resume_drops_a_torn_last_line() {
         let dir = tempfile::tempdir().unwrap();
@@ -338,7 +327,7 @@ mod tests {
         let mut text = std::fs::read_to_string(&p).unwrap();
         text.push_str("{\"stage\":\"warmup\",\"st");
         std::fs::write(&p, &text).unwrap();
-        assert!(read_jsonl(&p).is_err());
+        assert_eq!(read_jsonl(&p).unwrap().len(), 2);
         let log = MetricsLog::open_resumed(dir.path(), |_| true).unwrap();
         drop(log);
         let rows = read_jsonl(&p).unwrap();

@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 
 use crate::config::Experiment;
+use crate::stages::preflight::Stage;
 use crate::stages::{Run, Start};
 
 /// An experiment file plus command-line overrides.
@@ -18,8 +19,8 @@ pub struct ExperimentArgs {
     /// Override a key of the experiment, e.g. `--set joint.epochs=2` (repeatable).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub set: Vec<String>,
-    /// Start over: delete what the run folder holds (checkpoints, metrics, evaluation) instead
-    /// of resuming from it.
+    /// Start over: delete what this stage and the later ones left in the run folder (for `run`
+    /// and `warmup`: everything it holds) instead of resuming from it.
     #[arg(long)]
     pub fresh: bool,
 }
@@ -37,13 +38,14 @@ impl ExperimentArgs {
         Ok(exp)
     }
 
-    /// Loads the experiment and prepares its run for training (locked; emptied with `--fresh`).
-    pub fn prepare(&self) -> anyhow::Result<Run> {
+    /// Loads the experiment and prepares its run for `stages` (locked, inputs checked; with
+    /// `--fresh`, what those stages and the later ones left is removed).
+    pub fn prepare(&self, stages: &[Stage]) -> anyhow::Result<Run> {
         let start = if self.fresh {
             Start::Fresh
         } else {
             Start::Resume
         };
-        Run::prepare(self.load()?, start)
+        Run::prepare(self.load()?, start, stages)
     }
 }

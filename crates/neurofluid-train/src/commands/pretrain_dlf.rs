@@ -136,12 +136,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         args.train.iterations,
         args.train.batch_size
     );
+    let mut trainer = SupervisedDlfTrainer::new(&args.train, net, train, val)?;
     let dir = checkpoint_dir(&args.output);
     let _lock = FolderLock::acquire(&dir)?;
     if args.fresh {
         reset_checkpoints(&dir)?;
     }
-    let mut trainer = SupervisedDlfTrainer::new(&args.train, net, train, val)?;
     let mut bars = ProgressBars::new();
     if crate::trainer::checkpoint::latest(&dir).is_none()
         && let Some(e) = trainer.evaluate(0)?

@@ -1,7 +1,7 @@
 //! `run`: the whole pipeline of an experiment — scene (generated if missing), warm-up, joint
 //! grounding, evaluation — then the summary table.
 
-use crate::stages::preflight::{self, Stage};
+use crate::stages::preflight::Stage;
 use crate::stages::{eval, joint, warmup};
 
 use super::experiment_args::ExperimentArgs;
@@ -15,9 +15,8 @@ pub struct Args {
 
 /// Runs every stage, resuming from the checkpoints of an interrupted run.
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let run = args.exp.prepare()?;
+    let run = args.exp.prepare(&Stage::ALL)?;
     tracing::info!("run folder {}", run.dir.display());
-    preflight::check(&run, &[Stage::Warmup, Stage::Joint, Stage::Eval])?;
     let mut log = run.open_log()?;
     warmup::run(&run, &mut log)?;
     let grounded = joint::run(&run, &mut log)?;

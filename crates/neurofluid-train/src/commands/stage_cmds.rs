@@ -1,7 +1,7 @@
 //! `warmup`, `joint` and `eval`: the stages of `run`, one at a time.
 
-use crate::stages::preflight::{self, Stage};
-use crate::stages::{Run, eval, joint, warmup};
+use crate::stages::preflight::Stage;
+use crate::stages::{eval, joint, warmup};
 
 use super::experiment_args::ExperimentArgs;
 
@@ -14,8 +14,7 @@ pub struct Args {
 
 /// The renderer warm-up on frame 0.
 pub fn run_warmup(args: Args) -> anyhow::Result<()> {
-    let run = args.exp.prepare()?;
-    preflight::check(&run, &[Stage::Warmup])?;
+    let run = args.exp.prepare(&[Stage::Warmup])?;
     let mut log = run.open_log()?;
     warmup::run(&run, &mut log)?;
     println!(
@@ -27,8 +26,7 @@ pub fn run_warmup(args: Args) -> anyhow::Result<()> {
 
 /// Joint grounding (needs a finished warm-up).
 pub fn run_joint(args: Args) -> anyhow::Result<()> {
-    let run = args.exp.prepare()?;
-    preflight::check(&run, &[Stage::Joint])?;
+    let run = args.exp.prepare(&[Stage::Joint])?;
     let mut log = run.open_log()?;
     joint::run(&run, &mut log)?;
     println!(
@@ -38,11 +36,10 @@ pub fn run_joint(args: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Evaluation of a finished joint stage (reads the scene and checkpoints; simulates nothing).
+/// Evaluation of a finished joint stage (reads the scene and checkpoints; simulates nothing;
+/// `--fresh` replaces an earlier evaluation).
 pub fn run_eval(args: Args) -> anyhow::Result<()> {
-    let mut run = Run::open_existing(args.exp.load()?)?;
-    run.lock()?;
-    preflight::check(&run, &[Stage::Eval])?;
+    let run = args.exp.prepare(&[Stage::Eval])?;
     let grounded = joint::load_trained(&run)?;
     let summary = eval::run(&run, &grounded)?;
     println!("{}", summary.markdown());

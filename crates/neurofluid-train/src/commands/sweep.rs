@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 
-use crate::stages::preflight::{self, Stage};
+use crate::stages::preflight::Stage;
 use crate::stages::{Run, Start, eval, joint, warmup};
 use crate::sweep::{Sweep, table_rows, write_table};
 
@@ -31,6 +31,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         sweep.name,
         sweep.out_dir.display()
     );
+    let _lock = crate::trainer::lock::FolderLock::acquire(&sweep.out_dir)?;
     let mut results = Vec::new();
     for variant in &sweep.variants {
         let mut exp = variant.experiment.clone();
@@ -39,8 +40,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         tracing::info!("variant {} ({})", variant.name, variant.label);
         let outcome = (|| -> anyhow::Result<_> {
-            let run = Run::prepare(exp, Start::Resume)?;
-            preflight::check(&run, &[Stage::Warmup, Stage::Joint, Stage::Eval])?;
+            let run = Run::prepare(exp, Start::Resume, &Stage::ALL)?;
             let mut log = run.open_log()?;
             warmup::run(&run, &mut log)?;
             let grounded = joint::run(&run, &mut log)?;

@@ -26,6 +26,10 @@ const FREE: &[&str] = &[
     "joint.preview_every",
 ];
 
+/// Keys added after a release, with the value that keeps the earlier behaviour: a checkpoint
+/// that does not record such a key was made with that value, so it is not a change.
+const ADDED_KEYS: &[(&str, &str)] = &[("physnerf.density", "\"relu\"")];
+
 /// The stages whose state the settings shape.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum StageKind {
@@ -140,7 +144,11 @@ impl Settings {
         keys.into_iter()
             .filter_map(|k| {
                 let (b, a) = (before.0.get(k), self.0.get(k));
-                (b != a).then(|| Change {
+                let added_with_old_behaviour = b.is_none()
+                    && ADDED_KEYS
+                        .iter()
+                        .any(|(key, v)| key == k && a.is_some_and(|a| a == v));
+                (b != a && !added_with_old_behaviour).then(|| Change {
                     key: k.clone(),
                     before: b.cloned(),
                     after: a.cloned(),
@@ -211,6 +219,24 @@ mod tests {
             .changes_since(&Settings::of_stage(&base, StageKind::Joint));
         let keys: Vec<&str> = changes_keys(&joint);
         assert_eq!(keys, ["warmup.iters"]);
+    }
+
+    /// A checkpoint of the release before `physnerf.density` existed resumes with the default
+    /// (the behaviour it was made with), and not with softplus.
+    #[test]
+    fn a_key_added_later_with_the_old_behaviour_is_no_change() {
+        let now = Settings::of_stage(&exp(&[]), StageKind::Warmup);
+        let mut older = now.clone();
+        assert_eq!(
+            older.0.remove("physnerf.density").as_deref(),
+            Some("\"relu\"")
+        );
+        assert!(now.changes_since(&older).is_empty());
+        let softplus = Settings::of_stage(&exp(&["physnerf.density=softplus"]), StageKind::Warmup);
+        assert_eq!(
+            changes_keys(&softplus.changes_since(&older)),
+            ["physnerf.density"]
+        );
     }
 
     fn changes_keys(c: &[Change]) -> Vec<&str> {

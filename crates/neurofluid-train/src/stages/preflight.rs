@@ -5,9 +5,10 @@
 
 use neurofluid_core::scene::{Role, Scene};
 
-use super::run_folder::Run;
+use super::run_folder::{Run, Start};
 use super::views::{check_particles, check_sequence};
 use super::{eval, joint, warmup};
+use crate::config::StageKind;
 use crate::trainer::checkpoint;
 
 /// The stages a command will run.
@@ -19,6 +20,20 @@ pub enum Stage {
     Joint,
     /// Evaluation.
     Eval,
+}
+
+impl Stage {
+    /// Every stage, in the order they run.
+    pub const ALL: [Stage; 3] = [Stage::Warmup, Stage::Joint, Stage::Eval];
+
+    /// The stage's folder in the run folder.
+    pub fn folder(self) -> &'static str {
+        match self {
+            Stage::Warmup => warmup::STAGE,
+            Stage::Joint => joint::STAGE,
+            Stage::Eval => eval::STAGE,
+        }
+    }
 }
 
 /// Problems found so far.
@@ -48,8 +63,35 @@ fn images(p: &mut Problems, scene: &Scene, role: Role, views: &[String], frames:
     }
 }
 
-/// Checks everything `stages` of `run` will read; `Err` lists every problem.
-pub fn check(run: &Run, stages: &[Stage]) -> anyhow::Result<()> {
+/// A finished stage another stage starts from: its checkpoint must exist, hold all of its steps
+/// and match the current settings.
+fn finished(p: &mut Problems, run: &Run, stage: Stage, kind: StageKind, steps: u64) {
+    let dir = run.stage_dir(stage.folder());
+    let Some(ckpt) = checkpoint::latest(&dir) else {
+        p.0.push(format!(
+            "no {} checkpoint in {}: run the `{}` stage first",
+            stage.folder(),
+            dir.display(),
+            stage.folder()
+        ));
+        return;
+    };
+    match checkpoint::load_matching(&ckpt, stage.folder(), &run.settings(kind)) {
+        Ok(state) if state.step < steps => p.0.push(format!(
+            "the {} checkpoint in {} holds {} of its {steps} steps: finish the `{}` stage first",
+            stage.folder(),
+            ckpt.display(),
+            state.step,
+            stage.folder()
+        )),
+        Ok(_) => {}
+        Err(e) => p.0.push(format!("{e:#}")),
+    }
+}
+
+/// Checks everything `stages` of `run` will read, and (when they resume) that their
+/// checkpoints match the settings; `Err` lists every problem.
+pub fn check(run: &Run, stages: &[Stage], start: Start) -> anyhow::Result<()> {
     let scene = &run.scene;
     let exp = &run.exp;
     let mut p = Problems::default();
@@ -59,6 +101,21 @@ pub fn check(run: &Run, stages: &[Stage]) -> anyhow::Result<()> {
             p.check(|| "dlf.weights".to_string(), run.load_dlf(&exp.dlf.weights));
         }
     };
+    if start == Start::Resume {
+        for (stage, kind) in [
+            (Stage::Warmup, StageKind::Warmup),
+            (Stage::Joint, StageKind::Joint),
+        ] {
+            if stages.contains(&stage)
+                && let Some(ckpt) = checkpoint::latest(&run.stage_dir(stage.folder()))
+                && let Err(e) =
+                    checkpoint::load_matching(&ckpt, stage.folder(), &run.settings(kind))
+            {
+                p.0.push(format!("{e:#}"));
+            }
+        }
+    }
+    let joint_steps = exp.joint.epochs * scene.frames(Role::Train).len().saturating_sub(1) as u64;
     if stages.contains(&Stage::Warmup) {
         let t0 = scene.frames(Role::Warmup).start;
         let views = exp
@@ -108,13 +165,14 @@ pub fn check(run: &Run, stages: &[Stage]) -> anyhow::Result<()> {
         }
         p.check(|| "the box".to_string(), scene.boundary());
         check_dlf(&mut p);
-        if !stages.contains(&Stage::Warmup)
-            && checkpoint::latest(&run.stage_dir(warmup::STAGE)).is_none()
-        {
-            p.0.push(format!(
-                "no warm-up checkpoint in {}: run the `warmup` stage first",
-                run.stage_dir(warmup::STAGE).display()
-            ));
+        if !stages.contains(&Stage::Warmup) {
+            finished(
+                &mut p,
+                run,
+                Stage::Warmup,
+                StageKind::Warmup,
+                exp.warmup.iters,
+            );
         }
     }
     if stages.contains(&Stage::Eval) {
@@ -127,28 +185,26 @@ pub fn check(run: &Run, stages: &[Stage]) -> anyhow::Result<()> {
                 .and_then(|seq| check_sequence(&seq, test.start)),
         );
         p.check(|| "the box".to_string(), scene.boundary());
-        if exp.eval.baseline {
-            check_dlf(&mut p);
-        }
+        // the grounded DLF is built from the pretrained weights' model, baseline or not
+        check_dlf(&mut p);
         if exp.eval.render {
             let views = exp
                 .eval
                 .views
                 .clone()
                 .unwrap_or_else(|| scene.views(Role::Test).to_vec());
-            let frames: Vec<usize> = eval::rendered_steps(test.len(), exp.eval.render_every)
-                .into_iter()
-                .map(|t| test.start + t)
-                .collect();
+            let mut steps = eval::rendered_steps(test.len(), exp.eval.render_every);
+            if exp.eval.animate {
+                let train = scene.frames(Role::Train).len();
+                steps.extend(eval::picture_frames(train, test.len().saturating_sub(1)));
+                steps.sort_unstable();
+                steps.dedup();
+            }
+            let frames: Vec<usize> = steps.into_iter().map(|t| test.start + t).collect();
             images(&mut p, scene, Role::Test, &views, &frames);
         }
-        if !stages.contains(&Stage::Joint)
-            && checkpoint::latest(&run.stage_dir(joint::STAGE)).is_none()
-        {
-            p.0.push(format!(
-                "no joint checkpoint in {}: run the `joint` stage first",
-                run.stage_dir(joint::STAGE).display()
-            ));
+        if !stages.contains(&Stage::Joint) {
+            finished(&mut p, run, Stage::Joint, StageKind::Joint, joint_steps);
         }
     }
     p.0.dedup();

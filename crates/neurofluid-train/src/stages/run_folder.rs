@@ -1,9 +1,9 @@
 //! A run: the resolved experiment, its run folder, the device and the opened scene.
 //!
-//! Side effects have their own names: [`Run::prepare`] (for training: locks the run folder,
-//! empties it for [`Start::Fresh`], may generate the scene, writes the run folder),
-//! [`Run::open_existing`] (reads only) with [`Run::lock`] (before writing results) and
-//! [`reset_run_folder`].
+//! Side effects have their own names: [`Run::prepare`] (before the stages run: locks the run
+//! folder, may generate the scene, checks every input of the stages, then for [`Start::Fresh`]
+//! removes what those stages and the ones after them left, and writes the resolved config) and
+//! [`Run::open_existing`] (reads only).
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -14,6 +14,7 @@ use neurofluid_core::scene::{Scene, UpAxis};
 use neurofluid_dlf::{DlfConfig, DlfNet};
 use neurofluid_physnerf::PhysNerfConfig;
 
+use super::preflight::{self, Stage};
 use super::scene_source::generate_scene_if_missing;
 use crate::config::{Experiment, RESOLVED_FILE, Settings, StageKind};
 use crate::metrics_log::{CSV_FILE, JSONL_FILE, MetricsLog};
@@ -60,28 +61,25 @@ pub struct Run {
 }
 
 impl Run {
-    /// For training: locks the run folder (one process per folder), empties it for
-    /// [`Start::Fresh`], generates the built-in scene if its folder holds none, writes the
-    /// resolved config and appends any setting that changed since the previous session to
-    /// `config.history`.
-    pub fn prepare(exp: Experiment, start: Start) -> anyhow::Result<Self> {
+    /// Everything before `stages` run: locks the run folder (one process per folder),
+    /// generates the built-in scene if its folder holds none (for the training stages; an
+    /// evaluation never simulates), checks every input of the stages
+    /// ([`preflight`]); for [`Start::Fresh`] then removes what those stages and the ones after
+    /// them left (nothing of a folder the tool did not make); writes the resolved config and
+    /// appends any setting that changed since the previous session to `config.history`.
+    pub fn prepare(exp: Experiment, start: Start, stages: &[Stage]) -> anyhow::Result<Self> {
         let lock = FolderLock::acquire(&exp.out_dir())?;
-        if start == Start::Fresh {
-            reset_run_folder(&exp)?;
+        if stages.iter().any(|s| *s != Stage::Eval) {
+            generate_scene_if_missing(&exp)?;
         }
-        generate_scene_if_missing(&exp)?;
         let mut run = Self::open_existing(exp)?;
         run.lock = Some(lock);
+        preflight::check(&run, stages, start)?;
+        if start == Start::Fresh {
+            run.reset(stages)?;
+        }
         run.record_config()?;
         Ok(run)
-    }
-
-    /// Takes the run folder's lock (if this run does not hold it yet) before writing into it.
-    pub fn lock(&mut self) -> anyhow::Result<()> {
-        if self.lock.is_none() {
-            self.lock = Some(FolderLock::acquire(&self.dir)?);
-        }
-        Ok(())
     }
 
     /// For evaluation and inspection: the scene must exist; nothing is written.
@@ -202,17 +200,31 @@ impl Run {
     }
 }
 
-/// Removes what the experiment's run folder holds (stage folders, metrics, plots, configs) and
-/// nothing else, so the next run starts over. The caller holds the folder's lock.
-fn reset_run_folder(exp: &Experiment) -> anyhow::Result<()> {
-    let dir = exp.out_dir();
-    for name in RUN_CONTENTS {
-        let p = dir.join(name);
-        if p.is_dir() {
-            std::fs::remove_dir_all(&p).with_context(|| format!("removing {}", p.display()))?;
-        } else if p.is_file() {
-            std::fs::remove_file(&p).with_context(|| format!("removing {}", p.display()))?;
+impl Run {
+    /// Removes what `stages` and the stages after them left in the run folder (all of it when
+    /// the warm-up starts over), and only from a folder this tool made (one holding its resolved
+    /// config).
+    fn reset(&self, stages: &[Stage]) -> anyhow::Result<()> {
+        if !self.dir.join(RESOLVED_FILE).is_file() {
+            return Ok(());
         }
+        let first = Stage::ALL.iter().position(|s| stages.contains(s));
+        let Some(first) = first else {
+            return Ok(());
+        };
+        let names: Vec<&str> = if first == 0 {
+            RUN_CONTENTS.to_vec()
+        } else {
+            Stage::ALL[first..].iter().map(|s| s.folder()).collect()
+        };
+        for name in names {
+            let p = self.dir.join(name);
+            if p.is_dir() {
+                std::fs::remove_dir_all(&p).with_context(|| format!("removing {}", p.display()))?;
+            } else if p.is_file() {
+                std::fs::remove_file(&p).with_context(|| format!("removing {}", p.display()))?;
+            }
+        }
+        Ok(())
     }
-    Ok(())
 }

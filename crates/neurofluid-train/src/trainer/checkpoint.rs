@@ -145,14 +145,33 @@ pub fn remove_orphans(stage_dir: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Saves a module's parameters as burnpack; refuses (writing nothing) when a parameter holds a
-/// NaN or an infinity, so no weights file ever holds a diverged model.
+/// A model that cannot be saved: a parameter holds NaN or infinite values.
+#[derive(Debug, thiserror::Error)]
+#[error("{}: not written: parameter `{param}` holds NaN or infinite values", path.display())]
+pub struct NonFiniteParameter {
+    /// The file that was not written.
+    pub path: PathBuf,
+    /// The parameter's path in the model.
+    pub param: String,
+}
+
+/// Whether a checkpoint precedes the current one (it is kept until the current one is
+/// confirmed).
+pub fn has_previous(stage_dir: &Path) -> bool {
+    stage_dir.join(PREVIOUS).join("state.json").is_file()
+        && stage_dir.join(CURRENT).join("state.json").is_file()
+}
+
+/// Saves a module's parameters as burnpack; refuses (writing nothing, with
+/// [`NonFiniteParameter`]) when a parameter holds a NaN or an infinity, so no weights file ever
+/// holds a diverged model.
 pub fn save_module<M: Module>(module: &M, path: &Path) -> anyhow::Result<()> {
     if let Some(param) = neurofluid_core::params::first_non_finite(module) {
-        anyhow::bail!(
-            "{}: not written: parameter `{param}` holds NaN or infinite values",
-            path.display()
-        );
+        return Err(NonFiniteParameter {
+            path: path.to_path_buf(),
+            param,
+        }
+        .into());
     }
     module
         .clone()
@@ -226,6 +245,36 @@ pub fn load_state<S: DeserializeOwned>(dir: &Path) -> anyhow::Result<S> {
         std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
     serde_json::from_str(&text)
         .with_context(|| format!("{}: malformed checkpoint state", path.display()))
+}
+
+/// Reads the checkpoint state in `dir` of `stage`, refusing one made under settings other than
+/// `settings` (every changed key is named, with the way out).
+pub fn load_matching(
+    dir: &Path,
+    stage: &str,
+    settings: &Settings,
+) -> anyhow::Result<CheckpointState> {
+    let state: CheckpointState = load_state(dir)?;
+    match &state.settings {
+        Some(saved) => {
+            let changes = settings.changes_since(saved);
+            if !changes.is_empty() {
+                let list: Vec<String> = changes.iter().map(|c| format!("  {c}")).collect();
+                anyhow::bail!(
+                    "the {stage} checkpoint in {} was made with other settings, and resuming it \
+                     would continue a different experiment:\n{}\nput these settings back, or \
+                     start the run over with --fresh (which deletes the run folder's checkpoints)",
+                    dir.display(),
+                    list.join("\n")
+                );
+            }
+        }
+        None => tracing::warn!(
+            "{}: this checkpoint records no settings; resuming it unchecked",
+            dir.display()
+        ),
+    }
+    Ok(state)
 }
 
 /// The step recorded by a stage's latest checkpoint (0 without one).

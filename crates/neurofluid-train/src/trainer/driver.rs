@@ -95,30 +95,25 @@ impl<'s> Driver<'s> {
         let Some(dir) = checkpoint::latest(&self.stage_dir) else {
             return Ok((0, None));
         };
-        let state: CheckpointState = checkpoint::load_state(&dir)?;
-        match &state.settings {
-            Some(saved) => {
-                let changes = self.settings.changes_since(saved);
-                if !changes.is_empty() {
-                    let list: Vec<String> = changes.iter().map(|c| format!("  {c}")).collect();
-                    anyhow::bail!(
-                        "the {} checkpoint in {} was made with other settings, and resuming it \
-                         would continue a different experiment:\n{}\nput these settings back, \
-                         or start the run over with --fresh (which deletes the run folder's \
-                         checkpoints)",
-                        trainer.stage(),
-                        dir.display(),
-                        list.join("\n")
-                    );
-                }
-            }
-            None => tracing::warn!(
-                "{}: this checkpoint records no settings; resuming it unchecked",
-                dir.display()
-            ),
-        }
+        let state = checkpoint::load_matching(&dir, trainer.stage(), &self.settings)?;
         trainer.load(&dir, state.step, state.trainer)?;
         Ok((state.step, Some(dir)))
+    }
+
+    /// A checkpoint; a model that cannot be saved (non-finite parameters) stops the stage as a
+    /// divergence.
+    fn checkpoint_or_stop<T: Trainer>(
+        &mut self,
+        trainer: &T,
+        done: u64,
+        unconfirmed: bool,
+    ) -> anyhow::Result<()> {
+        match self.checkpoint(trainer, done) {
+            Err(e) if e.downcast_ref::<checkpoint::NonFiniteParameter>().is_some() => {
+                Err(self.diverged(trainer.stage(), done, format!("{e:#}"), unconfirmed))
+            }
+            other => other,
+        }
     }
 
     fn checkpoint<T: Trainer>(&mut self, trainer: &T, done: u64) -> anyhow::Result<()> {
@@ -176,7 +171,10 @@ impl<'s> Driver<'s> {
                 )
             },
         );
-        let message = format!("{stage} stopped at step {step}: {what}; {last}{discarded}");
+        let message = format!(
+            "{stage} stopped at step {step}: {what}; {last}{discarded}. Resuming replays the same \
+             steps: change what diverged (a learning rate, an input) and rerun with --fresh"
+        );
         if let Err(e) = self.emit(Event::Diverged {
             stage,
             step,
@@ -225,18 +223,16 @@ impl<'s> Driver<'s> {
         let c = self.cadence;
         let mut throughput = Throughput::new();
         let mut guard = Guard::new();
-        // a checkpoint is confirmed by the healthy step after it
-        let mut unconfirmed = false;
+        // a checkpoint is confirmed by the first healthy update after it (one left unconfirmed
+        // by an earlier session still has its predecessor beside it)
+        let mut unconfirmed = checkpoint::has_previous(&self.stage_dir);
         for step in start..end {
             let stats = trainer.step(step)?;
             let done = step + 1;
-            if let Some(what) = guard
-                .check(&stats, total)
-                .or_else(|| trainer.check_state().err())
-            {
+            if let Some(what) = guard.check(&stats).or_else(|| trainer.check_state().err()) {
                 return Err(self.diverged(stage, done, what, unconfirmed));
             }
-            if std::mem::take(&mut unconfirmed) {
+            if stats.updated && std::mem::take(&mut unconfirmed) {
                 checkpoint::confirm(&self.stage_dir)?;
             }
             throughput.rays += stats.rays;
@@ -264,15 +260,136 @@ impl<'s> Driver<'s> {
                 })?;
             }
             if c.checkpoint_every > 0 && done % c.checkpoint_every == 0 && done < end {
-                self.checkpoint(trainer, done)?;
+                self.checkpoint_or_stop(trainer, done, unconfirmed)?;
                 unconfirmed = true;
             }
         }
+        if let Some(what) = guard.at_end() {
+            return Err(self.diverged(stage, end, what, unconfirmed));
+        }
         if start < end {
-            self.checkpoint(trainer, end)?;
-            checkpoint::confirm(&self.stage_dir)?;
+            // left unconfirmed: the next session's first update confirms it
+            self.checkpoint_or_stop(trainer, end, unconfirmed)?;
         }
         self.emit(Event::Finished { stage, done: end })?;
         Ok(end.max(start))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::trainer::{Evaluation, StageState};
+
+    /// A trainer whose step `s` reports `losses[s]`.
+    struct Scripted {
+        losses: Vec<f64>,
+    }
+
+    impl Trainer for Scripted {
+        fn stage(&self) -> &'static str {
+            "scripted"
+        }
+        fn total_steps(&self) -> u64 {
+            self.losses.len() as u64
+        }
+        fn step(&mut self, step: u64) -> anyhow::Result<StepStats> {
+            Ok(StepStats {
+                loss: self.losses[step as usize],
+                grad_norms: vec![("model", 1.0)],
+                updated: true,
+                ..StepStats::default()
+            })
+        }
+        fn evaluate(&mut self, _done: u64) -> anyhow::Result<Option<Evaluation>> {
+            Ok(None)
+        }
+        fn save(&self, _dir: &Path) -> anyhow::Result<StageState> {
+            Ok(StageState::new())
+        }
+        fn load(&mut self, _dir: &Path, _done: u64, _state: StageState) -> anyhow::Result<()> {
+            Ok(())
+        }
+    }
+
+    const EVERY_2: Cadence = Cadence {
+        log_every: 1,
+        evaluate_every: 0,
+        checkpoint_every: 2,
+    };
+
+    fn run(dir: &Path, losses: &[f64], stop: Option<u64>) -> anyhow::Result<u64> {
+        let mut t = Scripted {
+            losses: losses.to_vec(),
+        };
+        Driver::new(dir, EVERY_2, Settings::default()).run(&mut t, stop)
+    }
+
+    /// The checkpoint written just before a bad step holds the parameters that made it: it is
+    /// discarded for the one before, which a healthy update had confirmed.
+    #[test]
+    fn a_checkpoint_followed_by_a_bad_step_is_rolled_back() {
+        let tmp = tempfile::tempdir().unwrap();
+        let err = run(tmp.path(), &[1.0, 1.0, 1.0, 1.0, f64::NAN, 1.0], None)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("stopped at step 5"), "{err}");
+        assert!(
+            err.contains("after step 4") && err.contains("discarded"),
+            "{err}"
+        );
+        assert_eq!(checkpoint::saved_step(tmp.path()), 2);
+        assert!(!checkpoint::has_previous(tmp.path()));
+    }
+
+    /// A healthy update confirms the checkpoint before it; a bad step later keeps it.
+    #[test]
+    fn a_confirmed_checkpoint_is_kept() {
+        let tmp = tempfile::tempdir().unwrap();
+        let err = run(tmp.path(), &[1.0, 1.0, 1.0, 1.0, 1.0, f64::NAN], None)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("stopped at step 6") && !err.contains("discarded"),
+            "{err}"
+        );
+        assert_eq!(checkpoint::saved_step(tmp.path()), 4);
+    }
+
+    /// A session's last checkpoint stays unconfirmed across sessions: when the next session's
+    /// first step is bad, the one before comes back.
+    #[test]
+    fn the_last_checkpoint_of_a_session_is_confirmed_by_the_next() {
+        let tmp = tempfile::tempdir().unwrap();
+        let losses = [1.0, 1.0, 1.0, 1.0, f64::NAN, 1.0];
+        assert_eq!(run(tmp.path(), &losses, Some(4)).unwrap(), 4);
+        assert!(checkpoint::has_previous(tmp.path()));
+        let err = run(tmp.path(), &losses, None).unwrap_err().to_string();
+        assert!(err.contains("stopped at step 5"), "{err}");
+        assert_eq!(checkpoint::saved_step(tmp.path()), 2);
+        // and a healthy next session confirms it
+        let tmp = tempfile::tempdir().unwrap();
+        let healthy = [1.0; 6];
+        run(tmp.path(), &healthy, Some(4)).unwrap();
+        run(tmp.path(), &healthy, None).unwrap();
+        assert_eq!(checkpoint::saved_step(tmp.path()), 6);
+    }
+
+    /// Orphans of a killed process go; a crash between the two renames of a checkpoint write
+    /// leaves the previous checkpoint, which is then the latest.
+    #[test]
+    fn interrupted_writes_leave_a_whole_checkpoint() {
+        let tmp = tempfile::tempdir().unwrap();
+        run(tmp.path(), &[1.0; 2], None).unwrap();
+        std::fs::rename(
+            tmp.path().join("checkpoint"),
+            tmp.path().join("checkpoint.old"),
+        )
+        .unwrap();
+        std::fs::create_dir_all(tmp.path().join("checkpoint.4242.tmp")).unwrap();
+        assert_eq!(checkpoint::saved_step(tmp.path()), 2);
+        assert_eq!(run(tmp.path(), &[1.0; 4], None).unwrap(), 4);
+        assert!(!tmp.path().join("checkpoint.4242.tmp").exists());
+        assert_eq!(checkpoint::saved_step(tmp.path()), 4);
     }
 }

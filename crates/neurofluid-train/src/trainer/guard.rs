@@ -2,12 +2,13 @@
 //! parameters and gradients it needs.
 //!
 //! The [`Driver`](super::Driver) asks the [`Guard`] after every step, before anything is logged
-//! or checkpointed, so the last good checkpoint is never replaced by a bad state. A step is bad
-//! when its loss or a gradient norm is not finite, when the loss explodes (grows by
-//! [`EXPLOSION_FACTOR`] over the first loss of the session), when the trainer's own state check
-//! fails (e.g. particles far outside the box), or when a parameter group received no gradient at
-//! all for [`NO_GRADIENT_PATIENCE`] updates in a row (a loss that depends on none of its
-//! parameters: nothing can be learned).
+//! or checkpointed. A step is bad when its loss or a gradient norm is not finite, when the loss
+//! or a group's gradient norm explodes (grows [`EXPLOSION_FACTOR`]-fold over the session's first,
+//! or over [`EXPLOSION_FLOOR`]), when the trainer's own state check fails (e.g. particles far
+//! outside the box), or when a parameter group received no gradient for
+//! [`NO_GRADIENT_PATIENCE`] updates in a row (a loss that depends on none of its parameters:
+//! nothing can be learned). The loss of a step is computed before its update, so a checkpoint is
+//! trusted only once a healthy update followed it; the driver rolls back one that did not.
 
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::GradientsParams;
@@ -15,11 +16,11 @@ use burn::prelude::*;
 
 use super::StepStats;
 
-/// A loss this many times the first loss of the session counts as exploding.
+/// A loss (or gradient norm) this many times the session's first counts as exploding.
 pub const EXPLOSION_FACTOR: f64 = 1e4;
 
-/// Updates in a row without any gradient for a group after which the run stops (fewer when the
-/// stage has fewer updates).
+/// Updates in a row without any gradient for a group after which the run stops (a shorter
+/// session stops at its end when a group received no gradient in any update).
 pub const NO_GRADIENT_PATIENCE: u64 = 10;
 
 /// The global L2 norm of the gradients `grads` holds for `module`'s parameters (0 when it holds
@@ -42,12 +43,42 @@ pub fn grad_norm<M: Module>(grads: &GradientsParams, module: &M) -> f64 {
     v.sum.sqrt()
 }
 
-/// What the guard remembers of the session: the first loss and the updates in a row without a
-/// gradient, per group.
+/// Losses and gradient norms below this count as this for the explosion test (a loss near
+/// zero at the start of a fine-tuning must not make ordinary noise an explosion).
+pub const EXPLOSION_FLOOR: f64 = 1e-3;
+
+/// What the guard remembers of the session: the first loss and gradient norms, and the updates
+/// in a row without a gradient, per group.
 #[derive(Debug, Default)]
 pub struct Guard {
     first_loss: Option<f64>,
+    first_norm: Vec<(&'static str, f64)>,
     without_gradient: Vec<(&'static str, u64)>,
+    updates: u64,
+}
+
+fn entry<'a, T: Copy>(
+    list: &'a mut Vec<(&'static str, T)>,
+    group: &'static str,
+    init: T,
+) -> &'a mut T {
+    match list.iter().position(|(g, _)| *g == group) {
+        Some(i) => &mut list[i].1,
+        None => {
+            list.push((group, init));
+            &mut list.last_mut().expect("just pushed").1
+        }
+    }
+}
+
+fn no_gradient(group: &str, count: u64) -> String {
+    format!(
+        "{group} received no gradient in {count} updates in a row: the loss depends on none of \
+         its parameters. For PhysNeRF this means no ray sample was given any density: no sample \
+         has physnerf.k neighbours within physnerf.search_radius inside [scene.near, scene.far], \
+         or the network starts with σ ≤ 0 everywhere (ReLU density; `physnerf.density = \
+         \"softplus\"` cannot start dead)"
+    )
 }
 
 impl Guard {
@@ -56,9 +87,9 @@ impl Guard {
         Self::default()
     }
 
-    /// Checks one step's statistics; `updates_left_in_stage` bounds the no-gradient patience.
-    /// Returns what went wrong.
-    pub fn check(&mut self, stats: &StepStats, updates_in_stage: u64) -> Option<String> {
+    /// Checks one step's statistics; returns what went wrong. Explosions and missing gradients
+    /// are judged on updates (a step inside a multi-step window only adds to the window's loss).
+    pub fn check(&mut self, stats: &StepStats) -> Option<String> {
         if !stats.loss.is_finite() {
             return Some(format!("the loss is {}", stats.loss));
         }
@@ -67,37 +98,42 @@ impl Guard {
                 return Some(format!("the gradient norm of {group} is {norm}"));
             }
         }
-        if stats.updated {
-            let first = *self.first_loss.get_or_insert(stats.loss);
-            if first > 0.0 && stats.loss > EXPLOSION_FACTOR * first {
-                return Some(format!(
-                    "the loss exploded to {:.4e} (the session's first loss was {first:.4e})",
-                    stats.loss
-                ));
-            }
-            let patience = NO_GRADIENT_PATIENCE.min(updates_in_stage.max(1));
-            for (group, norm) in &stats.grad_norms {
-                let count = match self.without_gradient.iter_mut().find(|(g, _)| g == group) {
-                    Some((_, c)) => c,
-                    None => {
-                        self.without_gradient.push((group, 0));
-                        &mut self.without_gradient.last_mut().expect("just pushed").1
-                    }
-                };
-                *count = if *norm == 0.0 { *count + 1 } else { 0 };
-                if *count >= patience {
+        if !stats.updated {
+            return None;
+        }
+        self.updates += 1;
+        let first = *self.first_loss.get_or_insert(stats.loss);
+        if stats.loss > EXPLOSION_FACTOR * first.max(EXPLOSION_FLOOR) {
+            return Some(format!(
+                "the loss exploded to {:.4e} (the session's first loss was {first:.4e})",
+                stats.loss
+            ));
+        }
+        for &(group, norm) in &stats.grad_norms {
+            if norm > 0.0 {
+                let first = *entry(&mut self.first_norm, group, norm);
+                if norm > EXPLOSION_FACTOR * first.max(EXPLOSION_FLOOR) {
                     return Some(format!(
-                        "{group} received no gradient in {count} updates in a row: the loss \
-                         depends on none of its parameters. For PhysNeRF this means no ray sample \
-                         was given any density: no sample has physnerf.k neighbours within \
-                         physnerf.search_radius inside [scene.near, scene.far], or the network \
-                         starts with σ ≤ 0 everywhere (ReLU density; `physnerf.density = \
-                         \"softplus\"` cannot start dead)"
+                        "the gradient norm of {group} exploded to {norm:.4e} (its first in the \
+                         session was {first:.4e})"
                     ));
                 }
             }
+            let count = entry(&mut self.without_gradient, group, 0);
+            *count = if norm == 0.0 { *count + 1 } else { 0 };
+            if *count >= NO_GRADIENT_PATIENCE {
+                return Some(no_gradient(group, *count));
+            }
         }
         None
+    }
+
+    /// At the end of a session: a group that received no gradient in any of its updates.
+    pub fn at_end(&self) -> Option<String> {
+        self.without_gradient
+            .iter()
+            .find(|(_, count)| self.updates > 0 && *count == self.updates)
+            .map(|(group, count)| no_gradient(group, *count))
     }
 }
 
@@ -123,38 +159,55 @@ mod tests {
     #[test]
     fn non_finite_loss_and_gradients_are_caught() {
         let mut g = Guard::new();
-        assert!(g.check(&stats(f64::NAN, &[]), 100).unwrap().contains("NaN"));
-        let msg = g
-            .check(&stats(1.0, &[("dlf", f64::INFINITY)]), 100)
-            .unwrap();
+        assert!(g.check(&stats(f64::NAN, &[])).unwrap().contains("NaN"));
+        let msg = g.check(&stats(1.0, &[("dlf", f64::INFINITY)])).unwrap();
         assert!(msg.contains("dlf") && msg.contains("inf"), "{msg}");
     }
 
     #[test]
-    fn an_exploding_loss_is_caught_relative_to_the_first() {
+    fn an_exploding_loss_or_gradient_is_caught_relative_to_the_first() {
         let mut g = Guard::new();
-        assert!(g.check(&stats(2.0, &[]), 100).is_none());
-        assert!(g.check(&stats(2.0e4 - 1.0, &[]), 100).is_none());
-        assert!(g.check(&stats(2.0e4 + 1.0, &[]), 100).is_some());
+        assert!(g.check(&stats(2.0, &[("dlf", 0.5)])).is_none());
+        assert!(g.check(&stats(2.0e4 - 1.0, &[("dlf", 0.5)])).is_none());
+        assert!(g.check(&stats(2.0e4 + 1.0, &[("dlf", 0.5)])).is_some());
+        let mut g = Guard::new();
+        assert!(g.check(&stats(1.0, &[("dlf", 0.5)])).is_none());
+        let msg = g.check(&stats(1.0, &[("dlf", 5.1e3)])).unwrap();
+        assert!(msg.contains("gradient norm of dlf exploded"), "{msg}");
+        // a first loss near zero is measured against the floor
+        let mut g = Guard::new();
+        assert!(g.check(&stats(1e-9, &[])).is_none());
+        assert!(g.check(&stats(1e-2, &[])).is_none());
+        assert!(g.check(&stats(11.0, &[])).is_some());
+        // a step inside a window is only checked for finiteness
+        let mut window = stats(1e30, &[]);
+        window.updated = false;
+        assert!(Guard::new().check(&window).is_none());
     }
 
     #[test]
     fn a_group_without_gradient_stops_after_the_patience() {
         let mut g = Guard::new();
         for _ in 0..NO_GRADIENT_PATIENCE - 1 {
-            assert!(g.check(&stats(1.0, &[("physnerf", 0.0)]), 100).is_none());
+            assert!(g.check(&stats(1.0, &[("physnerf", 0.0)])).is_none());
         }
         // a gradient resets the count
-        assert!(g.check(&stats(1.0, &[("physnerf", 0.5)]), 100).is_none());
+        assert!(g.check(&stats(1.0, &[("physnerf", 0.5)])).is_none());
         for _ in 0..NO_GRADIENT_PATIENCE - 1 {
-            assert!(g.check(&stats(1.0, &[("physnerf", 0.0)]), 100).is_none());
+            assert!(g.check(&stats(1.0, &[("physnerf", 0.0)])).is_none());
         }
-        let msg = g.check(&stats(1.0, &[("physnerf", 0.0)]), 100).unwrap();
+        assert!(g.at_end().is_none());
+        let msg = g.check(&stats(1.0, &[("physnerf", 0.0)])).unwrap();
         assert!(msg.contains("physnerf received no gradient"), "{msg}");
-        // a short stage stops after all its updates
+        // a session shorter than the patience is judged at its end
         let mut g = Guard::new();
-        assert!(g.check(&stats(1.0, &[("dlf", 0.0)]), 2).is_none());
-        assert!(g.check(&stats(1.0, &[("dlf", 0.0)]), 2).is_some());
+        assert!(g.check(&stats(1.0, &[("dlf", 0.0)])).is_none());
+        assert!(g.check(&stats(1.0, &[("dlf", 0.0)])).is_none());
+        assert!(
+            g.at_end()
+                .unwrap()
+                .contains("dlf received no gradient in 2")
+        );
     }
 
     #[test]
