@@ -119,7 +119,12 @@ fn seeds() -> &'static Seeds {
             .write(&p("scene.json"))
             .unwrap();
         let transforms = TransformsFile {
-            camera_angle_x: 0.69,
+            camera_angle_x: Some(0.69),
+            intrinsics: neurofluid_core::scene::Intrinsics {
+                fl_x: Some(30.0),
+                cx: Some(16.5),
+                ..Default::default()
+            },
             bounding_box: Some("box.pt".into()),
             frames: vec![FrameEntry {
                 file_path: "train/0000".into(),
@@ -130,6 +135,10 @@ fn seeds() -> &'static Seeds {
                     [0.0, 0.0, 0.0, 1.0],
                 ],
                 particle_path: Some("particles/0000.npz".into()),
+                intrinsics: neurofluid_core::scene::Intrinsics {
+                    fl_y: Some(31.0),
+                    ..Default::default()
+                },
             }],
         };
         transforms.write(&p("transforms_train.json")).unwrap();

@@ -72,10 +72,12 @@ fn write_released(root: &Path) {
                 file_path: format!("./{split}/{t:04}"),
                 transform_matrix: c2w(k),
                 particle_path: Some(format!("particles/{t:04}.npz")),
+                intrinsics: Default::default(),
             });
         }
         TransformsFile {
-            camera_angle_x: 0.3235,
+            camera_angle_x: Some(0.3235),
+            intrinsics: Default::default(),
             bounding_box: Some("box.pt".into()),
             frames,
         }
@@ -116,7 +118,8 @@ fn released_layout_loads_with_defaults() {
     // camera: focal from camera_angle_x, transform as written
     let cam = scene.camera(Role::Test, "view_5", 3).unwrap();
     assert_eq!(cam.c2w, c2w(5));
-    assert!((cam.focal - 1.0 / (0.5f32 * 0.3235).tan()).abs() < 1e-5);
+    assert!((cam.fx - 1.0 / (0.5f32 * 0.3235).tan()).abs() < 1e-5);
+    assert_eq!((cam.fx, cam.cx, cam.cy), (cam.fy, 1.0, 1.0));
     // images composited on white: c·a + (1 − a)
     let img = scene.image(Role::Warmup, "view_2", 0).unwrap();
     assert_eq!((img.width, img.height), (2, 2));

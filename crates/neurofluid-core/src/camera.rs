@@ -1,10 +1,12 @@
 //! Pinhole cameras and rays in the NeRF-synthetic / Blender convention.
 //!
 //! The camera-to-world matrix maps camera space (looking down −z, +y up, +x right) to the world.
-//! The focal length comes from `camera_angle_x`: f = 0.5·W / tan(0.5·camera_angle_x). Pixel
-//! (row j, column i) shoots along ((i − W/2)/f, −(j − H/2)/f, −1) with **no** half-pixel offset,
-//! rotated by the upper 3×3 block of c2w and normalised to unit length, so a c2w that carries a
-//! uniform scale (as NeuroFluid's released cameras do) still gives unit directions.
+//! Pixel (row j, column i) shoots along ((i − c_x)/f_x, −(j − c_y)/f_y, −1), rotated by the upper
+//! 3×3 block of c2w and normalised to unit length, so a c2w that carries a uniform scale (as
+//! NeuroFluid's released cameras do) still gives unit directions. From `camera_angle_x`,
+//! f_x = f_y = 0.5·W / tan(0.5·camera_angle_x) and (c_x, c_y) = (W/2, H/2): the ray of pixel i
+//! goes through i with **no** half-pixel offset, as in NeRF. (nerfstudio's `cx`, which puts
+//! pixel i's ray through i + 0.5, is `c_x + 0.5` here.)
 
 /// A pinhole camera.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -13,8 +15,14 @@ pub struct Camera {
     pub width: u32,
     /// Image height in pixels.
     pub height: u32,
-    /// Focal length in pixels.
-    pub focal: f32,
+    /// Focal length along x, in pixels.
+    pub fx: f32,
+    /// Focal length along y, in pixels.
+    pub fy: f32,
+    /// Column of the optical axis (W/2 for a centred camera).
+    pub cx: f32,
+    /// Row of the optical axis (H/2 for a centred camera).
+    pub cy: f32,
     /// Camera-to-world transform, row-major (`c2w[row][col]`), translation in the last column.
     pub c2w: [[f32; 4]; 4],
 }
@@ -46,13 +54,43 @@ pub fn focal_from_angle_x(width: u32, camera_angle_x: f32) -> f32 {
 }
 
 impl Camera {
-    /// A camera whose focal length is derived from `camera_angle_x` (radians).
+    /// A centred camera whose focal length is derived from `camera_angle_x` (radians).
     pub fn from_angle_x(width: u32, height: u32, camera_angle_x: f32, c2w: [[f32; 4]; 4]) -> Self {
+        Self::centred(
+            width,
+            height,
+            focal_from_angle_x(width, camera_angle_x),
+            c2w,
+        )
+    }
+
+    /// A camera with one focal length `focal` and the optical axis at the image centre.
+    pub fn centred(width: u32, height: u32, focal: f32, c2w: [[f32; 4]; 4]) -> Self {
         Self {
             width,
             height,
-            focal: focal_from_angle_x(width, camera_angle_x),
+            fx: focal,
+            fy: focal,
+            cx: width as f32 / 2.0,
+            cy: height as f32 / 2.0,
             c2w,
+        }
+    }
+
+    /// The same view at `width × height` pixels (the intrinsics scaled with the image).
+    pub fn resized(&self, width: u32, height: u32) -> Self {
+        let (kx, ky) = (
+            width as f32 / self.width as f32,
+            height as f32 / self.height as f32,
+        );
+        Self {
+            width,
+            height,
+            fx: self.fx * kx,
+            fy: self.fy * ky,
+            cx: self.cx * kx,
+            cy: self.cy * ky,
+            c2w: self.c2w,
         }
     }
 
@@ -68,11 +106,9 @@ impl Camera {
 
     /// Unit world direction of the ray through pixel (row, col).
     pub fn ray_dir(&self, row: u32, col: u32) -> [f32; 3] {
-        let half_w = self.width as f32 / 2.0;
-        let half_h = self.height as f32 / 2.0;
         let d_cam = [
-            (col as f32 - half_w) / self.focal,
-            -(row as f32 - half_h) / self.focal,
+            (col as f32 - self.cx) / self.fx,
+            -(row as f32 - self.cy) / self.fy,
             -1.0f32,
         ];
         let r = &self.c2w;
@@ -97,8 +133,8 @@ impl Camera {
         if depth.is_nan() || depth <= 0.0 {
             return None;
         }
-        let col = self.focal * c[0] / depth + self.width as f32 / 2.0;
-        let row = -self.focal * c[1] / depth + self.height as f32 / 2.0;
+        let col = self.fx * c[0] / depth + self.cx;
+        let row = -self.fy * c[1] / depth + self.cy;
         Some((col, row, depth))
     }
 
@@ -178,10 +214,14 @@ mod tests {
     #[test]
     fn projection_inverts_the_rays() {
         let s = 0.4155f32;
+        // off-centre, with different focal lengths along x and y
         let cam = Camera {
             width: 40,
             height: 30,
-            focal: 35.0,
+            fx: 35.0,
+            fy: 30.0,
+            cx: 18.5,
+            cy: 16.0,
             c2w: [
                 [0.0, -s, 0.0, 1.0],
                 [s, 0.0, 0.0, -2.0],
@@ -211,12 +251,7 @@ mod tests {
             [0.0, 0.0, 1.0, 0.0],
             [0.0, 0.0, 0.0, 1.0],
         ];
-        let cam = Camera {
-            width: 4,
-            height: 2,
-            focal: 2.0,
-            c2w: id,
-        };
+        let cam = Camera::centred(4, 2, 2.0, id);
         // pixel (row 1, col 2) is the image centre W/2, H/2: straight down −z, no half-pixel offset
         assert!(close(cam.ray_dir(1, 2), [0.0, 0.0, -1.0], 1e-7));
         // pixel (row 0, col 0): ((0 − 2)/2, −(0 − 1)/2, −1) = (−1, 0.5, −1) / 1.5
@@ -240,12 +275,7 @@ mod tests {
             [0.0, 0.0, s, 3.0],
             [0.0, 0.0, 0.0, 1.0],
         ];
-        let cam = Camera {
-            width: 10,
-            height: 10,
-            focal: 5.0,
-            c2w,
-        };
+        let cam = Camera::centred(10, 10, 5.0, c2w);
         assert_eq!(cam.origin(), [1.0, 2.0, 3.0]);
         // pixel (0, 0): d_cam = (−1, 1, −1); R·d = s·(−1, −1, −1) → unit (−1,−1,−1)/√3
         let inv = 1.0 / 3f32.sqrt();
@@ -255,6 +285,24 @@ mod tests {
             let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
             assert!((n - 1.0).abs() < 1e-6);
         }
+    }
+
+    /// A resized camera sees the same view: the ray through the same fraction of the image
+    /// is the same.
+    #[test]
+    fn a_resized_camera_keeps_its_view() {
+        let cam = Camera {
+            width: 40,
+            height: 30,
+            fx: 35.0,
+            fy: 30.0,
+            cx: 18.0,
+            cy: 16.0,
+            c2w: Camera::look_at(4, 4, 0.6, [3.0, 1.0, 2.0], [0.0; 3], [0.0, 1.0, 0.0]).c2w,
+        };
+        let half = cam.resized(20, 15);
+        assert!(close(cam.ray_dir(16, 18), half.ray_dir(8, 9), 1e-6));
+        assert!(close(cam.ray_dir(0, 0), half.ray_dir(0, 0), 1e-6));
     }
 
     #[test]

@@ -453,11 +453,11 @@ impl CaseInputs {
     pub fn camera(&self, hw: Option<[u32; 2]>) -> neurofluid_core::camera::Camera {
         let [h, w] = hw.unwrap_or([self.hw[0] as u32, self.hw[1] as u32]);
         let focal = self.focal * w as f64 / self.hw[1] as f64;
-        neurofluid_core::camera::Camera {
-            width: w,
-            height: h,
-            focal: focal as f32,
-            c2w: self.c2w.map(|row| row.map(|v| v as f32)),
-        }
+        neurofluid_core::camera::Camera::centred(
+            w,
+            h,
+            focal as f32,
+            self.c2w.map(|row| row.map(|v| v as f32)),
+        )
     }
 }

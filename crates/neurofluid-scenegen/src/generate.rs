@@ -6,9 +6,9 @@ use std::time::Instant;
 
 use glam::DVec3;
 use indicatif::{ProgressBar, ProgressStyle};
-use neurofluid_core::camera::Camera;
+use neurofluid_core::camera::{Camera, focal_from_angle_x};
 use neurofluid_core::scene::{
-    Aabb, BoxParticles, FrameEntry, FrameRange, MANIFEST_FILE, Particles, SceneError,
+    Aabb, BoxParticles, FrameEntry, FrameRange, Intrinsics, MANIFEST_FILE, Particles, SceneError,
     SceneManifest, TransformsFile, UpAxis, ViewSet, transforms_path, write_png_rgba,
 };
 use rand::{Rng, SeedableRng};
@@ -277,6 +277,7 @@ pub fn generate(p: &Preset, out: &Path, progress: bool) -> Result<Report, SceneE
                 file_path: format!("{split}/{name}"),
                 transform_matrix: v.camera.c2w,
                 particle_path: Some(format!("particles/{name}.npz")),
+                intrinsics: Intrinsics::default(),
             };
             if *is_warm {
                 warm_frames[*i].push(entry);
@@ -293,8 +294,21 @@ pub fn generate(p: &Preset, out: &Path, progress: bool) -> Result<Report, SceneE
     let tw = Instant::now();
     for (specs, frames, split) in [(&warm, warm_frames, "train"), (&test, test_frames, "test")] {
         for (v, frames) in specs.iter().zip(frames) {
+            // NeRF's and nerfstudio's intrinsics of the same camera (nerfstudio's principal
+            // point sits on pixel centres)
+            let size = p.image_size;
+            let focal = focal_from_angle_x(size, p.camera_angle_x);
             TransformsFile {
-                camera_angle_x: p.camera_angle_x,
+                camera_angle_x: Some(p.camera_angle_x),
+                intrinsics: Intrinsics {
+                    fl_x: Some(focal),
+                    fl_y: Some(focal),
+                    cx: Some(size as f32 / 2.0 + 0.5),
+                    cy: Some(size as f32 / 2.0 + 0.5),
+                    w: Some(size),
+                    h: Some(size),
+                    ..Intrinsics::default()
+                },
                 bounding_box: Some("box.pt".into()),
                 frames,
             }

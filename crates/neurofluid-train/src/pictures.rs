@@ -155,7 +155,7 @@ pub fn particle_view(
         (r[0][0] * r[0][0] + r[1][0] * r[1][0] + r[2][0] * r[2][0]).sqrt()
     };
     for (i, col, row, depth) in projected {
-        let px = (camera.focal * radius * scale / depth).max(0.75);
+        let px = (camera.fx * radius * scale / depth).max(0.75);
         let c = colour(i);
         let (x0, x1) = ((col - px).floor() as i64, (col + px).ceil() as i64);
         let (y0, y1) = ((row - px).floor() as i64, (row + px).ceil() as i64);

@@ -4,7 +4,7 @@
 //! <scene>/scene.json                        manifest (optional; released-layout defaults)
 //! <scene>/box.npz                           {box, box_normals} (N_b×3, inward unit normals)
 //! <scene>/box.pt                            the same as a plain pickle (the released name; written, not read)
-//! <scene>/view_k/transforms_<split>.json    camera_angle_x, frames[] {file_path, transform_matrix, particle_path}
+//! <scene>/view_k/transforms_<split>.json    camera_angle_x and/or fl_x, fl_y, cx, cy, w, h; frames[] {file_path, transform_matrix, particle_path, intrinsics?}
 //! <scene>/view_k/<split>/NNNN.png           RGBA frames
 //! <scene>/view_k/<split>/particles/NNNN.npz {pos, vel} (N×3, float32 or float64)
 //! ```
@@ -30,9 +30,9 @@ pub use image::{Image, png_size, write_png_rgba};
 pub use manifest::{Aabb, FrameRange, MANIFEST_FILE, Role, SceneManifest, UpAxis, ViewSet};
 pub use particles::{BoxParticles, Particles};
 pub use pickle::box_pickle;
-pub use transforms::{FrameEntry, TransformsFile, image_path, particle_path};
+pub use transforms::{FrameEntry, Intrinsics, TransformsFile, image_path, particle_path};
 
-use crate::camera::Camera;
+use crate::camera::{Camera, focal_from_angle_x};
 
 /// Path of `view/transforms_<split>.json` under a scene root.
 pub fn transforms_path(root: &Path, view: &str, split: &str) -> PathBuf {
@@ -71,16 +71,42 @@ impl ViewSplit {
         })
     }
 
-    /// Camera of frame `t`.
+    /// Camera of frame `t`: the frame's intrinsics, else the file's (nerfstudio's `fl_x` …
+    /// before `camera_angle_x`), at the size of the view's images.
     pub fn camera(&self, t: usize) -> Result<Camera> {
         let e = self.entry(t)?;
         let (w, h) = self.image_size;
-        Ok(Camera::from_angle_x(
-            w,
-            h,
-            self.transforms.camera_angle_x,
-            e.transform_matrix,
-        ))
+        let k = e.intrinsics.or(self.transforms.intrinsics);
+        for (key, size, image) in [("w", k.w, w), ("h", k.h, h)] {
+            if let Some(size) = size.filter(|&s| s != image) {
+                return Err(SceneError::field(
+                    &self.json_path,
+                    key,
+                    format!("the size of the view's images ({image} pixels), found {size}"),
+                ));
+            }
+        }
+        let fx = match (k.fl_x, self.transforms.camera_angle_x) {
+            (Some(f), _) => f,
+            (None, Some(a)) => focal_from_angle_x(w, a),
+            (None, None) => {
+                return Err(SceneError::field(
+                    &self.json_path,
+                    format!("frames[{t}]"),
+                    "intrinsics: `camera_angle_x` or `fl_x`",
+                ));
+            }
+        };
+        Ok(Camera {
+            width: w,
+            height: h,
+            fx,
+            fy: k.fl_y.unwrap_or(fx),
+            // nerfstudio's principal point is at pixel centres (+0.5), ours at pixel corners
+            cx: k.cx.map_or(w as f32 / 2.0, |c| c - 0.5),
+            cy: k.cy.map_or(h as f32 / 2.0, |c| c - 0.5),
+            c2w: e.transform_matrix,
+        })
     }
 
     /// An image of this view must have the size of its first one (the camera's).

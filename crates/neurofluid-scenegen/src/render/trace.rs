@@ -149,11 +149,7 @@ fn shade(field: &DensityField, p: Vec3, d: Vec3, look: Appearance, step: f32, fa
 
 /// World direction through fractional pixel coordinates (row `y`, column `x`).
 fn dir_at(cam: &Camera, y: f32, x: f32) -> Vec3 {
-    let dc = Vec3::new(
-        (x - cam.width as f32 / 2.0) / cam.focal,
-        -(y - cam.height as f32 / 2.0) / cam.focal,
-        -1.0,
-    );
+    let dc = Vec3::new((x - cam.cx) / cam.fx, -(y - cam.cy) / cam.fy, -1.0);
     let r = &cam.c2w;
     Vec3::new(
         r[0][0] * dc.x + r[0][1] * dc.y + r[0][2] * dc.z,

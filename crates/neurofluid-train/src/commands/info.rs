@@ -49,9 +49,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .iter()
             .filter_map(|v| scene.view_split(role, v).ok())
             .map(|vs| {
+                let fx = vs.camera(r.start).map_or(f32::NAN, |c| c.fx);
                 format!(
-                    "{} {}×{} fov {:.4}",
-                    vs.view, vs.image_size.0, vs.image_size.1, vs.transforms.camera_angle_x
+                    "{} {}×{} f_x {fx:.1} px",
+                    vs.view, vs.image_size.0, vs.image_size.1
                 )
             })
             .collect();

@@ -57,12 +57,7 @@ fn scaled_view(view: &ViewFrame, scale: f64) -> (Camera, Vec<f32>) {
     }
     let w = ((cam.width as f64 * scale).round() as u32).max(1);
     let h = ((cam.height as f64 * scale).round() as u32).max(1);
-    let scaled = Camera {
-        width: w,
-        height: h,
-        focal: cam.focal * w as f32 / cam.width as f32,
-        c2w: cam.c2w,
-    };
+    let scaled = cam.resized(w, h);
     let full = image::Rgb32FImage::from_raw(cam.width, cam.height, view.image.rgb.clone())
         .expect("image size matches its camera");
     let small = image::imageops::resize(&full, w, h, image::imageops::FilterType::Triangle);
@@ -132,12 +127,10 @@ const PARTICLE_PICTURE_WIDTH: u32 = 240;
 /// `camera` enlarged (same view) to at least `width` pixels wide.
 fn at_least_wide(camera: &Camera, width: u32) -> Camera {
     let k = (width as f32 / camera.width as f32).max(1.0);
-    Camera {
-        width: (camera.width as f32 * k).round() as u32,
-        height: (camera.height as f32 * k).round() as u32,
-        focal: camera.focal * k,
-        c2w: camera.c2w,
-    }
+    camera.resized(
+        (camera.width as f32 * k).round() as u32,
+        (camera.height as f32 * k).round() as u32,
+    )
 }
 
 /// Folder of the animations and particle pictures inside `eval/`.

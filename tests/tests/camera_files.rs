@@ -1,0 +1,94 @@
+//! Camera files in both conventions: a generated scene's transforms carry NeRF's
+//! `camera_angle_x` and nerfstudio's `fl_x`, `fl_y`, `cx`, `cy`, `w`, `h` for the same camera; either
+//! alone gives the same rays; per-frame intrinsics override the file's; distortion and a size
+//! that is not the images' are refused with the key named.
+
+use neurofluid_core::scene::{Role, Scene, TransformsFile, transforms_path};
+use neurofluid_tests::{seeded_turn, tiny_experiment};
+use neurofluid_train::stages::preflight::Stage;
+use neurofluid_train::stages::{Run, Start};
+
+#[test]
+fn nerf_and_nerfstudio_intrinsics_describe_the_same_camera() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let run = Run::prepare(
+        tiny_experiment(tmp.path(), "cams"),
+        Start::Resume,
+        &[Stage::Warmup],
+    )
+    .unwrap();
+    let root = run.scene.root().to_path_buf();
+    let before = run.scene.camera(Role::Test, "view_5", 1).unwrap();
+    drop(run);
+    let path = transforms_path(&root, "view_5", "test");
+    let original = TransformsFile::read(&path).unwrap();
+    assert!(original.camera_angle_x.is_some() && original.intrinsics.fl_x.is_some());
+
+    // nerfstudio's intrinsics alone
+    let mut t = original.clone();
+    t.camera_angle_x = None;
+    t.write(&path).unwrap();
+    let cam = Scene::open(&root)
+        .unwrap()
+        .camera(Role::Test, "view_5", 1)
+        .unwrap();
+    assert!(
+        (cam.fx - before.fx).abs() < 1e-3 * before.fx,
+        "{cam:?} vs {before:?}"
+    );
+    assert_eq!((cam.cx, cam.cy), (before.cx, before.cy));
+    for p in [0u32, 17, 1023] {
+        let (a, b) = (cam.rays(&[p]).dirs[0], before.rays(&[p]).dirs[0]);
+        assert!(a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-5));
+    }
+
+    // NeRF's alone
+    let mut t = original.clone();
+    t.intrinsics = Default::default();
+    t.write(&path).unwrap();
+    assert_eq!(
+        Scene::open(&root)
+            .unwrap()
+            .camera(Role::Test, "view_5", 1)
+            .unwrap(),
+        before
+    );
+
+    // a frame's own intrinsics win over the file's
+    let mut t = original.clone();
+    t.frames[1].intrinsics.fl_y = Some(2.0 * before.fx);
+    t.write(&path).unwrap();
+    let scene = Scene::open(&root).unwrap();
+    assert!((scene.camera(Role::Test, "view_5", 1).unwrap().fy - 2.0 * before.fx).abs() < 1e-3);
+    assert_eq!(scene.camera(Role::Test, "view_5", 2).unwrap().fy, before.fy);
+
+    // lens distortion and a size other than the images' are refused, naming the key
+    let mut t = original.clone();
+    t.intrinsics.k1 = Some(0.1);
+    t.write(&path).unwrap();
+    let err = Scene::open(&root).unwrap_err().to_string();
+    assert!(
+        err.contains("k1") && err.contains("transforms_test.json"),
+        "{err}"
+    );
+    let mut t = original.clone();
+    t.intrinsics.w = Some(99);
+    t.write(&path).unwrap();
+    let err = Scene::open(&root)
+        .unwrap()
+        .camera(Role::Test, "view_5", 1)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("`w`") && err.contains("99"), "{err}");
+    // neither convention: refused
+    let mut t = original;
+    t.camera_angle_x = None;
+    t.intrinsics = Default::default();
+    t.write(&path).unwrap();
+    let err = Scene::open(&root).unwrap_err().to_string();
+    assert!(
+        err.contains("camera_angle_x") && err.contains("fl_x"),
+        "{err}"
+    );
+}
