@@ -88,6 +88,9 @@ pub struct ImageScore {
     pub psnr: f64,
     /// SSIM (valid Gaussian window, spec §6.3).
     pub ssim: f64,
+    /// LPIPS (AlexNet, v0.1; absent for images under 31 pixels a side and in older reports).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lpips: Option<f64>,
 }
 
 /// Means over a window, `None` where the window holds no value.
@@ -101,6 +104,9 @@ pub struct WindowMeans {
     pub psnr: Option<f64>,
     /// Mean SSIM over views and frames.
     pub ssim: Option<f64>,
+    /// Mean LPIPS over views and frames.
+    #[serde(default)]
+    pub lpips: Option<f64>,
 }
 
 /// Per-view image means over all evaluated frames.
@@ -112,6 +118,9 @@ pub struct ViewMeans {
     pub psnr: f64,
     /// Mean SSIM.
     pub ssim: f64,
+    /// Mean LPIPS.
+    #[serde(default)]
+    pub lpips: Option<f64>,
     /// Number of images.
     pub images: usize,
 }
@@ -181,6 +190,7 @@ impl EvalReport {
             dlf_d: mean(frames().filter_map(|f| f.dlf)),
             psnr: mean(images().map(|i| i.psnr)),
             ssim: mean(images().map(|i| i.ssim)),
+            lpips: mean(images().filter_map(|i| i.lpips)),
         }
     }
 
@@ -199,6 +209,7 @@ impl EvalReport {
                 ViewMeans {
                     psnr: mean(of().map(|i| i.psnr)).unwrap_or(f64::NAN),
                     ssim: mean(of().map(|i| i.ssim)).unwrap_or(f64::NAN),
+                    lpips: mean(of().filter_map(|i| i.lpips)),
                     images: of().count(),
                     view: v,
                 }
@@ -224,48 +235,54 @@ impl EvalReport {
         );
         let _ = writeln!(
             md,
-            "| model | grounding d (t = {}–{}) | prediction d (t = {}–{}) | PSNR | SSIM |",
+            "| model | grounding d (t = {}–{}) | prediction d (t = {}–{}) | PSNR | SSIM | LPIPS |",
             g.0, g.1, p.0, p.1
         );
-        let _ = writeln!(md, "|---|---:|---:|---:|---:|");
+        let _ = writeln!(md, "|---|---:|---:|---:|---:|---:|");
         if s.all.dlf_d.is_some() {
             let _ = writeln!(
                 md,
-                "| DLF (pretrained baseline) | {} | {} | – | – |",
+                "| DLF (pretrained baseline) | {} | {} | – | – | – |",
                 fmt_opt(s.grounding.dlf_d, 2),
                 fmt_opt(s.prediction.dlf_d, 2)
             );
         }
         let _ = writeln!(
             md,
-            "| NeuroFluid | {} | {} | {} | {} |",
+            "| NeuroFluid | {} | {} | {} | {} | {} |",
             fmt_opt(s.grounding.neurofluid_d, 2),
             fmt_opt(s.prediction.neurofluid_d, 2),
             fmt_opt(s.all.psnr, 2),
-            fmt_opt(s.all.ssim, 4)
+            fmt_opt(s.all.ssim, 4),
+            fmt_opt(s.all.lpips, 4)
         );
         let _ = writeln!(
             md,
             "\nd = mean distance from each ground-truth particle to the nearest predicted one, × 1000 \
-             (25 = one particle radius); PSNR/SSIM over the test views' renders."
+             (25 = one particle radius); PSNR/SSIM/LPIPS (AlexNet, v0.1) over the test views' \
+             renders."
         );
         if !s.views.is_empty() {
             let _ = writeln!(
                 md,
-                "\n| view | images | PSNR | SSIM |\n|---|---:|---:|---:|"
+                "\n| view | images | PSNR | SSIM | LPIPS |\n|---|---:|---:|---:|---:|"
             );
             for v in &s.views {
                 let _ = writeln!(
                     md,
-                    "| {} | {} | {:.2} | {:.4} |",
-                    v.view, v.images, v.psnr, v.ssim
+                    "| {} | {} | {:.2} | {:.4} | {} |",
+                    v.view,
+                    v.images,
+                    v.psnr,
+                    v.ssim,
+                    fmt_opt(v.lpips, 4)
                 );
             }
         }
         md
     }
 
-    /// The per-frame CSV: `t,neurofluid_d,dlf_d,<view>_psnr,<view>_ssim,…`.
+    /// The per-frame CSV: `t,neurofluid_d,dlf_d,<view>_psnr,<view>_ssim,<view>_lpips,…`.
     pub fn frames_csv(&self) -> String {
         let views: Vec<String> = self.summary().views.into_iter().map(|v| v.view).collect();
         let mut ts: Vec<usize> = self
@@ -278,7 +295,7 @@ impl EvalReport {
         ts.dedup();
         let mut csv = String::from("t,neurofluid_d,dlf_d");
         for v in &views {
-            let _ = write!(csv, ",{v}_psnr,{v}_ssim");
+            let _ = write!(csv, ",{v}_psnr,{v}_ssim,{v}_lpips");
         }
         csv.push('\n');
         for t in ts {
@@ -293,9 +310,10 @@ impl EvalReport {
                 let i = self.images.iter().find(|i| i.t == t && &i.view == v);
                 let _ = write!(
                     csv,
-                    ",{},{}",
+                    ",{},{},{}",
                     csv_opt(i.map(|i| i.psnr)),
-                    csv_opt(i.map(|i| i.ssim))
+                    csv_opt(i.map(|i| i.ssim)),
+                    csv_opt(i.and_then(|i| i.lpips))
                 );
             }
             csv.push('\n');
@@ -376,6 +394,7 @@ mod tests {
                     t,
                     psnr: 20.0 + bonus + t as f64 * 0.1,
                     ssim: 0.9,
+                    lpips: (view == "view_5").then_some(0.1),
                 });
             }
         }
@@ -396,6 +415,10 @@ mod tests {
         assert_eq!(s.views.len(), 2);
         assert_eq!(s.views[0].view, "view_5");
         assert_eq!(s.views[1].images, 59);
+        // LPIPS where it was computed
+        assert!((s.all.lpips.unwrap() - 0.1).abs() < 1e-12);
+        assert!((s.views[0].lpips.unwrap() - 0.1).abs() < 1e-12);
+        assert_eq!(s.views[1].lpips, None);
         assert!((s.views[1].psnr - s.views[0].psnr - 1.0).abs() < 1e-9);
         assert_eq!(Windows::from_lengths(50, 60), Windows::paper());
         assert_eq!(
@@ -431,7 +454,8 @@ mod tests {
         let lines: Vec<&str> = csv.lines().collect();
         assert_eq!(
             lines[0],
-            "t,neurofluid_d,dlf_d,view_5_psnr,view_5_ssim,view_6_psnr,view_6_ssim"
+            "t,neurofluid_d,dlf_d,view_5_psnr,view_5_ssim,view_5_lpips,view_6_psnr,view_6_ssim,\
+             view_6_lpips"
         );
         assert_eq!(lines.len(), 60);
         let cells: Vec<&str> = lines[1].split(',').collect();

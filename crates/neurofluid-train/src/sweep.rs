@@ -216,21 +216,22 @@ fn cell(v: Option<f64>, digits: usize) -> String {
 }
 
 /// The markdown table: rows = variants; grounding d, prediction d (×1000, lower is better),
-/// PSNR, SSIM (means over every test render).
+/// PSNR, SSIM, LPIPS (means over every test render).
 pub fn table_markdown(title: &str, rows: &[TableRow]) -> String {
     let mut md = format!(
-        "## {title}\n\n| variant | grounding d ↓ | prediction d ↓ | PSNR ↑ | SSIM ↑ |\n|---|---:|---:|---:|---:|\n"
+        "## {title}\n\n| variant | grounding d ↓ | prediction d ↓ | PSNR ↑ | SSIM ↑ | LPIPS ↓ |\n|---|---:|---:|---:|---:|---:|\n"
     );
     for r in rows {
         let s = r.summary.as_ref();
         let _ = writeln!(
             md,
-            "| {} | {} | {} | {} | {} |",
+            "| {} | {} | {} | {} | {} | {} |",
             r.label,
             cell(s.and_then(|s| s.grounding.neurofluid_d), 2),
             cell(s.and_then(|s| s.prediction.neurofluid_d), 2),
             cell(s.and_then(|s| s.all.psnr), 2),
-            cell(s.and_then(|s| s.all.ssim), 4)
+            cell(s.and_then(|s| s.all.ssim), 4),
+            cell(s.and_then(|s| s.all.lpips), 4)
         );
     }
     md
@@ -238,7 +239,7 @@ pub fn table_markdown(title: &str, rows: &[TableRow]) -> String {
 
 /// The CSV table (same columns as the markdown; empty cells for missing values).
 pub fn table_csv(rows: &[TableRow]) -> String {
-    let mut csv = String::from("variant,grounding_d,prediction_d,psnr,ssim\n");
+    let mut csv = String::from("variant,grounding_d,prediction_d,psnr,ssim,lpips\n");
     let c = |v: Option<f64>| v.map(|x| x.to_string()).unwrap_or_default();
     for r in rows {
         let s = r.summary.as_ref();
@@ -249,11 +250,12 @@ pub fn table_csv(rows: &[TableRow]) -> String {
         };
         let _ = writeln!(
             csv,
-            "{label},{},{},{},{}",
+            "{label},{},{},{},{},{}",
             c(s.and_then(|s| s.grounding.neurofluid_d)),
             c(s.and_then(|s| s.prediction.neurofluid_d)),
             c(s.and_then(|s| s.all.psnr)),
-            c(s.and_then(|s| s.all.ssim))
+            c(s.and_then(|s| s.all.ssim)),
+            c(s.and_then(|s| s.all.lpips))
         );
     }
     csv
@@ -355,6 +357,7 @@ mod tests {
                     t,
                     psnr,
                     ssim: 0.5,
+                    lpips: Some(0.25),
                 });
             }
             r
@@ -367,19 +370,19 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let md = write_table(dir.path(), "Table 5", &rows).unwrap();
         assert!(
-            md.contains("| Full model | 10.00 | 20.00 | 30.00 | 0.5000 |"),
+            md.contains("| Full model | 10.00 | 20.00 | 30.00 | 0.5000 | 0.2500 |"),
             "{md}"
         );
         assert!(
-            md.contains("| w/o p_c | 12.50 | 25.00 | 28.00 | 0.5000 |"),
+            md.contains("| w/o p_c | 12.50 | 25.00 | 28.00 | 0.5000 | 0.2500 |"),
             "{md}"
         );
-        assert!(md.contains("| w/o d_c | – | – | – | – |"), "{md}");
+        assert!(md.contains("| w/o d_c | – | – | – | – | – |"), "{md}");
         let csv = std::fs::read_to_string(dir.path().join(TABLE_CSV_FILE)).unwrap();
         let lines: Vec<&str> = csv.lines().collect();
-        assert_eq!(lines[0], "variant,grounding_d,prediction_d,psnr,ssim");
-        assert_eq!(lines[1], "Full model,10,20,30,0.5");
-        assert_eq!(lines[3], "w/o d_c,,,,");
+        assert_eq!(lines[0], "variant,grounding_d,prediction_d,psnr,ssim,lpips");
+        assert_eq!(lines[1], "Full model,10,20,30,0.5,0.25");
+        assert_eq!(lines[3], "w/o d_c,,,,,");
         assert_eq!(
             std::fs::read_to_string(dir.path().join(TABLE_MD_FILE)).unwrap(),
             md

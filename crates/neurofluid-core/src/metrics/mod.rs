@@ -1,9 +1,12 @@
-//! Evaluation metrics: particle distances (spec §6.1) and image quality (PSNR, SSIM; §6.3).
+//! Evaluation metrics: particle distances (spec §6.1) and image quality (PSNR, SSIM, LPIPS;
+//! §6.3).
 
 mod image;
+mod lpips;
 mod particles;
 
 pub use image::{ImageError, RgbImage, psnr, ssim};
+pub use lpips::{Lpips, LpipsError};
 pub use particles::{
     ParticleDistance, gt_to_pred_distance, index_matched_distance, nearest_distances,
 };

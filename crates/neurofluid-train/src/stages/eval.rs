@@ -2,13 +2,15 @@
 //! transition model and the DLF it started from (the baseline) out without feedback, and report
 //! the particle distance d (GT→prediction nearest neighbour, ×1000) per frame, its mean over the
 //! grounding window (t = 1 … T_train−1) and the prediction window (t = T_train … T_test−1),
-//! PSNR/SSIM of the renders of the held-out views, renders beside ground truth (PNG) and the
+//! PSNR/SSIM/LPIPS of the renders of the held-out views, renders beside ground truth (PNG) and the
 //! predicted particles of every frame (PLY).
 
 use anyhow::Context;
 use burn::module::Module;
 use neurofluid_core::camera::Camera;
-use neurofluid_core::metrics::{RgbImage, gt_to_pred_distance, nearest_distances, psnr, ssim};
+use neurofluid_core::metrics::{
+    Lpips, RgbImage, gt_to_pred_distance, nearest_distances, psnr, ssim,
+};
 use neurofluid_core::scene::Role;
 use neurofluid_dlf::DlfNet;
 use neurofluid_dlf::rollout::rollout;
@@ -225,6 +227,7 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
             .clone()
             .unwrap_or_else(|| scene.views(Role::Test).to_vec());
         let radius = scene.manifest().particle_radius;
+        let lpips = Lpips::new(&neurofluid_core::device::cpu())?;
         for view in &views {
             let bar = indicatif::ProgressBar::new(frames.len() as u64)
                 .with_prefix(format!("render {view}"));
@@ -242,6 +245,7 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
                     t,
                     psnr: psnr(&pred, &truth)?,
                     ssim: ssim(&pred, &truth).unwrap_or(f64::NAN),
+                    lpips: lpips.distance(&pred, &truth).ok(),
                 });
                 if cfg.animate {
                     let mut panels = vec![("truth", picture(&truth))];
