@@ -37,6 +37,9 @@ pub enum Command {
     PretrainDlf(commands::pretrain_dlf::Args),
     /// Print the compiled-in backends and the devices they offer.
     Devices(commands::devices::Args),
+    /// Fluid surfaces (OBJ/PLY) of particle files: a scene's ground truth or an evaluation's
+    /// rollouts, one mesh per frame.
+    Mesh(commands::mesh::Args),
 }
 
 /// Sets up `tracing` on stderr at the level chosen by `-v` (or `RUST_LOG`).
@@ -46,8 +49,10 @@ pub fn init_logging(verbose: u8) {
         1 => "debug",
         _ => "trace",
     };
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
+    // splashsurf narrates every reconstruction at `info`
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| {
+        tracing_subscriber::EnvFilter::new(format!("{default},splashsurf_lib=warn"))
+    });
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)

@@ -4,6 +4,7 @@ pub mod devices;
 pub mod experiment_args;
 pub mod generate;
 pub mod info;
+pub mod mesh;
 pub mod pretrain_dlf;
 pub mod run;
 pub mod stage_cmds;
@@ -23,5 +24,6 @@ pub fn dispatch(command: Command) -> anyhow::Result<()> {
         Command::Sweep(args) => sweep::run(args),
         Command::PretrainDlf(args) => pretrain_dlf::run(args),
         Command::Devices(args) => devices::run(args),
+        Command::Mesh(args) => mesh::run(args),
     }
 }
