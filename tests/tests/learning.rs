@@ -86,6 +86,25 @@ fn the_ci_experiment_learns() {
     for _ in 0..rendered {
         apng.next_frame(&mut buf).unwrap();
     }
+    // the browser recording holds every frame of the three sets, as eval wrote them
+    let rec = neurofluid_train::viewer::Recording::read(
+        &run.stage_dir(eval::STAGE).join(eval::VIEWER_FILE),
+    )
+    .unwrap();
+    assert_eq!(rec.frames, test_frames);
+    let names: Vec<&str> = rec.tracks.iter().map(|t| t.name.as_str()).collect();
+    assert_eq!(names, ["truth", "DLF", "NeuroFluid"]);
+    let last = test_frames - 1;
+    let ply = neurofluid_train::ply::read_ply(
+        &run.stage_dir(eval::STAGE)
+            .join(format!("particles/neurofluid_{last:04}.ply")),
+    )
+    .unwrap();
+    let step: f32 = (0..3).map(|a| rec.hi[a] - rec.lo[a]).fold(0.0, f32::max) / 65535.0;
+    for (a, b) in rec.positions(2, last).unwrap().iter().zip(&ply.positions) {
+        assert!(a.iter().zip(b).all(|(x, y)| (x - y).abs() <= step));
+    }
+    assert_eq!(rec.cameras[0].view, *view);
     let (w, h) = image::image_dimensions(dir.join(format!("{view}_particles.png"))).unwrap();
     let panel = 240u32.max(cam.width);
     let rows = eval::picture_frames(run.scene.frames(Role::Train).len(), test_frames - 1).len();

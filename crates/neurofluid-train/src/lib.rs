@@ -15,3 +15,4 @@ pub mod sampler;
 pub mod stages;
 pub mod sweep;
 pub mod trainer;
+pub mod viewer;

@@ -283,6 +283,9 @@ pub struct EvalSection {
     /// and a picture of the particle sets coloured by their distance to the truth (renders the
     /// baseline's particles too).
     pub animate: bool,
+    /// Write `eval/viewer.html`: the particle sets of every frame, the test cameras, the
+    /// distances and the renders in a page any browser opens.
+    pub viewer: bool,
     /// Test views; unset = the scene manifest's (view_5).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub views: Option<Vec<String>>,
@@ -298,6 +301,7 @@ impl Default for EvalSection {
             ply_format: PlyEncoding::Binary,
             baseline: true,
             animate: true,
+            viewer: true,
             views: None,
         }
     }

@@ -24,6 +24,7 @@ use crate::pictures::{TRUTH_COLOUR, column_of, particle_view, row_of, viridis, w
 use crate::ply::{PlyFormat, write_ply};
 use crate::report::{EvalReport, FrameDistance, ImageScore, Windows};
 use crate::trainer::Picture;
+use crate::viewer::{Recording, TrackInput};
 
 /// Folder of the stage inside the run folder.
 pub const STAGE: &str = "eval";
@@ -292,6 +293,53 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
             }
         }
     }
+    if cfg.viewer {
+        let truth: Vec<Vec<[f32; 3]>> = gt.iter().map(|f| f.pos.clone()).collect();
+        let mut sets: Vec<TrackInput<'_>> = vec![("truth", "#3a6fc4", &truth)];
+        if let Some(b) = &baseline {
+            sets.push(("DLF", "#d9822b", b));
+        }
+        sets.push(("NeuroFluid", "#2e9e5b", &grounded));
+        let title = format!("{}: {}", run.exp.name, scene.manifest().name);
+        let mut rec = Recording::new(&title, scene.manifest().particle_radius, &sets)?;
+        let rendered: Vec<usize> = if cfg.render {
+            rendered_steps(test.len(), cfg.render_every)
+        } else {
+            Vec::new()
+        };
+        let views = cfg
+            .views
+            .clone()
+            .unwrap_or_else(|| scene.views(Role::Test).to_vec());
+        for view in &views {
+            let cam = scene.camera(Role::Test, view, test.start)?;
+            let renders = rendered
+                .iter()
+                .map(|&t| (t, format!("renders/{view}/t{t:04}.png")))
+                .collect();
+            rec = rec.with_camera(view, &cam, renders);
+        }
+        rec = rec.with_curve(
+            "NeuroFluid d",
+            "#2e9e5b",
+            report.frames.iter().map(|f| (f.t, f.neurofluid)).collect(),
+        );
+        if baseline.is_some() {
+            rec = rec.with_curve(
+                "DLF d",
+                "#d9822b",
+                report
+                    .frames
+                    .iter()
+                    .filter_map(|f| f.dlf.map(|d| (f.t, d)))
+                    .collect(),
+            );
+        }
+        rec.write(&dir.join(VIEWER_FILE))?;
+    }
     report.write_all(&dir)?;
     Ok(report)
 }
+
+/// The viewer page inside `eval/`.
+pub const VIEWER_FILE: &str = "viewer.html";
