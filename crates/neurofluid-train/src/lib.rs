@@ -4,6 +4,7 @@
 pub mod cli;
 pub mod commands;
 pub mod config;
+pub mod csv_text;
 pub mod mesh;
 pub mod metrics_log;
 pub mod optim;

@@ -7,6 +7,8 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use crate::csv_text::{cell, csv_text};
+
 /// CSV file name inside a run folder.
 pub const CSV_FILE: &str = "metrics.csv";
 /// JSON-lines file name inside a run folder.
@@ -94,30 +96,20 @@ impl MetricsRow {
         }
     }
 
-    /// The CSV line (no newline); empty cells for missing values.
+    /// The CSV line (with its newline); empty cells for missing values.
     pub fn csv_line(&self) -> String {
-        let opt = |v: Option<f64>| v.map(|x| x.to_string()).unwrap_or_default();
-        format!(
-            "{},{},{},{},{},{},{},{},{},{}",
-            csv_escape(&self.stage),
-            self.step,
-            self.loss,
-            opt(self.psnr),
-            opt(self.lr_physnerf),
-            opt(self.lr_dlf),
-            opt(self.rays_per_s),
-            self.time_s,
-            opt(self.grad_norm_physnerf),
-            opt(self.grad_norm_dlf)
-        )
-    }
-}
-
-fn csv_escape(s: &str) -> String {
-    if s.contains([',', '"', '\n']) {
-        format!("\"{}\"", s.replace('"', "\"\""))
-    } else {
-        s.to_string()
+        csv_text([[
+            self.stage.clone(),
+            self.step.to_string(),
+            self.loss.to_string(),
+            cell(self.psnr),
+            cell(self.lr_physnerf),
+            cell(self.lr_dlf),
+            cell(self.rays_per_s),
+            self.time_s.to_string(),
+            cell(self.grad_norm_physnerf),
+            cell(self.grad_norm_dlf),
+        ]])
     }
 }
 
@@ -184,7 +176,6 @@ impl MetricsLog {
             let mut jsonl = String::new();
             for r in &rows {
                 csv.push_str(&r.csv_line());
-                csv.push('\n');
                 jsonl.push_str(&serde_json::to_string(r).expect("row serialises"));
                 jsonl.push('\n');
             }
@@ -199,7 +190,7 @@ impl MetricsLog {
 
     /// Appends one row to both files and flushes them.
     pub fn append(&mut self, row: &MetricsRow) -> Result<(), MetricsError> {
-        writeln!(self.csv, "{}", row.csv_line())
+        write!(self.csv, "{}", row.csv_line())
             .and_then(|()| self.csv.flush())
             .map_err(io(&self.csv_path))?;
         let json = serde_json::to_string(row).expect("row serialises");

@@ -8,6 +8,8 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use crate::csv_text::{cell, csv_text};
+
 /// JSON file name of the report inside an eval folder.
 pub const JSON_FILE: &str = "report.json";
 /// Per-frame CSV file name.
@@ -164,10 +166,6 @@ fn fmt_opt(v: Option<f64>, digits: usize) -> String {
     v.map_or_else(|| "–".into(), |x| format!("{x:.digits$}"))
 }
 
-fn csv_opt(v: Option<f64>) -> String {
-    v.map(|x| x.to_string()).unwrap_or_default()
-}
-
 impl EvalReport {
     /// An empty report.
     pub fn new(experiment: &str, scene: &str, checkpoint: &str, windows: Windows) -> Self {
@@ -293,32 +291,32 @@ impl EvalReport {
             .collect();
         ts.sort_unstable();
         ts.dedup();
-        let mut csv = String::from("t,neurofluid_d,dlf_d");
+        let mut header = vec!["t".to_string(), "neurofluid_d".into(), "dlf_d".into()];
         for v in &views {
-            let _ = write!(csv, ",{v}_psnr,{v}_ssim,{v}_lpips");
+            header.extend([
+                format!("{v}_psnr"),
+                format!("{v}_ssim"),
+                format!("{v}_lpips"),
+            ]);
         }
-        csv.push('\n');
-        for t in ts {
+        let rows = ts.into_iter().map(|t| {
             let f = self.frames.iter().find(|f| f.t == t);
-            let _ = write!(
-                csv,
-                "{t},{},{}",
-                csv_opt(f.map(|f| f.neurofluid)),
-                csv_opt(f.and_then(|f| f.dlf))
-            );
+            let mut row = vec![
+                t.to_string(),
+                cell(f.map(|f| f.neurofluid)),
+                cell(f.and_then(|f| f.dlf)),
+            ];
             for v in &views {
                 let i = self.images.iter().find(|i| i.t == t && &i.view == v);
-                let _ = write!(
-                    csv,
-                    ",{},{},{}",
-                    csv_opt(i.map(|i| i.psnr)),
-                    csv_opt(i.map(|i| i.ssim)),
-                    csv_opt(i.and_then(|i| i.lpips))
-                );
+                row.extend([
+                    cell(i.map(|i| i.psnr)),
+                    cell(i.map(|i| i.ssim)),
+                    cell(i.and_then(|i| i.lpips)),
+                ]);
             }
-            csv.push('\n');
-        }
-        csv
+            row
+        });
+        csv_text(std::iter::once(header).chain(rows))
     }
 
     /// The JSON document: the report plus its summary.

@@ -18,6 +18,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::config::{ConfigError, Experiment, from_toml_str, read_text};
+use crate::csv_text::{cell as csv_cell, csv_text};
 use crate::report::{EvalReport, ReportError, Summary, write_atomic};
 
 /// Markdown table file name inside the sweep folder.
@@ -239,26 +240,28 @@ pub fn table_markdown(title: &str, rows: &[TableRow]) -> String {
 
 /// The CSV table (same columns as the markdown; empty cells for missing values).
 pub fn table_csv(rows: &[TableRow]) -> String {
-    let mut csv = String::from("variant,grounding_d,prediction_d,psnr,ssim,lpips\n");
-    let c = |v: Option<f64>| v.map(|x| x.to_string()).unwrap_or_default();
-    for r in rows {
+    let header = [
+        "variant",
+        "grounding_d",
+        "prediction_d",
+        "psnr",
+        "ssim",
+        "lpips",
+    ]
+    .map(String::from)
+    .to_vec();
+    let body = rows.iter().map(|r| {
         let s = r.summary.as_ref();
-        let label = if r.label.contains([',', '"']) {
-            format!("\"{}\"", r.label.replace('"', "\"\""))
-        } else {
-            r.label.clone()
-        };
-        let _ = writeln!(
-            csv,
-            "{label},{},{},{},{},{}",
-            c(s.and_then(|s| s.grounding.neurofluid_d)),
-            c(s.and_then(|s| s.prediction.neurofluid_d)),
-            c(s.and_then(|s| s.all.psnr)),
-            c(s.and_then(|s| s.all.ssim)),
-            c(s.and_then(|s| s.all.lpips))
-        );
-    }
-    csv
+        vec![
+            r.label.clone(),
+            csv_cell(s.and_then(|s| s.grounding.neurofluid_d)),
+            csv_cell(s.and_then(|s| s.prediction.neurofluid_d)),
+            csv_cell(s.and_then(|s| s.all.psnr)),
+            csv_cell(s.and_then(|s| s.all.ssim)),
+            csv_cell(s.and_then(|s| s.all.lpips)),
+        ]
+    });
+    csv_text(std::iter::once(header).chain(body))
 }
 
 /// Writes `table5.md` and `table5.csv` into `dir` atomically; returns the markdown.
