@@ -86,6 +86,19 @@ fn the_ci_experiment_learns() {
     for _ in 0..rendered {
         apng.next_frame(&mut buf).unwrap();
     }
+    // the image scores (with LPIPS) are in the metrics log, once per render
+    let rows = neurofluid_train::metrics_log::read_jsonl(&run.dir.join("metrics.jsonl")).unwrap();
+    let eval_rows: Vec<_> = rows
+        .iter()
+        .filter(|r| r.stage == format!("eval-{view}"))
+        .collect();
+    assert_eq!(eval_rows.len(), rendered);
+    assert!(
+        eval_rows
+            .iter()
+            .all(|r| r.lpips.is_some_and(|v| v > 0.0) && r.psnr.is_some())
+    );
+
     // the browser recording holds every frame of the three sets, as eval wrote them
     let rec = neurofluid_train::viewer::Recording::read(
         &run.stage_dir(eval::STAGE).join(eval::VIEWER_FILE),

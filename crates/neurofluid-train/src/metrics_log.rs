@@ -14,8 +14,7 @@ pub const CSV_FILE: &str = "metrics.csv";
 /// JSON-lines file name inside a run folder.
 pub const JSONL_FILE: &str = "metrics.jsonl";
 /// The CSV header.
-pub const CSV_HEADER: &str =
-    "stage,step,loss,psnr,lr_physnerf,lr_dlf,rays_per_s,time_s,grad_norm_physnerf,grad_norm_dlf";
+pub const CSV_HEADER: &str = "stage,step,loss,psnr,lr_physnerf,lr_dlf,rays_per_s,time_s,grad_norm_physnerf,grad_norm_dlf,ssim,lpips";
 
 /// Errors of the metrics log.
 #[derive(Debug, thiserror::Error)]
@@ -77,6 +76,12 @@ pub struct MetricsRow {
     /// L2 norm of DLF's gradients in the update.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub grad_norm_dlf: Option<f64>,
+    /// SSIM of an evaluation render.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ssim: Option<f64>,
+    /// LPIPS of an evaluation render.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lpips: Option<f64>,
 }
 
 impl MetricsRow {
@@ -93,6 +98,8 @@ impl MetricsRow {
             time_s,
             grad_norm_physnerf: None,
             grad_norm_dlf: None,
+            ssim: None,
+            lpips: None,
         }
     }
 
@@ -109,6 +116,8 @@ impl MetricsRow {
             self.time_s.to_string(),
             cell(self.grad_norm_physnerf),
             cell(self.grad_norm_dlf),
+            cell(self.ssim),
+            cell(self.lpips),
         ]])
     }
 }
@@ -278,8 +287,8 @@ mod tests {
         assert_eq!(lines.len(), 4, "{csv}");
         assert_eq!(lines[0], CSV_HEADER);
         assert_eq!(lines.iter().filter(|l| l.starts_with("stage,")).count(), 1);
-        assert_eq!(lines[1], "warmup,0,0.1,10,0.0005,,,0,,");
-        assert_eq!(lines[3], "joint,0,0.2,,,0.00001,,9,,");
+        assert_eq!(lines[1], "warmup,0,0.1,10,0.0005,,,0,,,,");
+        assert_eq!(lines[3], "joint,0,0.2,,,0.00001,,9,,,,");
         let rows = read_jsonl(&dir.path().join(JSONL_FILE)).unwrap();
         assert_eq!(rows.len(), 3);
         assert_eq!(rows[1], row("warmup", 10, 0.05));

@@ -20,6 +20,7 @@ use super::joint::Grounded;
 use super::run_folder::Run;
 use super::views::{ViewFrame, check_sequence, points_tensor, side_by_side};
 use crate::config::PlyEncoding;
+use crate::metrics_log::{MetricsLog, MetricsRow};
 use crate::pictures::{TRUTH_COLOUR, column_of, particle_view, row_of, viridis, write_apng};
 use crate::ply::{PlyFormat, write_ply};
 use crate::report::{EvalReport, FrameDistance, ImageScore, Windows};
@@ -338,7 +339,28 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
         rec.write(&dir.join(VIEWER_FILE))?;
     }
     report.write_all(&dir)?;
+    log_images(run, &report)?;
     Ok(report)
+}
+
+/// The evaluation's image scores in the run's metrics log: one `eval-<view>` row per render
+/// (step = rollout step; loss = the MSE that the PSNR stands for), replacing an earlier
+/// evaluation's rows.
+fn log_images(run: &Run, report: &EvalReport) -> anyhow::Result<()> {
+    let mut log = MetricsLog::open_resumed(&run.dir, |r| !r.stage.starts_with("eval-"))?;
+    for i in &report.images {
+        let mut row = MetricsRow::new(
+            &format!("eval-{}", i.view),
+            i.t as u64,
+            10f64.powf(-i.psnr / 10.0),
+            0.0,
+        );
+        row.psnr = Some(i.psnr);
+        row.ssim = Some(i.ssim).filter(|v| v.is_finite());
+        row.lpips = i.lpips;
+        log.append(&row)?;
+    }
+    Ok(())
 }
 
 /// The viewer page inside `eval/`.
