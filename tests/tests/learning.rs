@@ -80,7 +80,10 @@ fn the_ci_experiment_learns() {
     );
     assert_eq!(
         (apng.info().width, apng.info().height),
-        (3 * cam.width, cam.height + 12)
+        (
+            3 * cam.width,
+            cam.height + neurofluid_train::pictures::LABEL_HEIGHT
+        )
     );
     let mut buf = vec![0; apng.output_buffer_size().unwrap()];
     for _ in 0..rendered {
@@ -124,7 +127,8 @@ fn the_ci_experiment_learns() {
     assert_eq!(w, 3 * panel);
     assert_eq!(
         h as usize,
-        rows * (panel as usize * cam.height as usize / cam.width as usize + 12)
+        rows * (panel as usize * cam.height as usize / cam.width as usize
+            + neurofluid_train::pictures::LABEL_HEIGHT as usize)
     );
 }
 

@@ -5,10 +5,10 @@
 use std::path::Path;
 
 use anyhow::Context;
-use image::Rgb;
 use neurofluid_core::camera::Camera;
+use plotters::prelude::*;
 
-use crate::plot::Canvas;
+use crate::plot::{FONT_FAMILY, register_bundled_font};
 use crate::trainer::Picture;
 
 /// Writes `frames` (all of one size) as an endlessly looping animated PNG, `frame_ms` per
@@ -47,29 +47,49 @@ pub fn write_apng(path: &Path, frames: &[Picture], frame_ms: u16) -> anyhow::Res
         .with_context(|| format!("writing {}", path.display()))
 }
 
-/// Pictures side by side, left to right, on a white background, each under its label (cut to
-/// the picture's width).
+/// Height of the label strip above each picture of [`row_of`].
+pub const LABEL_HEIGHT: u32 = 16;
+
+/// Pictures side by side, left to right, on a white background, each under its label (in the
+/// bundled font, cut to the picture's width).
 pub fn row_of(pictures: &[(&str, &Picture)]) -> Picture {
-    const LABEL: u32 = 12;
     let w: u32 = pictures.iter().map(|(_, p)| p.width).sum();
-    let h = pictures.iter().map(|(_, p)| p.height).max().unwrap_or(0) + LABEL;
-    let mut cv = Canvas::white(w, h);
+    let h = pictures.iter().map(|(_, p)| p.height).max().unwrap_or(0) + LABEL_HEIGHT;
+    let mut buf = vec![255u8; (w * h * 3) as usize];
     let mut x0 = 0;
-    for (label, p) in pictures {
-        let fits: String = label.chars().take((p.width as usize / 8).max(1)).collect();
-        cv.text(x0 as i64 + 2, 2, &fits, Rgb([0, 0, 0]));
+    for (_, p) in pictures {
         for y in 0..p.height {
             for x in 0..p.width {
-                let i = ((y * p.width + x) * 3) as usize;
-                let c = Rgb(std::array::from_fn(|k| {
-                    (p.rgb[i + k].clamp(0.0, 1.0) * 255.0).round() as u8
-                }));
-                cv.put((x0 + x) as i64, (y + LABEL) as i64, c);
+                let src = ((y * p.width + x) * 3) as usize;
+                let dst = (((y + LABEL_HEIGHT) * w + x0 + x) * 3) as usize;
+                for k in 0..3 {
+                    buf[dst + k] = (p.rgb[src + k].clamp(0.0, 1.0) * 255.0).round() as u8;
+                }
             }
         }
         x0 += p.width;
     }
-    from_canvas(cv)
+    if w > 0 && h > 0 {
+        register_bundled_font();
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        let mut x0 = 0;
+        for (label, p) in pictures {
+            let cell = root.clone().shrink((x0, 0), (p.width, LABEL_HEIGHT));
+            let style = (FONT_FAMILY, 12).into_text_style(&cell);
+            if let Err(e) = cell.draw_text(label, &style, (2, 1)) {
+                tracing::warn!("drawing a label: {e}");
+            }
+            x0 += p.width;
+        }
+        if let Err(e) = root.present() {
+            tracing::warn!("drawing the labels: {e}");
+        }
+    }
+    Picture {
+        width: w,
+        height: h,
+        rgb: buf.iter().map(|&v| v as f32 / 255.0).collect(),
+    }
 }
 
 /// Pictures stacked top to bottom (each row as wide as the widest).
@@ -91,20 +111,6 @@ pub fn column_of(rows: &[Picture]) -> Picture {
         width: w,
         height: h,
         rgb,
-    }
-}
-
-fn from_canvas(cv: Canvas) -> Picture {
-    let (width, height) = cv.img.dimensions();
-    Picture {
-        width,
-        height,
-        rgb: cv
-            .img
-            .into_raw()
-            .iter()
-            .map(|&v| v as f32 / 255.0)
-            .collect(),
     }
 }
 
@@ -239,7 +245,7 @@ mod tests {
     #[test]
     fn rows_and_columns_keep_their_pictures() {
         let r = row_of(&[("a", &flat(3, 2, 0.0)), ("b", &flat(4, 5, 0.0))]);
-        assert_eq!((r.width, r.height), (7, 5 + 12));
+        assert_eq!((r.width, r.height), (7, 5 + LABEL_HEIGHT));
         let c = column_of(&[flat(3, 2, 0.0), flat(4, 5, 0.5)]);
         assert_eq!((c.width, c.height), (4, 7));
         // the narrower row is padded with white
