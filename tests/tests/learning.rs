@@ -121,6 +121,9 @@ fn the_ci_experiment_learns() {
         assert!(a.iter().zip(b).all(|(x, y)| (x - y).abs() <= step));
     }
     assert_eq!(rec.cameras[0].view, *view);
+    let training: Vec<&str> = rec.training.iter().map(|c| c.name.as_str()).collect();
+    assert_eq!(training, ["warmup loss", "joint loss"]);
+    assert_eq!(rec.training[0].points.len() as u64, run.exp.warmup.iters);
     let (w, h) = image::image_dimensions(dir.join(format!("{view}_particles.png"))).unwrap();
     let panel = 240u32.max(cam.width);
     let rows = eval::picture_frames(run.scene.frames(Role::Train).len(), test_frames - 1).len();

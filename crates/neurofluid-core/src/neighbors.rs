@@ -11,6 +11,11 @@
 //!   bit-identical to the query is skipped when asked (`radius_search_ignore_query_points`).
 //! - [`NeighborGrid::ball_query`]: at most K points with `d² < r²` (strict), the K lowest-index
 //!   ones (pytorch3d `ball_query`, PhysNeRF's default) or the K nearest; empty slots are flagged.
+//!
+//! Why not a crate (kiddo, rstar): parity needs exactly these two semantics — Open3D's inclusive
+//! float32 test and pytorch3d's strict, index-ordered cap of K — which a k-d tree's nearest-K or
+//! range query does not give, and the hashed grid is faster for the dense, uniform-radius
+//! queries of both models (BENCHMARKS.md). kiddo still serves the evaluation's nearest distances.
 
 use rayon::prelude::*;
 

@@ -1,7 +1,7 @@
 //! A recording of an evaluation that opens in any browser, with nothing to install:
 //! `eval/viewer.html` holds the particle sets of every frame (truth, DLF, NeuroFluid), the test
-//! cameras, the per-frame distances and links to the renders, and a small player (orbit, zoom,
-//! timeline, play) drawn on a canvas.
+//! cameras, the per-frame distances, the training loss curves and links to the renders, and a
+//! small player (orbit, zoom, timeline, play) drawn on a canvas.
 //!
 //! The particles are stored as little-endian u16 coordinates over the bounding box of all sets
 //! (base64), so a 60-frame scene of 10k particles stays near 15 MB; the quantisation step is
@@ -70,8 +70,11 @@ pub struct Recording {
     pub hi: [f32; 3],
     /// The particle sets.
     pub tracks: Vec<Track>,
-    /// Curves under the player.
+    /// Curves under the player, over the frames.
     pub curves: Vec<Curve>,
+    /// Training curves (loss over steps), one per stage.
+    #[serde(default)]
+    pub training: Vec<Curve>,
     /// Cameras (the first is the initial view).
     pub cameras: Vec<ViewCamera>,
 }
@@ -133,6 +136,7 @@ impl Recording {
             hi,
             tracks,
             curves: Vec::new(),
+            training: Vec::new(),
             cameras: Vec::new(),
         })
     }
@@ -156,6 +160,21 @@ impl Recording {
     /// Adds a curve.
     pub fn with_curve(mut self, name: &str, colour: &str, points: Vec<(usize, f64)>) -> Self {
         self.curves.push(Curve {
+            name: name.to_string(),
+            colour: colour.to_string(),
+            points,
+        });
+        self
+    }
+
+    /// Adds a training curve (x = step).
+    pub fn with_training_curve(
+        mut self,
+        name: &str,
+        colour: &str,
+        points: Vec<(usize, f64)>,
+    ) -> Self {
+        self.training.push(Curve {
             name: name.to_string(),
             colour: colour.to_string(),
             points,
@@ -244,6 +263,7 @@ svg{background:#fff;border:1px solid #ddd}
 <span id="label"></span><select id="cam"></select></div>
 <div id="renders"></div>
 <svg id="curves" width="720" height="180"></svg>
+<svg id="training" width="720" height="180"></svg>
 <p>Drag to orbit, wheel to zoom; the camera menu looks through a test camera; <code>#t=40</code>
 after the file name opens frame 40. Colours: one per particle set; the curves are d (× 1000)
 per frame.</p>
@@ -331,6 +351,22 @@ function drawCurves() {
   });
   svg.innerHTML = s;
 }
+function drawTraining() {
+  const svg = document.getElementById('training'), w = 720, h = 180, m = 30;
+  const all = R.training.flatMap(c => c.points).filter(p => p[1] > 0);
+  if (!all.length) { svg.style.display = 'none'; return; }
+  const lo = Math.log10(Math.min(...all.map(p => p[1]))), hi = Math.log10(Math.max(...all.map(p => p[1])));
+  const span = Math.max(hi-lo, 1e-9), xmax = Math.max(...all.map(p => p[0]), 1);
+  const X = x => m + x/xmax*(w-2*m), Y = y => h-m - (Math.log10(y)-lo)/span*(h-2*m);
+  let s = '<text x="4" y="14" font-size="11">training loss vs step (log; '+Math.pow(10, lo).toExponential(1)+' – '+Math.pow(10, hi).toExponential(1)+')</text>';
+  R.training.forEach((c, i) => {
+    const pts = c.points.filter(p => p[1] > 0);
+    s += '<polyline fill="none" stroke="'+c.colour+'" stroke-width="1.5" points="'+pts.map(p => X(p[0])+','+Y(p[1])).join(' ')+'"/>';
+    s += '<text x="'+(w-150)+'" y="'+(16+14*i)+'" font-size="11" fill="'+c.colour+'">'+c.name+'</text>';
+  });
+  svg.innerHTML = s;
+}
+drawTraining();
 const slider = document.getElementById('t');
 slider.max = Math.max(R.frames-1, 0);
 const start = location.hash.match(/t=(\d+)/);
@@ -363,13 +399,15 @@ mod tests {
         )
         .unwrap()
         .with_camera("view_5", &cam, vec![(1, "renders/view_5/t0001.png".into())])
-        .with_curve("NeuroFluid", "#2a2", vec![(1, 10.0), (2, 12.5)]);
+        .with_curve("NeuroFluid", "#2a2", vec![(1, 10.0), (2, 12.5)])
+        .with_training_curve("warmup loss", "#36c", vec![(1, 0.5), (2, 0.25)]);
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("eval/viewer.html");
         rec.write(&path).unwrap();
         let back = Recording::read(&path).unwrap();
         assert_eq!(back, rec);
         assert_eq!(back.frames, 3);
+        assert_eq!(back.training[0].points, [(1, 0.5), (2, 0.25)]);
         // positions survive the quantisation to well under a particle radius
         let step = (1.0f32 + 0.01) / 65535.0;
         for (k, sets) in [&truth, &pred].iter().enumerate() {

@@ -1,6 +1,10 @@
 //! Image metrics on RGB images in [0, 1]: PSNR and SSIM as NeuroFluid's evaluation computes them
 //! (spec §6.3): SSIM with an 11-tap Gaussian window (σ = 1.5), per channel, **valid** filtering (no
 //! padding), C1 = 0.01², C2 = 0.03², the mean of the SSIM map over positions and channels.
+//!
+//! Why not a crate: the crates' SSIM (image-compare, dssim, …) pad, use other windows or work in
+//! other colour spaces, so their values differ from the paper's evaluation; this one matches the
+//! reference implementation (`tests/image_metrics_reference.rs`).
 
 /// An RGB image, row-major, 3 interleaved channels, values in [0, 1].
 #[derive(Debug, Clone, PartialEq)]

@@ -336,6 +336,23 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
                     .collect(),
             );
         }
+        let jsonl = run.dir.join(crate::metrics_log::JSONL_FILE);
+        if jsonl.is_file() {
+            let rows = crate::metrics_log::read_jsonl(&jsonl)?;
+            for (stage, colour) in [
+                (super::warmup::STAGE, "#3a6fc4"),
+                (super::joint::STAGE, "#c0392b"),
+            ] {
+                let points: Vec<(usize, f64)> = rows
+                    .iter()
+                    .filter(|r| r.stage == stage && r.loss.is_finite())
+                    .map(|r| (r.step as usize, r.loss))
+                    .collect();
+                if !points.is_empty() {
+                    rec = rec.with_training_curve(&format!("{stage} loss"), colour, points);
+                }
+            }
+        }
         rec.write(&dir.join(VIEWER_FILE))?;
     }
     report.write_all(&dir)?;
