@@ -11,6 +11,8 @@ use burn::prelude::*;
 use crate::loss::dlf_step_loss;
 use crate::net::{DlfNet, points_tensor, tensor_points};
 use crate::records::{RecordError, RecordFrame, read_record};
+use crate::rollout::rollout;
+use crate::scene::BoxScene;
 
 /// Why training data could not be used.
 #[derive(Debug, thiserror::Error)]
@@ -45,6 +47,27 @@ pub struct TrainingSequence {
 }
 
 impl TrainingSequence {
+    /// The `frames` frames `net` rolls out from `scene`: data the model fits exactly (its
+    /// validation errors are zero), for tests and for fine-tuning on a model's own motion.
+    pub fn rollout_of(
+        net: &DlfNet,
+        scene: BoxScene,
+        frames: usize,
+        name: impl Into<String>,
+    ) -> Result<Self, TrainError> {
+        let device = net.device();
+        let boundary = net.boundary(&scene.box_points, &scene.box_normals, &device);
+        let steps = frames.saturating_sub(1);
+        let traj = rollout(net, &scene.pos, &scene.vel, &boundary, steps, |_| {});
+        Self::new(
+            name,
+            traj.pos,
+            traj.vel,
+            scene.box_points,
+            scene.box_normals,
+        )
+    }
+
     /// Builds a sequence, checking that frames, velocities and normals line up.
     pub fn new(
         name: impl Into<String>,

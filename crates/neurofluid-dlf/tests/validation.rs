@@ -4,24 +4,13 @@
 mod common;
 
 use common::*;
-use neurofluid_dlf::rollout::rollout;
 use neurofluid_dlf::scene::{block_in_box, dlf_wall_spacing};
 use neurofluid_dlf::train::{TrainingSequence, validate};
 
 fn generated_sequence(frames: usize, seed: u64) -> TrainingSequence {
-    let device = cpu();
-    let net = pretrained(&device);
     let s = block_in_box(216, dlf_wall_spacing(), [0.2, 0.0, -0.1], 0.002, seed, 0.02);
-    let boundary = net.boundary(&s.box_points, &s.box_normals, &device);
-    let traj = rollout(&net, &s.pos, &s.vel, &boundary, frames - 1, |_| {});
-    TrainingSequence::new(
-        format!("block216_seed{seed}"),
-        traj.pos,
-        traj.vel,
-        s.box_points,
-        s.box_normals,
-    )
-    .unwrap()
+    let name = format!("block216_seed{seed}");
+    TrainingSequence::rollout_of(&pretrained(&cpu()), s, frames, name).unwrap()
 }
 
 #[test]

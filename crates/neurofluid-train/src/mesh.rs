@@ -115,23 +115,17 @@ impl Mesh {
     /// Whether every edge is shared by exactly two triangles, in opposite directions (a closed,
     /// consistently oriented surface).
     pub fn is_closed(&self) -> bool {
-        let mut edges: HashMap<(u32, u32), i32> = HashMap::new();
+        // per undirected edge: (uses, uses in one direction − uses in the other)
+        let mut edges: HashMap<(u32, u32), (u32, i32)> = HashMap::new();
         for t in &self.triangles {
             for k in 0..3 {
                 let (a, b) = (t[k], t[(k + 1) % 3]);
-                *edges.entry((a.min(b), a.max(b))).or_default() += if a < b { 1 } else { -1 };
+                let e = edges.entry((a.min(b), a.max(b))).or_default();
+                e.0 += 1;
+                e.1 += if a < b { 1 } else { -1 };
             }
         }
-        let mut count: HashMap<(u32, u32), u32> = HashMap::new();
-        for t in &self.triangles {
-            for k in 0..3 {
-                let (a, b) = (t[k], t[(k + 1) % 3]);
-                *count.entry((a.min(b), a.max(b))).or_default() += 1;
-            }
-        }
-        !self.triangles.is_empty()
-            && edges.values().all(|&v| v == 0)
-            && count.values().all(|&n| n == 2)
+        !self.triangles.is_empty() && edges.values().all(|&e| e == (2, 0))
     }
 
     /// Writes the mesh as OBJ (`.obj`) or binary PLY (`.ply`), by the extension, atomically.

@@ -42,6 +42,16 @@ pub struct Curve {
     pub points: Vec<(usize, f64)>,
 }
 
+impl Curve {
+    fn new(name: &str, colour: &str, points: Vec<(usize, f64)>) -> Self {
+        Self {
+            name: name.to_string(),
+            colour: colour.to_string(),
+            points,
+        }
+    }
+}
+
 /// A camera the viewer can look through.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ViewCamera {
@@ -157,13 +167,9 @@ impl Recording {
         self
     }
 
-    /// Adds a curve.
+    /// Adds a curve over the frames.
     pub fn with_curve(mut self, name: &str, colour: &str, points: Vec<(usize, f64)>) -> Self {
-        self.curves.push(Curve {
-            name: name.to_string(),
-            colour: colour.to_string(),
-            points,
-        });
+        self.curves.push(Curve::new(name, colour, points));
         self
     }
 
@@ -174,11 +180,7 @@ impl Recording {
         colour: &str,
         points: Vec<(usize, f64)>,
     ) -> Self {
-        self.training.push(Curve {
-            name: name.to_string(),
-            colour: colour.to_string(),
-            points,
-        });
+        self.training.push(Curve::new(name, colour, points));
         self
     }
 

@@ -3,6 +3,7 @@
 use std::process::Command;
 
 use neurofluid_core::scene::Particles;
+use neurofluid_train::mesh::Mesh;
 
 #[test]
 fn mesh_writes_one_surface_per_particle_file() {
@@ -39,29 +40,27 @@ fn mesh_writes_one_surface_per_particle_file() {
     let mut volumes = Vec::new();
     for frame in ["0000", "0001"] {
         let obj = std::fs::read_to_string(out.join(format!("{frame}.obj"))).unwrap();
-        let v: Vec<[f64; 3]> = obj
-            .lines()
-            .filter_map(|l| l.strip_prefix("v "))
-            .map(|l| {
-                let c: Vec<f64> = l.split(' ').map(|x| x.parse().unwrap()).collect();
-                [c[0], c[1], c[2]]
-            })
-            .collect();
-        let volume: f64 = obj
-            .lines()
-            .filter_map(|l| l.strip_prefix("f "))
-            .map(|l| {
-                let i: Vec<usize> = l
-                    .split(' ')
-                    .map(|x| x.parse::<usize>().unwrap() - 1)
-                    .collect();
-                let (a, b, c) = (v[i[0]], v[i[1]], v[i[2]]);
-                (a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
-                    + a[2] * (b[0] * c[1] - b[1] * c[0]))
-                    / 6.0
-            })
-            .sum();
-        volumes.push(volume);
+        let numbers = |l: &str| -> Vec<f64> { l.split(' ').map(|x| x.parse().unwrap()).collect() };
+        let mesh = Mesh {
+            vertices: obj
+                .lines()
+                .filter_map(|l| l.strip_prefix("v "))
+                .map(|l| {
+                    let c = numbers(l);
+                    [c[0] as f32, c[1] as f32, c[2] as f32]
+                })
+                .collect(),
+            triangles: obj
+                .lines()
+                .filter_map(|l| l.strip_prefix("f "))
+                .map(|l| {
+                    let i = numbers(l);
+                    [i[0] as u32 - 1, i[1] as u32 - 1, i[2] as u32 - 1]
+                })
+                .collect(),
+        };
+        assert!(mesh.is_closed(), "{frame}");
+        volumes.push(mesh.volume());
     }
     // the larger block's surface encloses about (8/6)³ times the volume
     let ratio = volumes[1] / volumes[0];

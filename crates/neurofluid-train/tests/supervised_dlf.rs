@@ -6,7 +6,6 @@ use std::path::Path;
 
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::prelude::*;
-use neurofluid_dlf::rollout::rollout;
 use neurofluid_dlf::scene::{block_in_box, dlf_wall_spacing};
 use neurofluid_dlf::train::TrainingSequence;
 use neurofluid_dlf::{DlfConfig, DlfNet, load_dlf};
@@ -20,16 +19,7 @@ fn generated_sequence(frames: usize, seed: u64) -> TrainingSequence {
         .join("../../assets/dlf_pretrained/pretrained_model_weights.pt");
     let net = load_dlf(&weights, DlfConfig::default(), &device).unwrap();
     let s = block_in_box(216, dlf_wall_spacing(), [0.2, 0.0, -0.1], 0.002, seed, 0.02);
-    let boundary = net.boundary(&s.box_points, &s.box_normals, &device);
-    let traj = rollout(&net, &s.pos, &s.vel, &boundary, frames - 1, |_| {});
-    TrainingSequence::new(
-        format!("block216_seed{seed}"),
-        traj.pos,
-        traj.vel,
-        s.box_points,
-        s.box_normals,
-    )
-    .unwrap()
+    TrainingSequence::rollout_of(&net, s, frames, format!("block216_seed{seed}")).unwrap()
 }
 
 /// Collects losses and validation errors.

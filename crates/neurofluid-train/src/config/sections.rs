@@ -5,6 +5,7 @@
 use std::fmt;
 use std::path::PathBuf;
 
+use neurofluid_core::scene::{Role, Scene};
 use neurofluid_dlf::GeometryMode;
 use serde::{Deserialize, Serialize};
 
@@ -189,6 +190,21 @@ impl Default for WarmupSection {
 }
 
 impl WarmupSection {
+    /// The held-out view the previews render (the first test view), when previews are on.
+    pub fn preview_view(&self, scene: &Scene) -> Option<String> {
+        if self.preview_every == 0 {
+            return None;
+        }
+        scene.views(Role::Test).first().cloned()
+    }
+
+    /// The warm-up views: the configured ones, else the scene's.
+    pub fn views(&self, scene: &Scene) -> Vec<String> {
+        self.views
+            .clone()
+            .unwrap_or_else(|| scene.views(Role::Warmup).to_vec())
+    }
+
     /// The precrop fraction for 0-based iteration `step` (`None` = the full image).
     pub fn precrop_at(&self, step: u64) -> Option<f64> {
         (step < self.precrop_iters).then_some(self.precrop_frac)
@@ -246,6 +262,14 @@ impl Default for JointSection {
 }
 
 impl JointSection {
+    /// The training view: the configured one, else the scene's first (none in a scene without
+    /// training views).
+    pub fn view(&self, scene: &Scene) -> Option<String> {
+        self.view
+            .clone()
+            .or_else(|| scene.views(Role::Train).first().cloned())
+    }
+
     /// The precrop fraction for 0-based iteration `step` (`None` = the full image).
     pub fn precrop_at(&self, step: u64) -> Option<f64> {
         (step < self.precrop_iters).then_some(self.precrop_frac)
@@ -289,6 +313,15 @@ pub struct EvalSection {
     /// Test views; unset = the scene manifest's (view_5).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub views: Option<Vec<String>>,
+}
+
+impl EvalSection {
+    /// The test views rendered: the configured ones, else the scene's.
+    pub fn views(&self, scene: &Scene) -> Vec<String> {
+        self.views
+            .clone()
+            .unwrap_or_else(|| scene.views(Role::Test).to_vec())
+    }
 }
 
 impl Default for EvalSection {

@@ -224,10 +224,7 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
     if cfg.render {
         let physnerf = models.physnerf.valid();
         let frames = rendered_steps(test.len(), cfg.render_every);
-        let views = cfg
-            .views
-            .clone()
-            .unwrap_or_else(|| scene.views(Role::Test).to_vec());
+        let views = cfg.views(scene);
         let radius = scene.manifest().particle_radius;
         let lpips = Lpips::new(&neurofluid_core::device::cpu())?;
         for view in &views {
@@ -274,8 +271,8 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
                 let rows: Vec<Picture> = picture_frames(train_len, steps)
                     .into_iter()
                     .map(|t| -> anyhow::Result<Picture> {
-                        let vf = ViewFrame::load(scene, Role::Test, view, test.start + t)?;
-                        let cam = at_least_wide(&vf.camera, PARTICLE_PICTURE_WIDTH);
+                        let cam = scene.camera(Role::Test, view, test.start + t)?;
+                        let cam = at_least_wide(&cam, PARTICLE_PICTURE_WIDTH);
                         let mut predictions: Vec<(&str, &[[f32; 3]])> = Vec::new();
                         if let Some(b) = &baseline {
                             predictions.push(("DLF", &b[t]));
@@ -308,10 +305,7 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
         } else {
             Vec::new()
         };
-        let views = cfg
-            .views
-            .clone()
-            .unwrap_or_else(|| scene.views(Role::Test).to_vec());
+        let views = cfg.views(scene);
         for view in &views {
             let cam = scene.camera(Role::Test, view, test.start)?;
             let renders = rendered

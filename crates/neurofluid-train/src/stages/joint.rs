@@ -21,7 +21,7 @@ use neurofluid_physnerf::PhysNerf;
 
 use super::run_folder::Run;
 use super::views::{
-    ViewFrame, check_particles, points_tensor, render_beside_truth, scalar, tensor_points,
+    ViewFrame, load_particles, points_tensor, render_beside_truth, scalar, tensor_points,
 };
 use super::warmup;
 use crate::config::{JointSection, StageKind};
@@ -76,16 +76,12 @@ impl JointData {
             "the training split has {} frame(s); joint training needs at least 2",
             frames.len()
         );
-        let view = cfg
-            .view
-            .clone()
-            .unwrap_or_else(|| scene.views(Role::Train)[0].clone());
+        let view = cfg.view(scene).context("the scene has no training view")?;
         let targets = frames
             .clone()
             .map(|t| ViewFrame::load(scene, Role::Train, &view, t))
             .collect::<anyhow::Result<Vec<_>>>()?;
-        let initial = scene.particles(Role::Train, frames.start)?;
-        check_particles(&initial, "first training frame")?;
+        let initial = load_particles(scene, Role::Train, frames.start, "first training frame")?;
         let walls = scene.boundary()?;
         Ok(Self {
             targets,

@@ -6,7 +6,7 @@
 use neurofluid_core::scene::{Role, Scene};
 
 use super::run_folder::{Run, Start};
-use super::views::{check_particles, check_sequence};
+use super::views::{check_sequence, load_particles};
 use super::{eval, joint, warmup};
 use crate::config::StageKind;
 use crate::trainer::checkpoint;
@@ -44,6 +44,13 @@ impl Problems {
     fn check<T, E: std::fmt::Display>(&mut self, what: impl FnOnce() -> String, r: Result<T, E>) {
         if let Err(e) = r {
             self.0.push(format!("{}: {e:#}", what()));
+        }
+    }
+
+    /// An error that names its subject itself.
+    fn error<T>(&mut self, r: anyhow::Result<T>) {
+        if let Err(e) = r {
+            self.0.push(format!("{e:#}"));
         }
     }
 }
@@ -118,23 +125,11 @@ pub fn check(run: &Run, stages: &[Stage], start: Start) -> anyhow::Result<()> {
     let joint_steps = exp.joint.epochs * scene.frames(Role::Train).len().saturating_sub(1) as u64;
     if stages.contains(&Stage::Warmup) {
         let t0 = scene.frames(Role::Warmup).start;
-        let views = exp
-            .warmup
-            .views
-            .clone()
-            .unwrap_or_else(|| scene.views(Role::Warmup).to_vec());
-        images(&mut p, scene, Role::Warmup, &views, &[t0]);
-        p.check(
-            || format!("warm-up particles (frame {t0})"),
-            scene
-                .particles(Role::Warmup, t0)
-                .map_err(anyhow::Error::from)
-                .and_then(|s| check_particles(&s, "particles")),
-        );
-        if exp.warmup.preview_every > 0
-            && let Some(v) = scene.views(Role::Test).first()
-        {
-            images(&mut p, scene, Role::Test, std::slice::from_ref(v), &[t0]);
+        images(&mut p, scene, Role::Warmup, &exp.warmup.views(scene), &[t0]);
+        let what = format!("warm-up particles (frame {t0})");
+        p.error(load_particles(scene, Role::Warmup, t0, &what));
+        if let Some(v) = exp.warmup.preview_view(scene) {
+            images(&mut p, scene, Role::Test, &[v], &[t0]);
         }
     }
     if stages.contains(&Stage::Joint) {
@@ -145,23 +140,13 @@ pub fn check(run: &Run, stages: &[Stage], start: Start) -> anyhow::Result<()> {
                 frames.len()
             ));
         }
-        let view = exp
-            .joint
-            .view
-            .clone()
-            .or_else(|| scene.views(Role::Train).first().cloned());
-        match view {
+        match exp.joint.view(scene) {
             Some(v) => images(&mut p, scene, Role::Train, &[v], &frames),
             None => p.0.push("the scene has no training view".into()),
         }
         if let Some(&t) = frames.first() {
-            p.check(
-                || format!("first training frame's particles (frame {t})"),
-                scene
-                    .particles(Role::Train, t)
-                    .map_err(anyhow::Error::from)
-                    .and_then(|s| check_particles(&s, "particles")),
-            );
+            let what = format!("first training frame's particles (frame {t})");
+            p.error(load_particles(scene, Role::Train, t, &what));
         }
         p.check(|| "the box".to_string(), scene.boundary());
         check_dlf(&mut p);
@@ -188,20 +173,11 @@ pub fn check(run: &Run, stages: &[Stage], start: Start) -> anyhow::Result<()> {
         // the grounded DLF is built from the pretrained weights' model, baseline or not
         check_dlf(&mut p);
         if exp.eval.render {
-            let views = exp
-                .eval
-                .views
-                .clone()
-                .unwrap_or_else(|| scene.views(Role::Test).to_vec());
-            let mut steps = eval::rendered_steps(test.len(), exp.eval.render_every);
-            if exp.eval.animate {
-                let train = scene.frames(Role::Train).len();
-                steps.extend(eval::picture_frames(train, test.len().saturating_sub(1)));
-                steps.sort_unstable();
-                steps.dedup();
-            }
-            let frames: Vec<usize> = steps.into_iter().map(|t| test.start + t).collect();
-            images(&mut p, scene, Role::Test, &views, &frames);
+            let frames: Vec<usize> = eval::rendered_steps(test.len(), exp.eval.render_every)
+                .into_iter()
+                .map(|t| test.start + t)
+                .collect();
+            images(&mut p, scene, Role::Test, &exp.eval.views(scene), &frames);
         }
         if !stages.contains(&Stage::Joint) {
             finished(&mut p, run, Stage::Joint, StageKind::Joint, joint_steps);

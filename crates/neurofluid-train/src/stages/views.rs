@@ -1,6 +1,7 @@
 //! Scene data as the stages use it: a view's camera and image, rays and target colours,
 //! checked particle states, and the held-out render every stage previews with.
 
+use anyhow::Context;
 use burn::module::Module;
 use burn::prelude::*;
 use neurofluid_core::camera::Camera;
@@ -61,6 +62,19 @@ pub fn check_particles(p: &Particles, what: &str) -> anyhow::Result<()> {
         anyhow::bail!("{what}: particle {} is not finite", i % p.pos.len());
     }
     Ok(())
+}
+
+/// The particles of frame `t` of `role`'s split, checked ([`check_particles`]); `what` names them
+/// in errors.
+pub fn load_particles(
+    scene: &Scene,
+    role: Role,
+    t: usize,
+    what: &str,
+) -> anyhow::Result<Particles> {
+    let p = scene.particles(role, t).with_context(|| what.to_string())?;
+    check_particles(&p, what)?;
+    Ok(p)
 }
 
 /// Checks a particle sequence (frames `first`, `first + 1`, …): every frame as

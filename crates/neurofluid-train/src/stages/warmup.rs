@@ -12,7 +12,7 @@ use neurofluid_core::scene::{Role, Scene};
 use neurofluid_physnerf::PhysNerf;
 
 use super::run_folder::Run;
-use super::views::{ViewFrame, check_particles, points_tensor, render_beside_truth, scalar};
+use super::views::{ViewFrame, load_particles, points_tensor, render_beside_truth, scalar};
 use crate::config::{StageKind, WarmupSection};
 use crate::metrics_log::{MetricsLog, psnr_from_mse};
 use crate::sampler::Rng;
@@ -38,21 +38,17 @@ impl WarmupData {
     /// Loads the data `cfg` asks for from `scene`.
     pub fn load(scene: &Scene, cfg: &WarmupSection) -> anyhow::Result<Self> {
         let t0 = scene.frames(Role::Warmup).start;
-        let names = cfg
-            .views
-            .clone()
-            .unwrap_or_else(|| scene.views(Role::Warmup).to_vec());
-        let views = names
+        let views = cfg
+            .views(scene)
             .iter()
             .map(|v| ViewFrame::load(scene, Role::Warmup, v, t0))
             .collect::<anyhow::Result<Vec<_>>>()?;
         anyhow::ensure!(!views.is_empty(), "the warm-up has no views");
-        let gt = scene.particles(Role::Warmup, t0)?;
-        check_particles(&gt, "warm-up particles")?;
-        let held_out = match scene.views(Role::Test).first() {
-            Some(v) if cfg.preview_every > 0 => Some(ViewFrame::load(scene, Role::Test, v, t0)?),
-            _ => None,
-        };
+        let gt = load_particles(scene, Role::Warmup, t0, "warm-up particles")?;
+        let held_out = cfg
+            .preview_view(scene)
+            .map(|v| ViewFrame::load(scene, Role::Test, &v, t0))
+            .transpose()?;
         Ok(Self {
             views,
             particles: gt.pos,
