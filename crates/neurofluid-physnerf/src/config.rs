@@ -190,6 +190,27 @@ impl PhysNerfConfig {
         encoded_width(3, f.d) + usize::from(self.encoding.dc) * encoded_width(3, f.dc)
     }
 
+    /// The segment and sample counts of a ray.
+    pub fn depth_plan(&self) -> crate::hierarchical::DepthPlan {
+        crate::hierarchical::DepthPlan {
+            near: self.near,
+            far: self.far,
+            n_samples: self.n_samples,
+            n_importance: self.n_importance,
+        }
+    }
+
+    /// The shape of its networks.
+    pub fn mlp_shape(&self) -> crate::mlp::MlpShape {
+        crate::mlp::MlpShape {
+            depth: self.depth,
+            width: self.width,
+            skip: self.skip,
+            in_xyz: self.in_xyz(),
+            in_dir: self.in_dir(),
+        }
+    }
+
     /// Checks the values for consistency.
     pub fn validate(&self) -> Result<(), String> {
         match self.problem() {

@@ -26,8 +26,10 @@ pub mod config;
 pub mod encoding;
 pub mod error;
 pub mod features;
+pub mod hierarchical;
 pub mod mlp;
 pub mod neighbors;
+pub mod nerf;
 pub mod real;
 pub mod renderer;
 pub mod safetensors_file;
@@ -42,5 +44,6 @@ pub use config::{
 pub use error::{PhysNerfError, Result};
 
 pub use mlp::NerfMlp;
+pub use nerf::{Nerf, NerfConfig};
 pub use renderer::{Loss, PassOutput, PhysNerf, RayBatch, RenderOutput, Timings};
-pub use view::{RenderedImage, render_image, save_png};
+pub use view::{RenderedImage, render_image, render_image_with, save_png};

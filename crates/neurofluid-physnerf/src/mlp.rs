@@ -7,7 +7,20 @@ use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::{relu, sigmoid};
 
-use crate::config::PhysNerfConfig;
+/// The shape of a NeRF network: trunk depth and width, the skip layer and the input widths.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct MlpShape {
+    /// Trunk layers D.
+    pub depth: usize,
+    /// Trunk width W.
+    pub width: usize,
+    /// Index of the layer whose input is `cat[e_x, h]`.
+    pub skip: usize,
+    /// Width of the position-like input e_x.
+    pub in_xyz: usize,
+    /// Width of the direction-like input e_d.
+    pub in_dir: usize,
+}
 
 /// One NeRF network (coarse or fine). Field names follow nerf_pl's parameter names.
 #[derive(Module, Debug)]
@@ -39,13 +52,13 @@ pub struct MlpTrace {
 
 /// The shapes `[in, out]` of every layer of a network, keyed by the nerf_pl name (without
 /// the `nerf_coarse.` prefix and the `.weight` suffix).
-pub fn layer_shapes(config: &PhysNerfConfig) -> Vec<(String, [usize; 2])> {
-    let (w, ix, id) = (config.width, config.in_xyz(), config.in_dir());
+pub fn layer_shapes(shape: &MlpShape) -> Vec<(String, [usize; 2])> {
+    let (w, ix, id) = (shape.width, shape.in_xyz, shape.in_dir);
     let mut v = Vec::new();
-    for i in 0..config.depth {
+    for i in 0..shape.depth {
         let d_in = if i == 0 {
             ix
-        } else if i == config.skip {
+        } else if i == shape.skip {
             ix + w
         } else {
             w
@@ -61,12 +74,12 @@ pub fn layer_shapes(config: &PhysNerfConfig) -> Vec<(String, [usize; 2])> {
 
 impl NerfMlp {
     /// A randomly initialised network (PyTorch's default Linear initialisation), f32.
-    pub fn new(config: &PhysNerfConfig, device: &Device) -> Self {
-        let mut layers: Vec<Linear> = layer_shapes(config)
+    pub fn new(shape: &MlpShape, device: &Device) -> Self {
+        let mut layers: Vec<Linear> = layer_shapes(shape)
             .into_iter()
             .map(|(_, [i, o])| LinearConfig::new(i, o).init(device))
             .collect();
-        Self::from_layers(&mut layers, config.skip)
+        Self::from_layers(&mut layers, shape.skip)
     }
 
     /// Assembles a network from its layers in the order of [`layer_shapes`].

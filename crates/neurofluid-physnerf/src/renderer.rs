@@ -11,10 +11,10 @@ use crate::config::{DensityActivation, PhysNerfConfig};
 use crate::encoding::encode_inputs;
 use crate::error::{PhysNerfError, Result};
 use crate::features::{gather_neighbors, host_tensor, local_features, rows_tensor, valid_tensor};
+use crate::hierarchical::{Pass, read, render_hierarchical};
 use crate::mlp::NerfMlp;
 use crate::neighbors::{Neighbors, ball_query};
 use crate::real::Real;
-use crate::sampling::{coarse_depths, fine_u, jitter_depths, merge_sorted, midpoints, sample_pdf};
 use crate::volume::{deltas, volume_render};
 
 /// The renderer R_φ: two NeRF networks and the configuration.
@@ -124,6 +124,20 @@ impl RenderOutput {
     pub fn final_rgb(&self) -> Tensor<2> {
         self.fine.as_ref().unwrap_or(&self.coarse).rgb_map.clone()
     }
+
+    /// The MSE loss against `target [R, 3]` (the same rays, same order).
+    pub fn loss(&self, target: Tensor<2>) -> Loss {
+        let coarse = mse(self.coarse.rgb_map.clone(), target.clone());
+        let fine = match &self.fine {
+            Some(f) => mse(f.rgb_map.clone(), target),
+            None => coarse.zeros_like(),
+        };
+        Loss {
+            total: coarse.clone() + fine.clone(),
+            coarse,
+            fine,
+        }
+    }
 }
 
 /// The image loss: `MSE(coarse) + MSE(fine)` (means over rays × 3).
@@ -143,18 +157,13 @@ pub fn mse(rgb: Tensor<2>, target: Tensor<2>) -> Tensor<1> {
     (d.clone() * d).mean()
 }
 
-fn read<T: Real, const D: usize>(t: Tensor<D>) -> Result<Vec<T>> {
-    t.try_into_vec_as::<T>()
-        .map_err(|e| PhysNerfError::Readback(format!("{e:?}")))
-}
-
 impl PhysNerf {
     /// A randomly initialised renderer (f32) on `device`.
     pub fn new(config: PhysNerfConfig, device: &Device) -> Result<Self> {
         config.validate().map_err(PhysNerfError::Invalid)?;
         Ok(Self {
-            coarse: NerfMlp::new(&config, device),
-            fine: NerfMlp::new(&config, device),
+            coarse: NerfMlp::new(&config.mlp_shape(), device),
+            fine: NerfMlp::new(&config.mlp_shape(), device),
             config,
         })
     }
@@ -166,16 +175,7 @@ impl PhysNerf {
 
     /// The MSE loss of a render against `target [R, 3]` (the same rays, same order).
     pub fn loss(&self, out: &RenderOutput, target: Tensor<2>) -> Loss {
-        let coarse = mse(out.coarse.rgb_map.clone(), target.clone());
-        let fine = match &out.fine {
-            Some(f) => mse(f.rgb_map.clone(), target),
-            None => coarse.zeros_like(),
-        };
-        Loss {
-            total: coarse.clone() + fine.clone(),
-            coarse,
-            fine,
-        }
+        out.loss(target)
     }
 
     /// Renders a batch of rays through `particles [N, 3]` (same device and dtype as the
@@ -259,78 +259,26 @@ impl PhysNerf {
         &self,
         particles: &Tensor<2>,
         rays: &RayBatch,
-        mut rng: Option<&mut dyn RngCore>,
+        rng: Option<&mut dyn RngCore>,
         fixed_fine: Option<&[f64]>,
     ) -> Result<RenderOutput> {
-        let cfg = &self.config;
-        let mut timings = Timings::default();
         let flat: Vec<T> = read(particles.clone().detach())?;
         let p_host: Vec<[T; 3]> = flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
         let origins: Vec<[T; 3]> = rays.origins.iter().map(|v| v.map(T::of)).collect();
         let dirs: Vec<[T; 3]> = rays.dirs.iter().map(|v| v.map(T::of)).collect();
-        let r = rays.len();
-        let s = cfg.n_samples;
-        let z0: Vec<T> = coarse_depths(cfg.near, cfg.far, s);
-        let mut z_c = Vec::with_capacity(r * s);
-        for _ in 0..r {
-            match rng.as_deref_mut() {
-                Some(g) => z_c.extend(jitter_depths(&z0, g)),
-                None => z_c.extend_from_slice(&z0),
-            }
-        }
-        let coarse = self.run_pass(
-            &self.coarse,
-            particles,
-            &p_host,
-            &origins,
-            &dirs,
-            &z_c,
-            s,
-            &mut timings,
-        )?;
-        let mut z_importance = Vec::new();
-        let fine = if cfg.n_importance > 0 && r > 0 {
-            let t0 = Instant::now();
-            let w: Vec<T> = read(coarse.weights.clone().detach())?;
-            let n = cfg.n_importance;
-            let mut z_f = Vec::with_capacity(r * (s + n));
-            let u_det: Vec<T> = fine_u(n, None);
-            for ray in 0..r {
-                let zr = &z_c[ray * s..(ray + 1) * s];
-                let u = match rng.as_deref_mut() {
-                    Some(g) => fine_u(n, Some(g)),
-                    None => u_det.clone(),
+        render_hierarchical(
+            &self.config.depth_plan(),
+            rays.len(),
+            rng,
+            fixed_fine,
+            |which, z, s, timings| {
+                let net = match which {
+                    Pass::Coarse => &self.coarse,
+                    Pass::Fine => &self.fine,
                 };
-                let zi = sample_pdf(&midpoints(zr), &w[ray * s + 1..(ray + 1) * s - 1], &u);
-                z_importance.extend(zi.iter().map(|v| v.f64()));
-                z_f.extend(merge_sorted(zr, &zi));
-            }
-            if let Some(fixed) = fixed_fine {
-                z_f = fixed.iter().map(|&v| T::of(v)).collect();
-            }
-            if let Some(fixed) = fixed_fine {
-                z_f = fixed.iter().map(|&v| T::of(v)).collect();
-            }
-            timings.composite += t0.elapsed();
-            Some(self.run_pass(
-                &self.fine,
-                particles,
-                &p_host,
-                &origins,
-                &dirs,
-                &z_f,
-                s + n,
-                &mut timings,
-            )?)
-        } else {
-            None
-        };
-        Ok(RenderOutput {
-            coarse,
-            fine,
-            z_importance,
-            timings,
-        })
+                self.run_pass(net, particles, &p_host, &origins, &dirs, z, s, timings)
+            },
+        )
     }
 
     #[allow(clippy::too_many_arguments)]

@@ -6,7 +6,7 @@ use burn::prelude::*;
 use neurofluid_core::camera::Camera;
 
 use crate::error::{PhysNerfError, Result};
-use crate::renderer::{PhysNerf, RayBatch};
+use crate::renderer::{PhysNerf, RayBatch, RenderOutput};
 
 /// A rendered view: row-major RGB in [0, 1] (white background).
 #[derive(Debug, Clone, PartialEq)]
@@ -42,13 +42,26 @@ pub fn render_image(
     chunk: usize,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<RenderedImage> {
+    let model = model.valid();
+    let particles = particles.clone().without_autodiff();
+    render_image_with(camera, chunk, progress, &mut |rays| {
+        model.render_rays(&particles, rays, None)
+    })
+}
+
+/// Renders every pixel of `camera`, `chunk` rays at a time, with `render` (which renders one
+/// chunk of rays, deterministically and without gradients).
+pub fn render_image_with(
+    camera: &Camera,
+    chunk: usize,
+    progress: &mut dyn FnMut(usize, usize),
+    render: &mut dyn FnMut(&RayBatch) -> Result<RenderOutput>,
+) -> Result<RenderedImage> {
     if chunk == 0 {
         return Err(PhysNerfError::Invalid(
             "ray chunk must be at least 1".into(),
         ));
     }
-    let model = model.valid();
-    let particles = particles.clone().without_autodiff();
     let rays = RayBatch::from(&camera.all_rays());
     let n = rays.len();
     let mut coarse = Vec::with_capacity(n * 3);
@@ -56,7 +69,7 @@ pub fn render_image(
     let mut start = 0;
     while start < n {
         let end = (start + chunk).min(n);
-        let out = model.render_rays(&particles, &rays.slice(start, end), None)?;
+        let out = render(&rays.slice(start, end))?;
         let read = |t: Tensor<2>| {
             t.try_into_vec_as::<f32>()
                 .map_err(|e| PhysNerfError::Readback(format!("{e:?}")))

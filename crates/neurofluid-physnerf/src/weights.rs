@@ -36,7 +36,7 @@ fn load_net(
     dtype: DType,
 ) -> Result<NerfMlp> {
     let mut layers = Vec::new();
-    for (name, [d_in, d_out]) in layer_shapes(config) {
+    for (name, [d_in, d_out]) in layer_shapes(&config.mlp_shape()) {
         let wname = format!("{prefix}.{name}.weight");
         let bname = format!("{prefix}.{name}.bias");
         let (_, w) = file.floats(&wname, Some(&[d_out, d_in]))?;
@@ -62,7 +62,7 @@ fn load_net(
 pub fn parameter_names(config: &PhysNerfConfig) -> Vec<String> {
     let mut v = Vec::new();
     for net in NETS {
-        for (name, _) in layer_shapes(config) {
+        for (name, _) in layer_shapes(&config.mlp_shape()) {
             v.push(format!("{net}.{name}.weight"));
             v.push(format!("{net}.{name}.bias"));
         }

@@ -1,0 +1,349 @@
+//! A plain NeRF (Mildenhall et al., 2020) and NeRF-T (NeRF with the time as a further input),
+//! the novel-view baselines of NeuroFluid's Tables 3–4 and the density field from which the
+//! initial particles are recovered when they are unknown.
+//!
+//! Everything but the network inputs is PhysNeRF's: the nerf_pl MLP ([`NerfMlp`]), the
+//! hierarchical sampling ([`render_hierarchical`]), the volume rendering and the loss. The inputs
+//! are `e_x = [γ(x), γ(t)?]` and `e_d = γ(d)`; every sample is evaluated (there is no particle
+//! gate). The density is ReLU'd in the volume rendering, as in the original: with the infinite
+//! last interval a softplus would leave every ray's last sample opaque, hiding the background.
+
+use burn::prelude::*;
+use burn::tensor::activation::relu;
+use rand::RngCore;
+use serde::{Deserialize, Serialize};
+
+use crate::config::encoded_width;
+use crate::encoding::posenc;
+use crate::error::{PhysNerfError, Result};
+use crate::features::host_tensor;
+use crate::hierarchical::{DepthPlan, Pass, read, render_hierarchical};
+use crate::mlp::{MlpShape, NerfMlp};
+use crate::real::Real;
+use crate::renderer::{PassOutput, RayBatch, RenderOutput, Timings};
+use crate::view::{RenderedImage, render_image_with};
+use crate::volume::{deltas, volume_render};
+use neurofluid_core::camera::Camera;
+
+/// A NeRF's constants. Serde-friendly (the experiment's `[nerf]` table); missing fields take
+/// the original NeRF's values, unknown fields are rejected. The ray segment is the scene's and
+/// whether time is an input is the baseline's (NeRF or NeRF-T); neither is a file key.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct NerfConfig {
+    /// Near bound of the ray segment (world units).
+    #[serde(skip)]
+    pub near: f64,
+    /// Far bound of the ray segment.
+    #[serde(skip)]
+    pub far: f64,
+    /// NeRF-T: the time is an input.
+    #[serde(skip)]
+    pub time: bool,
+    /// Coarse samples per ray (64).
+    pub n_samples: usize,
+    /// Importance samples per ray (128); 0 renders coarse only.
+    pub n_importance: usize,
+    /// Frequencies of γ(x) (10).
+    pub freq_x: usize,
+    /// Frequencies of γ(d) (4).
+    pub freq_d: usize,
+    /// Frequencies of γ(t) in NeRF-T (4), t being the frame index over the training frame count.
+    pub freq_t: usize,
+    /// MLP depth (8).
+    pub depth: usize,
+    /// MLP width (256).
+    pub width: usize,
+    /// Layer whose input is `cat[e_x, h]` (4).
+    pub skip: usize,
+    /// Stratified jitter of the depths in training (on in the original NeRF).
+    pub stratified: bool,
+    /// Composite on a white background (the scenes' background).
+    pub white_background: bool,
+    /// Rays per chunk when a whole image is rendered (memory only).
+    pub chunk: usize,
+}
+
+impl Default for NerfConfig {
+    fn default() -> Self {
+        Self {
+            near: 2.0,
+            far: 6.0,
+            time: false,
+            n_samples: 64,
+            n_importance: 128,
+            freq_x: 10,
+            freq_d: 4,
+            freq_t: 4,
+            depth: 8,
+            width: 256,
+            skip: 4,
+            stratified: true,
+            white_background: true,
+            chunk: 1024,
+        }
+    }
+}
+
+impl NerfConfig {
+    /// The shape of its networks.
+    pub fn mlp_shape(&self) -> MlpShape {
+        MlpShape {
+            depth: self.depth,
+            width: self.width,
+            skip: self.skip,
+            in_xyz: encoded_width(3, self.freq_x)
+                + usize::from(self.time) * encoded_width(1, self.freq_t),
+            in_dir: encoded_width(3, self.freq_d),
+        }
+    }
+
+    /// The segment and sample counts of a ray.
+    pub fn depth_plan(&self) -> DepthPlan {
+        DepthPlan {
+            near: self.near,
+            far: self.far,
+            n_samples: self.n_samples,
+            n_importance: self.n_importance,
+        }
+    }
+
+    /// The first field with an invalid value, and what was expected.
+    pub fn problem(&self) -> Option<(&'static str, String)> {
+        if !(self.near.is_finite() && self.far.is_finite() && self.near >= 0.0) {
+            return Some((
+                "near",
+                format!("expected finite bounds ≥ 0, got {}/{}", self.near, self.far),
+            ));
+        }
+        if self.far <= self.near {
+            return Some((
+                "far",
+                format!("expected far > near, got {}/{}", self.near, self.far),
+            ));
+        }
+        if self.n_samples < 3 {
+            return Some((
+                "n_samples",
+                format!("expected at least 3, got {}", self.n_samples),
+            ));
+        }
+        if self.depth < 2 {
+            return Some(("depth", format!("expected ≥ 2, got {}", self.depth)));
+        }
+        if self.width == 0 {
+            return Some(("width", "expected ≥ 1, got 0".into()));
+        }
+        if self.skip == 0 || self.skip >= self.depth {
+            return Some((
+                "skip",
+                format!(
+                    "expected 0 < skip < depth ({}), got {}",
+                    self.depth, self.skip
+                ),
+            ));
+        }
+        if self.chunk == 0 {
+            return Some(("chunk", "expected at least 1 ray per chunk".into()));
+        }
+        if self.freq_x > 20 || self.freq_d > 20 || self.freq_t > 20 {
+            return Some((
+                "freq_x",
+                "expected at most 20 frequencies per input (2^19 rad per unit)".into(),
+            ));
+        }
+        None
+    }
+}
+
+/// A NeRF or NeRF-T: coarse and fine networks.
+#[derive(Module, Debug)]
+pub struct Nerf {
+    /// Coarse network.
+    pub coarse: NerfMlp,
+    /// Fine network.
+    pub fine: NerfMlp,
+    /// Constants.
+    #[module(skip)]
+    pub config: NerfConfig,
+}
+
+impl Nerf {
+    /// A randomly initialised NeRF (f32) on `device`.
+    pub fn new(config: NerfConfig, device: &Device) -> Result<Self> {
+        if let Some((field, message)) = config.problem() {
+            return Err(PhysNerfError::Invalid(format!("{field}: {message}")));
+        }
+        Ok(Self {
+            coarse: NerfMlp::new(&config.mlp_shape(), device),
+            fine: NerfMlp::new(&config.mlp_shape(), device),
+            config,
+        })
+    }
+
+    /// The device of the weights.
+    pub fn device(&self) -> Device {
+        self.coarse.sigma.weight.val().device()
+    }
+
+    /// Renders `rays`; `times` holds one time per ray for NeRF-T and must be `None` for NeRF.
+    /// With `rng` the depths are jittered (stratified sampling, for training), without it the
+    /// render is deterministic.
+    pub fn render_rays(
+        &self,
+        rays: &RayBatch,
+        times: Option<&[f64]>,
+        rng: Option<&mut dyn RngCore>,
+    ) -> Result<RenderOutput> {
+        if rays.origins.len() != rays.dirs.len() {
+            return Err(PhysNerfError::Invalid(format!(
+                "ray batch has {} origins but {} directions",
+                rays.origins.len(),
+                rays.dirs.len()
+            )));
+        }
+        match (self.config.time, times) {
+            (true, Some(t)) if t.len() == rays.len() => {}
+            (true, Some(t)) => {
+                return Err(PhysNerfError::Invalid(format!(
+                    "NeRF-T needs one time per ray: {} times for {} rays",
+                    t.len(),
+                    rays.len()
+                )));
+            }
+            (true, None) => {
+                return Err(PhysNerfError::Invalid(
+                    "NeRF-T needs the time of every ray".into(),
+                ));
+            }
+            (false, Some(_)) => {
+                return Err(PhysNerfError::Invalid(
+                    "a NeRF without a time input was given times".into(),
+                ));
+            }
+            (false, None) => {}
+        }
+        let origins: Vec<[f32; 3]> = rays.origins.iter().map(|v| v.map(|c| c as f32)).collect();
+        let dirs: Vec<[f32; 3]> = rays.dirs.iter().map(|v| v.map(|c| c as f32)).collect();
+        render_hierarchical(
+            &self.config.depth_plan(),
+            rays.len(),
+            rng,
+            None,
+            |which, z: &[f32], s, timings| {
+                let net = match which {
+                    Pass::Coarse => &self.coarse,
+                    Pass::Fine => &self.fine,
+                };
+                self.run_pass(net, &origins, &dirs, times, z, s, timings)
+            },
+        )
+    }
+
+    /// Renders every pixel of `camera` (at `time` for NeRF-T), deterministically and without
+    /// gradients, `config.chunk` rays at a time.
+    pub fn render_image(&self, camera: &Camera, time: Option<f64>) -> Result<RenderedImage> {
+        let model = self.valid();
+        render_image_with(camera, self.config.chunk, &mut |_, _| {}, &mut |rays| {
+            let times = time.map(|t| vec![t; rays.len()]);
+            model.render_rays(rays, times.as_deref(), None)
+        })
+    }
+
+    /// Density σ ≥ 0 (after the activation) of the fine network at `points`, at time `time`
+    /// for NeRF-T; evaluated in chunks of `config.chunk · 64` points without gradients.
+    pub fn density_at(&self, points: &[[f64; 3]], time: Option<f64>) -> Result<Vec<f32>> {
+        if self.config.time != time.is_some() {
+            return Err(PhysNerfError::Invalid(
+                "a time is needed exactly for NeRF-T".into(),
+            ));
+        }
+        let model = self.valid();
+        let device = model.device();
+        let mut out = Vec::with_capacity(points.len());
+        for chunk in points.chunks((self.config.chunk * 64).max(1)) {
+            let q = chunk.len();
+            let flat: Vec<f32> = chunk.iter().flat_map(|p| p.map(|c| c as f32)).collect();
+            let x = host_tensor(flat, [q, 3], &device);
+            let e_x = model.position_input(x, time.map(|t| vec![t as f32; q]), &device);
+            // density does not depend on the direction: any unit vector will do
+            let d = host_tensor([0.0f32, 0.0, 1.0].repeat(q), [q, 3], &device);
+            let (_, sigma) = model.fine.forward(e_x, posenc(d, self.config.freq_d));
+            out.extend(read::<f32, 2>(relu(sigma))?);
+        }
+        Ok(out)
+    }
+
+    fn position_input(&self, x: Tensor<2>, times: Option<Vec<f32>>, device: &Device) -> Tensor<2> {
+        let q = x.dims()[0];
+        let ex = posenc(x, self.config.freq_x);
+        match times {
+            Some(t) => Tensor::cat(
+                vec![
+                    ex,
+                    posenc(host_tensor(t, [q, 1], device), self.config.freq_t),
+                ],
+                1,
+            ),
+            None => ex,
+        }
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn run_pass(
+        &self,
+        net: &NerfMlp,
+        origins: &[[f32; 3]],
+        dirs: &[[f32; 3]],
+        times: Option<&[f64]>,
+        z: &[f32],
+        s: usize,
+        timings: &mut Timings,
+    ) -> Result<PassOutput> {
+        let device = self.device();
+        let r = dirs.len();
+        let q = r * s;
+        let t1 = std::time::Instant::now();
+        let mut x = Vec::with_capacity(q * 3);
+        let mut d = Vec::with_capacity(q * 3);
+        for ray in 0..r {
+            let (o, dr) = (origins[ray], dirs[ray]);
+            for &zi in &z[ray * s..(ray + 1) * s] {
+                x.extend([o[0] + dr[0] * zi, o[1] + dr[1] * zi, o[2] + dr[2] * zi]);
+                d.extend(dr);
+            }
+        }
+        let t_samples = times.map(|t| {
+            t.iter()
+                .flat_map(|&ti| std::iter::repeat_n(ti as f32, s))
+                .collect()
+        });
+        let e_x = self.position_input(host_tensor(x, [q, 3], &device), t_samples, &device);
+        let e_d = posenc(host_tensor(d, [q, 3], &device), self.config.freq_d);
+        timings.encoding += t1.elapsed();
+        let t2 = std::time::Instant::now();
+        let (rgb, sigma) = net.forward(e_x, e_d);
+        timings.mlp += t2.elapsed();
+        let t3 = std::time::Instant::now();
+        let dl = host_tensor(deltas(z, s, dirs), [r, s], &device);
+        let comp = volume_render(
+            rgb.reshape([r, s, 3]),
+            sigma.reshape([r, s]),
+            dl,
+            self.config.white_background,
+        );
+        timings.composite += t3.elapsed();
+        Ok(PassOutput {
+            samples: s,
+            z: z.iter().map(|v| v.f64()).collect(),
+            rgb_map: comp.rgb_map,
+            weights: comp.weights,
+            alpha: comp.alpha,
+            acc: comp.acc,
+            num_nn: Vec::new(),
+            mask: Vec::new(),
+            nbr_idx_sum: Vec::new(),
+            evaluated: q,
+        })
+    }
+}
