@@ -116,6 +116,9 @@ pub struct SceneConfig {
     /// Fluid rest density (kg/m³).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub density: Option<f64>,
+    /// Render the warm-up views at every training frame (default false: at frame 0 only).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub warmup_every_frame: Option<bool>,
 }
 
 impl SceneConfig {
@@ -135,6 +138,7 @@ impl SceneConfig {
             elevation_deg: None,
             viscosity: None,
             density: None,
+            warmup_every_frame: None,
         }
     }
 

@@ -247,7 +247,7 @@ pub fn generate(p: &Preset, out: &Path, progress: bool) -> Result<Report, SceneE
         let name = format!("{t:04}");
         let mut jobs: Vec<(&ViewSpec, &str, usize, bool)> = Vec::new();
         for (i, v) in warm.iter().enumerate() {
-            if t == 0 || (i == 0 && t < p.train_frames) {
+            if t == 0 || ((i == 0 || p.warmup_every_frame) && t < p.train_frames) {
                 jobs.push((v, "train", i, true));
             }
         }
@@ -326,7 +326,14 @@ pub fn generate(p: &Preset, out: &Path, progress: bool) -> Result<Report, SceneE
         warmup: ViewSet {
             views: warm.iter().map(|v| v.name.clone()).collect(),
             split: "train".into(),
-            frames: FrameRange { start: 0, end: 1 },
+            frames: FrameRange {
+                start: 0,
+                end: if p.warmup_every_frame {
+                    p.train_frames
+                } else {
+                    1
+                },
+            },
         },
         train: ViewSet {
             views: vec![warm[0].name.clone()],

@@ -58,6 +58,10 @@ pub struct Preset {
     pub iso: f32,
     /// Support of the surface kernel in particle radii.
     pub surface_support: f32,
+    /// Render every warm-up view at every training frame (not only at frame 0): the images of
+    /// the NeRF-T baseline and of multi-view losses.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub warmup_every_frame: bool,
 }
 
 impl Preset {
@@ -140,6 +144,7 @@ impl Preset {
             voxel: if paper { 0.02 } else { 0.025 },
             iso: 0.4,
             surface_support: 5.0,
+            warmup_every_frame: cfg.warmup_every_frame.unwrap_or(false),
         }
     }
 

@@ -40,6 +40,11 @@ pub enum Command {
     /// Fluid surfaces (OBJ/PLY) of particle files: a scene's ground truth or an evaluation's
     /// rollouts, one mesh per frame.
     Mesh(commands::mesh::Args),
+    /// Recover the particles at t = 0 from the warm-up images of frame 0 (NeRF, marching cubes,
+    /// lattice fill); `scene.initial = "from_images"` makes `run` start from them.
+    InitParticles(commands::nerf_cmds::InitArgs),
+    /// Train and score a novel-view baseline (NeRF or NeRF-T) on NeuroFluid's test views.
+    Baseline(commands::nerf_cmds::BaselineArgs),
 }
 
 /// Sets up `tracing` on stderr at the level chosen by `-v` (or `RUST_LOG`).

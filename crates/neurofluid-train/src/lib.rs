@@ -17,3 +17,4 @@ pub mod stages;
 pub mod sweep;
 pub mod trainer;
 pub mod viewer;
+pub mod volume_fill;

@@ -186,6 +186,20 @@ impl OptimDefaults for WarmupGroup {
     }
 }
 
+/// A NeRF baseline or the NeRF of the initial particles: the original NeRF's 5e-4, ×0.1 every
+/// 250k steps.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct NerfGroup;
+impl OptimDefaults for NerfGroup {
+    const LR: f64 = 5e-4;
+    const EPSILON: f64 = 1e-8;
+    fn schedule() -> Schedule {
+        Schedule::Exponential {
+            decay_steps: 250_000,
+        }
+    }
+}
+
 /// PhysNeRF in the joint stage: 3e-4, halved after 10k, 75k, 150k (spec §4.2).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct JointPhysNerfGroup;

@@ -155,6 +155,31 @@ pub struct EvalReport {
     pub frames: Vec<FrameDistance>,
     /// Image metrics per view and step.
     pub images: Vec<ImageScore>,
+    /// The rollouts started from particles recovered from images (not the true frame 0).
+    #[serde(default)]
+    pub initial_from_images: bool,
+    /// Novel-view baselines scored on the same test views and frames.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub nvs_baselines: Vec<BaselineScores>,
+}
+
+/// A novel-view baseline's image metrics (NeRF, NeRF-T).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BaselineScores {
+    /// The model's name in tables.
+    pub model: String,
+    /// Image metrics per view and step.
+    pub images: Vec<ImageScore>,
+}
+
+/// Mean PSNR, SSIM and LPIPS of the images with `a ≤ t ≤ b`.
+pub fn image_means(images: &[ImageScore], (a, b): (usize, usize)) -> [Option<f64>; 3] {
+    let inside = || images.iter().filter(|i| (a..=b).contains(&i.t));
+    [
+        mean(inside().map(|i| i.psnr)),
+        mean(inside().map(|i| i.ssim)),
+        mean(inside().filter_map(|i| i.lpips)),
+    ]
 }
 
 fn mean(values: impl Iterator<Item = f64>) -> Option<f64> {
@@ -173,6 +198,8 @@ impl EvalReport {
             experiment: experiment.into(),
             scene: scene.into(),
             checkpoint: checkpoint.into(),
+            initial_from_images: false,
+            nvs_baselines: Vec::new(),
             windows,
             frames: Vec::new(),
             images: Vec::new(),
@@ -238,16 +265,26 @@ impl EvalReport {
         );
         let _ = writeln!(md, "|---|---:|---:|---:|---:|---:|");
         if s.all.dlf_d.is_some() {
+            let suffix = if self.initial_from_images {
+                ", from the same particles"
+            } else {
+                ""
+            };
             let _ = writeln!(
                 md,
-                "| DLF (pretrained baseline) | {} | {} | – | – | – |",
+                "| DLF (pretrained baseline{suffix}) | {} | {} | – | – | – |",
                 fmt_opt(s.grounding.dlf_d, 2),
                 fmt_opt(s.prediction.dlf_d, 2)
             );
         }
+        let suffix = if self.initial_from_images {
+            ", initial particles from images"
+        } else {
+            ""
+        };
         let _ = writeln!(
             md,
-            "| NeuroFluid | {} | {} | {} | {} | {} |",
+            "| NeuroFluid{suffix} | {} | {} | {} | {} | {} |",
             fmt_opt(s.grounding.neurofluid_d, 2),
             fmt_opt(s.prediction.neurofluid_d, 2),
             fmt_opt(s.all.psnr, 2),
@@ -260,6 +297,9 @@ impl EvalReport {
              (25 = one particle radius); PSNR/SSIM/LPIPS (AlexNet, v0.1) over the test views' \
              renders."
         );
+        if !self.nvs_baselines.is_empty() {
+            md.push_str(&self.nvs_markdown());
+        }
         if !s.views.is_empty() {
             let _ = writeln!(
                 md,
@@ -276,6 +316,39 @@ impl EvalReport {
                     fmt_opt(v.lpips, 4)
                 );
             }
+        }
+        md
+    }
+
+    /// The novel-view table (the paper's Tables 3–4): PSNR, SSIM and LPIPS over the observed
+    /// frames and over the predicted ones, for NeuroFluid and every baseline.
+    pub fn nvs_markdown(&self) -> String {
+        let (g, p) = (self.windows.grounding, self.windows.prediction);
+        let seen = (0, g.1);
+        let mut md = String::new();
+        let _ = writeln!(
+            md,
+            "\n### Novel views\n\n| model | PSNR t = {}–{} | SSIM | LPIPS | PSNR t = {}–{} | SSIM | LPIPS |\n|---|---:|---:|---:|---:|---:|---:|",
+            seen.0, seen.1, p.0, p.1
+        );
+        let mut rows = vec![("NeuroFluid", &self.images)];
+        rows.extend(
+            self.nvs_baselines
+                .iter()
+                .map(|b| (b.model.as_str(), &b.images)),
+        );
+        for (model, images) in rows {
+            let [a, b] = [seen, p].map(|w| image_means(images, w));
+            let _ = writeln!(
+                md,
+                "| {model} | {} | {} | {} | {} | {} | {} |",
+                fmt_opt(a[0], 2),
+                fmt_opt(a[1], 4),
+                fmt_opt(a[2], 4),
+                fmt_opt(b[0], 2),
+                fmt_opt(b[1], 4),
+                fmt_opt(b[2], 4)
+            );
         }
         md
     }

@@ -5,6 +5,7 @@ pub mod experiment_args;
 pub mod generate;
 pub mod info;
 pub mod mesh;
+pub mod nerf_cmds;
 pub mod pretrain_dlf;
 pub mod run;
 pub mod stage_cmds;
@@ -25,5 +26,7 @@ pub fn dispatch(command: Command) -> anyhow::Result<()> {
         Command::PretrainDlf(args) => pretrain_dlf::run(args),
         Command::Devices(args) => devices::run(args),
         Command::Mesh(args) => mesh::run(args),
+        Command::InitParticles(args) => nerf_cmds::run_init(args),
+        Command::Baseline(args) => nerf_cmds::run_baseline(args),
     }
 }

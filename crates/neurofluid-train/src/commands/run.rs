@@ -1,8 +1,9 @@
-//! `run`: the whole pipeline of an experiment — scene (generated if missing), warm-up, joint
-//! grounding, evaluation — then the summary table.
+//! `run`: the whole pipeline of an experiment — scene (generated if missing), the initial
+//! particles from images when asked for, warm-up, joint grounding, evaluation — then the summary
+//! table.
 
 use crate::stages::preflight::Stage;
-use crate::stages::{eval, joint, warmup};
+use crate::stages::run_all;
 
 use super::experiment_args::ExperimentArgs;
 
@@ -18,9 +19,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let run = args.exp.prepare(&Stage::ALL)?;
     tracing::info!("run folder {}", run.dir.display());
     let mut log = run.open_log()?;
-    warmup::run(&run, &mut log)?;
-    let grounded = joint::run(&run, &mut log)?;
-    let summary = eval::run(&run, &grounded)?;
+    let summary = run_all(&run, &mut log)?;
     println!("{}", summary.markdown());
     println!("results in {}", run.dir.display());
     Ok(())

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 
 use crate::stages::preflight::Stage;
-use crate::stages::{Run, Start, eval, joint, warmup};
+use crate::stages::{Run, Start, run_all};
 use crate::sweep::{Sweep, table_rows, write_table};
 
 /// Arguments of `sweep`.
@@ -42,10 +42,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let outcome = (|| -> anyhow::Result<_> {
             let run = Run::prepare(exp, Start::Resume, &Stage::ALL)?;
             let mut log = run.open_log()?;
-            warmup::run(&run, &mut log)?;
-            let grounded = joint::run(&run, &mut log)?;
-            let report = eval::run(&run, &grounded)?;
-            Ok(report)
+            run_all(&run, &mut log)
         })();
         match outcome {
             Ok(report) => results.push((variant.label.clone(), Some(report))),

@@ -35,8 +35,8 @@ use serde::{Deserialize, Serialize};
 pub use errors::{ConfigError, from_toml_str, line_col};
 pub(crate) use errors::{from_table, read_text};
 pub use sections::{
-    BuiltinScene, DlfSection, EvalSection, JointSection, PlyEncoding, SceneScale, SceneSection,
-    WarmupSection,
+    BuiltinScene, DlfSection, EvalSection, InitialParticles, InitialSection, JointSection,
+    NerfSection, PlyEncoding, SceneScale, SceneSection, WarmupSection,
 };
 pub use settings::{Settings, StageKind};
 
@@ -78,6 +78,12 @@ pub struct Experiment {
     /// Evaluation (spec §6).
     #[serde(default)]
     pub eval: EvalSection,
+    /// The NeRF of the initial particles and of the novel-view baselines.
+    #[serde(default)]
+    pub nerf: NerfSection,
+    /// Initial particles from images.
+    #[serde(default)]
+    pub initial: InitialSection,
 }
 
 fn default_seed() -> u64 {
@@ -267,6 +273,36 @@ impl Experiment {
             return bad("joint.boundary_weight", "expected a weight ≥ 0");
         }
         check_frac(j.precrop_frac, "joint.precrop_frac", origin)?;
+        let n = &self.nerf;
+        if let Some((field, msg)) = n.model.problem() {
+            return bad(&format!("nerf.model.{field}"), &msg);
+        }
+        if n.iters == 0 {
+            return bad("nerf.iters", "expected at least 1 iteration");
+        }
+        if n.rays == 0 || n.images_per_step == 0 {
+            return bad("nerf.rays", "expected at least 1 ray and 1 image per step");
+        }
+        if n.rays < n.images_per_step {
+            return bad(
+                "nerf.images_per_step",
+                "expected at most `nerf.rays` images per step",
+            );
+        }
+        if let Some((key, msg)) = n.optim.problem() {
+            return bad(&format!("nerf.optim.{key}"), msg);
+        }
+        check_frac(n.precrop_frac, "nerf.precrop_frac", origin)?;
+        let i = &self.initial;
+        if !(i.cell_radii.is_finite() && i.cell_radii > 0.0) {
+            return bad(
+                "initial.cell_radii",
+                "expected a grid spacing > 0 particle radii",
+            );
+        }
+        if !(i.opacity > 0.0 && i.opacity < 1.0) {
+            return bad("initial.opacity", "expected an opacity in (0, 1)");
+        }
         let e = &self.eval;
         if !(e.image_scale.is_finite() && e.image_scale > 0.0 && e.image_scale <= 1.0) {
             return bad("eval.image_scale", "expected a scale in (0, 1]");

@@ -9,7 +9,8 @@ use neurofluid_core::scene::{Role, Scene};
 use neurofluid_dlf::GeometryMode;
 use serde::{Deserialize, Serialize};
 
-use crate::optim::{JointDlfGroup, JointPhysNerfGroup, OptimConfig, WarmupGroup};
+use crate::optim::{JointDlfGroup, JointPhysNerfGroup, NerfGroup, OptimConfig, WarmupGroup};
+use neurofluid_physnerf::NerfConfig;
 
 /// Built-in scenes the generator knows.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -87,6 +88,11 @@ pub struct SceneSection {
     /// Far end of the ray segment; unset = the scene manifest's (13 for the released scenes).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub far: Option<f32>,
+    /// Where the particles at t = 0 come from: `"true"` (the scene's, as in the paper's main
+    /// results) or `"from_images"` (a NeRF on the warm-up views of frame 0, marching cubes and a
+    /// lattice fill: the paper's Table 5, "unknown initial particle positions").
+    #[serde(default)]
+    pub initial: InitialParticles,
     /// Further generator settings, passed through to the scene generator unchanged
     /// (e.g. `seed`, `image_size`, `train_frames`, `test_frames`).
     #[serde(default, skip_serializing_if = "toml::Table::is_empty")]
@@ -126,6 +132,98 @@ impl SceneSection {
             self.near.unwrap_or(manifest_near),
             self.far.unwrap_or(manifest_far),
         )
+    }
+}
+
+/// Where the particles at t = 0 come from.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum InitialParticles {
+    /// The scene's particles of frame 0.
+    #[default]
+    True,
+    /// Recovered from the warm-up images of frame 0 (`init-particles`).
+    FromImages,
+}
+
+/// `[nerf]`: a plain NeRF or NeRF-T, trained for the initial particles or as a novel-view
+/// baseline. The network is `[nerf.model]` ([`NerfConfig`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct NerfSection {
+    /// The networks and sampling.
+    pub model: NerfConfig,
+    /// Iterations (200 000 in the original NeRF's Blender scenes).
+    pub iters: u64,
+    /// Rays per iteration, spread over the images drawn for the step (1024).
+    pub rays: usize,
+    /// Images drawn per iteration (4: the warm-up views of frame 0 for NeRF).
+    pub images_per_step: usize,
+    /// Adam and schedule (5e-4, ×0.1 per 250k steps).
+    pub optim: OptimConfig<NerfGroup>,
+    /// Iterations with s < precrop_iters draw pixels from the central window (500).
+    pub precrop_iters: u64,
+    /// Size of the central window as a fraction of the image side (0.5).
+    pub precrop_frac: f64,
+    /// Log a metrics row every this many iterations.
+    pub log_every: u64,
+    /// Checkpoint every this many iterations (0 = only at the end).
+    pub ckpt_every: u64,
+    /// Render the first test view every this many iterations (0 = never).
+    pub preview_every: u64,
+}
+
+impl Default for NerfSection {
+    fn default() -> Self {
+        Self {
+            model: NerfConfig::default(),
+            iters: 200_000,
+            rays: 1024,
+            images_per_step: 4,
+            optim: OptimConfig::default(),
+            precrop_iters: 500,
+            precrop_frac: 0.5,
+            log_every: 100,
+            ckpt_every: 1000,
+            preview_every: 5000,
+        }
+    }
+}
+
+impl NerfSection {
+    /// The precrop fraction for 0-based iteration `step` (`None` = the full image).
+    pub fn precrop_at(&self, step: u64) -> Option<f64> {
+        (step < self.precrop_iters).then_some(self.precrop_frac)
+    }
+}
+
+/// `[initial]`: how the particles at t = 0 are recovered from the NeRF of frame 0.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct InitialSection {
+    /// Grid spacing of the density samples, in particle radii (1: 0.025 in DLF's units).
+    pub cell_radii: f64,
+    /// The surface's opacity threshold: the density σ at which one particle spacing (2r) of
+    /// fluid absorbs this fraction of the light, σ_iso = −ln(1 − opacity)/(2r) (0.5).
+    pub opacity: f64,
+    /// Keep only the largest connected body (drops NeRF's floaters; true).
+    pub largest_only: bool,
+}
+
+impl Default for InitialSection {
+    fn default() -> Self {
+        Self {
+            cell_radii: 1.0,
+            opacity: 0.5,
+            largest_only: true,
+        }
+    }
+}
+
+impl InitialSection {
+    /// The density threshold σ_iso for particles of radius `radius`.
+    pub fn iso(&self, radius: f64) -> f64 {
+        -(1.0 - self.opacity).ln() / (2.0 * radius)
     }
 }
 

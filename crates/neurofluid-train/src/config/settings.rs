@@ -24,6 +24,10 @@ const FREE: &[&str] = &[
     "joint.log_every",
     "joint.ckpt_every",
     "joint.preview_every",
+    "nerf.log_every",
+    "nerf.ckpt_every",
+    "nerf.preview_every",
+    "nerf.model.chunk",
 ];
 
 /// Keys added after a release, with the value that keeps the earlier behaviour: a checkpoint
@@ -38,6 +42,8 @@ pub enum StageKind {
     /// Joint grounding: everything the warm-up's state depends on and how long it ran, DLF and
     /// the joint settings (not where it stops).
     Joint,
+    /// A NeRF or NeRF-T: seed, scene and `[nerf]` (not where it stops).
+    Nerf,
 }
 
 impl StageKind {
@@ -46,10 +52,14 @@ impl StageKind {
         if FREE.iter().any(|p| under(p)) {
             return false;
         }
-        let warmup = ["seed", "scene", "physnerf", "warmup"]
+        let warmup = ["seed", "scene", "physnerf", "warmup", "nerf", "initial"]
             .iter()
-            .any(|p| under(p));
+            .any(|p| under(p))
+            && !under("nerf.iters");
         match self {
+            StageKind::Nerf => {
+                ["seed", "scene", "nerf"].iter().any(|p| under(p)) && !under("nerf.iters")
+            }
             StageKind::Warmup => warmup && !under("warmup.iters"),
             StageKind::Joint => {
                 (warmup || under("dlf") || under("joint")) && !under("joint.epochs")
@@ -118,10 +128,15 @@ impl Settings {
         Self::of(&exp.resolved())
     }
 
-    /// The settings that shape `stage`'s state.
+    /// The settings that shape `stage`'s state. The NeRF and `[initial]` shape the warm-up and
+    /// the joint stage only when the initial particles come from images.
     pub fn of_stage(exp: &Experiment, stage: StageKind) -> Self {
+        let from_images = exp.scene.initial == super::InitialParticles::FromImages;
         let mut all = Self::all(exp);
-        all.0.retain(|k, _| stage.covers(k));
+        all.0.retain(|k, _| {
+            let nerf = k.starts_with("nerf.") || k.starts_with("initial.");
+            stage.covers(k) && (stage == StageKind::Nerf || !nerf || from_images)
+        });
         all
     }
 

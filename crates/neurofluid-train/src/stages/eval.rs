@@ -48,13 +48,13 @@ fn rollout_positions(
 }
 
 /// An image of the renderer's fine output as [`RgbImage`] (8-bit quantised, as saved PNGs are).
-fn as_image(width: u32, height: u32, rgb: &[f32]) -> anyhow::Result<RgbImage> {
+pub(crate) fn as_image(width: u32, height: u32, rgb: &[f32]) -> anyhow::Result<RgbImage> {
     Ok(RgbImage::new(width as usize, height as usize, rgb.to_vec())?.quantised())
 }
 
 /// The camera and ground-truth colours of a view at `scale` × its resolution (the ground truth
 /// resampled with a triangle filter; unchanged at scale 1).
-fn scaled_view(view: &ViewFrame, scale: f64) -> (Camera, Vec<f32>) {
+pub(crate) fn scaled_view(view: &ViewFrame, scale: f64) -> (Camera, Vec<f32>) {
     let cam = view.camera;
     if (scale - 1.0).abs() < 1e-12 {
         return (cam, view.image.rgb.clone());
@@ -89,6 +89,24 @@ fn render(
     as_image(camera.width, camera.height, image.best())
 }
 
+/// PSNR, SSIM and LPIPS of a render against the truth (LPIPS absent for images too small for
+/// AlexNet).
+pub(crate) fn score(
+    view: &str,
+    t: usize,
+    pred: &RgbImage,
+    truth: &RgbImage,
+    lpips: &Lpips,
+) -> anyhow::Result<ImageScore> {
+    Ok(ImageScore {
+        view: view.into(),
+        t,
+        psnr: psnr(pred, truth)?,
+        ssim: ssim(pred, truth).unwrap_or(f64::NAN),
+        lpips: lpips.distance(pred, truth).ok(),
+    })
+}
+
 fn picture(image: &RgbImage) -> Picture {
     Picture {
         width: image.width as u32,
@@ -100,7 +118,7 @@ fn picture(image: &RgbImage) -> Picture {
 /// The particle sets at frame `t` seen from `camera`: truth, then each prediction coloured by
 /// its particles' distances to the nearest true particle (0 → 4 particle radii, viridis), with
 /// its d in the label.
-fn particle_row(
+pub(crate) fn particle_row(
     camera: &Camera,
     radius: f32,
     t: usize,
@@ -129,7 +147,7 @@ fn particle_row(
 const PARTICLE_PICTURE_WIDTH: u32 = 240;
 
 /// `camera` enlarged (same view) to at least `width` pixels wide.
-fn at_least_wide(camera: &Camera, width: u32) -> Camera {
+pub(crate) fn at_least_wide(camera: &Camera, width: u32) -> Camera {
     let k = (width as f32 / camera.width as f32).max(1.0);
     camera.resized(
         (camera.width as f32 * k).round() as u32,
@@ -168,19 +186,22 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
     let gt: Vec<_> = scene.particle_sequence(Role::Test)?;
     check_sequence(&gt, test.start).context("the test split's particles")?;
     let steps = test.len() - 1;
+    // both rollouts start from the same state: the truth, or the particles from images
+    let start =
+        super::initial::starting_particles(run, Role::Test, test.start, "first test frame")?;
     tracing::info!(steps, "evaluating: rollouts from the first test frame");
     let grounded = rollout_positions(
         run,
         &models.dlf,
-        &gt[0].pos,
-        &gt[0].vel,
+        &start.pos,
+        &start.vel,
         steps,
         "NeuroFluid",
     )?;
     let baseline = if cfg.baseline {
         let net = run.load_dlf(&run.exp.dlf.weights)?;
         Some(rollout_positions(
-            run, &net, &gt[0].pos, &gt[0].vel, steps, "DLF",
+            run, &net, &start.pos, &start.vel, steps, "DLF",
         )?)
     } else {
         None
@@ -191,6 +212,9 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
         &run.stage_dir(super::joint::STAGE).display().to_string(),
         Windows::from_lengths(train_len, test.len()),
     );
+    report.initial_from_images =
+        run.exp.scene.initial == crate::config::InitialParticles::FromImages;
+    report.nvs_baselines = super::baseline::read_all(run)?;
     report.frames = (1..=steps)
         .map(|t| FrameDistance {
             t,
@@ -239,13 +263,7 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
                 let side = side_by_side(&pred, &truth);
                 let png = dir.join(format!("renders/{view}/t{t:04}.png"));
                 save_png(&png, side.width, side.height, &side.rgb)?;
-                report.images.push(ImageScore {
-                    view: view.clone(),
-                    t,
-                    psnr: psnr(&pred, &truth)?,
-                    ssim: ssim(&pred, &truth).unwrap_or(f64::NAN),
-                    lpips: lpips.distance(&pred, &truth).ok(),
-                });
+                report.images.push(score(view, t, &pred, &truth, &lpips)?);
                 if cfg.animate {
                     let mut panels = vec![("truth", picture(&truth))];
                     if let Some(b) = &baseline {

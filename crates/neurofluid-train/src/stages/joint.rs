@@ -324,7 +324,10 @@ pub fn run(run: &Run, log: &mut MetricsLog) -> anyhow::Result<Grounded> {
 /// there (with the carried particle state when `stop` falls inside an epoch).
 pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::Result<Grounded> {
     let cfg = &run.exp.joint;
-    let data = JointData::load(&run.scene, cfg)?;
+    let mut data = JointData::load(&run.scene, cfg)?;
+    let first = run.scene.frames(Role::Train).start;
+    data.initial =
+        super::initial::starting_particles(run, Role::Train, first, "first training frame")?;
     tracing::info!(
         epochs = cfg.epochs,
         transitions = data.transitions(),

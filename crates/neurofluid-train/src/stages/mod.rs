@@ -2,8 +2,11 @@
 //! DLF training (`pretrain-dlf`). Each training stage is a [`crate::trainer::Trainer`] that the
 //! [`crate::trainer::Driver`] runs.
 
+pub mod baseline;
 pub mod eval;
+pub mod initial;
 pub mod joint;
+pub mod nerf;
 pub mod preflight;
 pub mod run_folder;
 pub mod scene_source;
@@ -20,6 +23,17 @@ use crate::config::StageKind;
 use crate::metrics_log::MetricsLog;
 use crate::trainer::sinks::{CurvesPlot, MetricsSink, PreviewWriter, ProgressBars};
 use crate::trainer::{Cadence, Driver, Trainer};
+
+/// Every stage of `run` in order (the initial particles from images first, when asked for),
+/// resuming where the run folder says; returns the evaluation.
+pub fn run_all(run: &Run, log: &mut MetricsLog) -> anyhow::Result<crate::report::EvalReport> {
+    if run.exp.scene.initial == crate::config::InitialParticles::FromImages {
+        initial::recover(run, log)?;
+    }
+    warmup::run(run, log)?;
+    let grounded = joint::run(run, log)?;
+    eval::run(run, &grounded)
+}
 
 /// Runs `trainer` in its stage folder of `run` up to `stop`, with the sinks of the CLI: a
 /// progress bar, the run's metrics log, the preview pictures and the curves.

@@ -5,33 +5,44 @@
 
 use neurofluid_core::scene::{Role, Scene};
 
+use super::nerf::{NerfData, NerfKind};
 use super::run_folder::{Run, Start};
 use super::views::{check_sequence, load_particles};
-use super::{eval, joint, warmup};
+use super::{eval, initial, joint, warmup};
+use crate::config::InitialParticles;
 use crate::config::StageKind;
 use crate::trainer::checkpoint;
 
 /// The stages a command will run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Stage {
+    /// Initial particles from images (only when `scene.initial = "from_images"`).
+    Initial,
     /// The warm-up.
     Warmup,
     /// Joint grounding.
     Joint,
     /// Evaluation.
     Eval,
+    /// The NeRF baseline (also the NeRF of the initial particles).
+    Nerf,
+    /// The NeRF-T baseline.
+    NerfT,
 }
 
 impl Stage {
-    /// Every stage, in the order they run.
-    pub const ALL: [Stage; 3] = [Stage::Warmup, Stage::Joint, Stage::Eval];
+    /// Every stage of `run`, in the order they run (the baselines stand apart).
+    pub const ALL: [Stage; 4] = [Stage::Initial, Stage::Warmup, Stage::Joint, Stage::Eval];
 
     /// The stage's folder in the run folder.
     pub fn folder(self) -> &'static str {
         match self {
+            Stage::Initial => initial::STAGE,
             Stage::Warmup => warmup::STAGE,
             Stage::Joint => joint::STAGE,
             Stage::Eval => eval::STAGE,
+            Stage::Nerf => NerfKind::Nerf.stage(),
+            Stage::NerfT => NerfKind::NerfT.stage(),
         }
     }
 }
@@ -122,12 +133,34 @@ pub fn check(run: &Run, stages: &[Stage], start: Start) -> anyhow::Result<()> {
             }
         }
     }
+    let from_images = exp.scene.initial == InitialParticles::FromImages;
+    let nerfs = [
+        (Stage::Nerf, NerfKind::Nerf, true),
+        (Stage::Initial, NerfKind::Nerf, from_images),
+        (Stage::NerfT, NerfKind::NerfT, true),
+    ];
+    for (stage, kind, needed) in nerfs {
+        if stages.contains(&stage) && needed {
+            p.error(NerfData::load(scene, kind, &exp.warmup.views(scene), false).map(|_| ()));
+        }
+    }
+    if from_images
+        && !stages.contains(&Stage::Initial)
+        && stages.iter().any(|s| Stage::ALL.contains(s))
+    {
+        let t0 = scene.frames(Role::Warmup).start;
+        p.error(
+            initial::starting_particles(run, Role::Warmup, t0, "initial particles").map(|_| ()),
+        );
+    }
     let joint_steps = exp.joint.epochs * scene.frames(Role::Train).len().saturating_sub(1) as u64;
     if stages.contains(&Stage::Warmup) {
         let t0 = scene.frames(Role::Warmup).start;
         images(&mut p, scene, Role::Warmup, &exp.warmup.views(scene), &[t0]);
-        let what = format!("warm-up particles (frame {t0})");
-        p.error(load_particles(scene, Role::Warmup, t0, &what));
+        if !from_images {
+            let what = format!("warm-up particles (frame {t0})");
+            p.error(load_particles(scene, Role::Warmup, t0, &what));
+        }
         if let Some(v) = exp.warmup.preview_view(scene) {
             images(&mut p, scene, Role::Test, &[v], &[t0]);
         }

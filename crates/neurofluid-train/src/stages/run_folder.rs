@@ -14,6 +14,7 @@ use neurofluid_core::scene::{Scene, UpAxis};
 use neurofluid_dlf::{DlfConfig, DlfNet};
 use neurofluid_physnerf::PhysNerfConfig;
 
+use super::nerf::NerfKind;
 use super::preflight::{self, Stage};
 use super::scene_source::generate_scene_if_missing;
 use crate::config::{Experiment, RESOLVED_FILE, Settings, StageKind};
@@ -26,6 +27,9 @@ pub const HISTORY_FILE: &str = "config.history";
 
 /// What a run folder holds (and `--fresh` removes): stage folders and run-level files.
 const RUN_CONTENTS: &[&str] = &[
+    super::initial::STAGE,
+    "nerf",
+    "nerf-t",
     super::warmup::STAGE,
     super::joint::STAGE,
     super::eval::STAGE,
@@ -148,10 +152,14 @@ impl Run {
     pub fn open_log(&self) -> anyhow::Result<MetricsLog> {
         let warmup = checkpoint::saved_step(&self.stage_dir(super::warmup::STAGE));
         let joint = checkpoint::saved_step(&self.stage_dir(super::joint::STAGE));
+        let nerf = checkpoint::saved_step(&self.stage_dir(NerfKind::Nerf.stage()));
+        let nerf_t = checkpoint::saved_step(&self.stage_dir(NerfKind::NerfT.stage()));
         let log = MetricsLog::open_resumed(&self.dir, |row| {
             match row.stage.trim_end_matches("-preview") {
                 s if s == super::warmup::STAGE => row.step <= warmup,
                 s if s == super::joint::STAGE => row.step <= joint,
+                s if s == NerfKind::Nerf.stage() => row.step <= nerf,
+                s if s == NerfKind::NerfT.stage() => row.step <= nerf_t,
                 _ => true,
             }
         })?;
@@ -209,14 +217,18 @@ impl Run {
             return Ok(());
         }
         let first = Stage::ALL.iter().position(|s| stages.contains(s));
-        let Some(first) = first else {
-            return Ok(());
+        let mut names: Vec<&str> = match first {
+            Some(0) => RUN_CONTENTS.to_vec(),
+            Some(first) => Stage::ALL[first..].iter().map(|s| s.folder()).collect(),
+            None => Vec::new(),
         };
-        let names: Vec<&str> = if first == 0 {
-            RUN_CONTENTS.to_vec()
-        } else {
-            Stage::ALL[first..].iter().map(|s| s.folder()).collect()
-        };
+        // a baseline starts over alone
+        names.extend(
+            [Stage::Nerf, Stage::NerfT]
+                .into_iter()
+                .filter(|s| stages.contains(s))
+                .map(Stage::folder),
+        );
         for name in names {
             let p = self.dir.join(name);
             if p.is_dir() {

@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use neurofluid_core::scene::MANIFEST_FILE;
+use neurofluid_core::scene::{MANIFEST_FILE, Role};
 use neurofluid_scenegen::{Preset, SceneConfig};
 
 use crate::config::Experiment;
@@ -34,7 +34,15 @@ pub fn generate_scene_if_missing(exp: &Experiment) -> anyhow::Result<PathBuf> {
             );
         }
         Some(cfg) => {
-            if !dir.join(MANIFEST_FILE).is_file() {
+            // a scene generated before the warm-up views were asked for at every frame is
+            // generated again (deterministically: the files it had come out the same)
+            let lacks_views = cfg.warmup_every_frame == Some(true)
+                && neurofluid_core::scene::Scene::open(&dir)
+                    .is_ok_and(|s| s.frames(Role::Warmup).len() < s.frames(Role::Train).len());
+            if lacks_views {
+                tracing::info!("the scene lacks warm-up views at every frame: rendering them");
+            }
+            if lacks_views || !dir.join(MANIFEST_FILE).is_file() {
                 tracing::info!(
                     "generating the built-in scene {} ({}) into {}",
                     cfg.name.name(),

@@ -191,7 +191,10 @@ pub fn run(run: &Run, log: &mut MetricsLog) -> anyhow::Result<PhysNerf> {
 /// there, so a long warm-up can run in pieces.
 pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::Result<PhysNerf> {
     let cfg = &run.exp.warmup;
-    let data = WarmupData::load(&run.scene, cfg)?;
+    let mut data = WarmupData::load(&run.scene, cfg)?;
+    let t0 = run.scene.frames(Role::Warmup).start;
+    data.particles =
+        super::initial::starting_particles(run, Role::Warmup, t0, "warm-up particles")?.pos;
     tracing::info!(
         views = data.views.len(),
         iters = cfg.iters,

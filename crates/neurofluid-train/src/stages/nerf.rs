@@ -1,0 +1,306 @@
+//! A plain NeRF or NeRF-T trained on the scene's images, by the same driver as every stage
+//! (checkpoints, exact resume, progress, previews, metrics log). NeRF trains on the warm-up views
+//! of frame 0 (the paper's NeRF baseline, and the density field of the initial particles);
+//! NeRF-T on one warm-up view per training frame, cycling through the views (the paper's protocol
+//! for its time-conditioned baselines).
+
+use std::path::Path;
+
+use anyhow::Context;
+use burn::optim::{GradientsParams, ModuleOptimizer};
+use burn::prelude::*;
+use neurofluid_core::metrics::{RgbImage, psnr};
+use neurofluid_core::scene::{Role, Scene};
+use neurofluid_physnerf::{Nerf, NerfConfig, RayBatch};
+
+use super::run_folder::Run;
+use super::views::{ViewFrame, scalar, side_by_side};
+use crate::config::{NerfSection, StageKind};
+use crate::metrics_log::{MetricsLog, psnr_from_mse};
+use crate::sampler::Rng;
+use crate::trainer::checkpoint;
+use crate::trainer::{Cadence, Evaluation, StageState, StepStats, Trainer, guard};
+
+/// Which NeRF.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum NerfKind {
+    /// NeRF on the warm-up views of frame 0.
+    Nerf,
+    /// NeRF-T: time as an input, one warm-up view per training frame.
+    #[value(name = "nerf-t")]
+    NerfT,
+}
+
+impl NerfKind {
+    /// The stage's folder and metrics rows.
+    pub fn stage(self) -> &'static str {
+        match self {
+            NerfKind::Nerf => "nerf",
+            NerfKind::NerfT => "nerf-t",
+        }
+    }
+
+    /// The name in tables.
+    pub fn label(self) -> &'static str {
+        match self {
+            NerfKind::Nerf => "NeRF",
+            NerfKind::NerfT => "NeRF-T",
+        }
+    }
+}
+
+/// One training image: the view of a frame and, for NeRF-T, its time.
+#[derive(Debug, Clone)]
+pub struct TimedView {
+    /// Camera and image.
+    pub view: ViewFrame,
+    /// `(t − t₀)/frames` of the training sequence (NeRF-T), `None` for NeRF.
+    pub time: Option<f64>,
+}
+
+/// What a NeRF trains on, and the held-out view its previews render.
+#[derive(Debug, Clone)]
+pub struct NerfData {
+    /// The training images.
+    pub images: Vec<TimedView>,
+    /// The first test view at frame t₀ (time 0), when previews are on.
+    pub held_out: Option<TimedView>,
+}
+
+/// The time input of frame `t` for a training sequence over `frames` (t₀ at 0, t₀ + frames at 1).
+pub fn time_of(t: usize, frames: &std::ops::Range<usize>) -> f64 {
+    (t as f64 - frames.start as f64) / frames.len().max(1) as f64
+}
+
+impl NerfData {
+    /// The images of `kind`'s protocol from `scene`.
+    pub fn load(
+        scene: &Scene,
+        kind: NerfKind,
+        views: &[String],
+        preview: bool,
+    ) -> anyhow::Result<Self> {
+        anyhow::ensure!(
+            !views.is_empty(),
+            "the scene has no warm-up views (scene.json `warmup.views`): a NeRF needs images of \
+             frame 0 from several views"
+        );
+        let warm = scene.frames(Role::Warmup);
+        let t0 = warm.start;
+        let train = scene.frames(Role::Train);
+        let images = match kind {
+            NerfKind::Nerf => views
+                .iter()
+                .map(|v| {
+                    Ok(TimedView {
+                        view: ViewFrame::load(scene, Role::Warmup, v, t0)?,
+                        time: None,
+                    })
+                })
+                .collect::<anyhow::Result<Vec<_>>>()?,
+            NerfKind::NerfT => {
+                anyhow::ensure!(
+                    warm.end >= train.end,
+                    "NeRF-T trains on one warm-up view per training frame, but the scene has its \
+                     warm-up views only at frames {}..{} (training frames {}..{}); for a built-in \
+                     scene, set `scene.generate.warmup_every_frame = true` and the generator \
+                     renders them",
+                    warm.start,
+                    warm.end,
+                    train.start,
+                    train.end
+                );
+                train
+                    .clone()
+                    .map(|t| {
+                        let v = &views[(t - train.start) % views.len()];
+                        Ok(TimedView {
+                            view: ViewFrame::load(scene, Role::Warmup, v, t)?,
+                            time: Some(time_of(t, &train)),
+                        })
+                    })
+                    .collect::<anyhow::Result<Vec<_>>>()?
+            }
+        };
+        let held_out = match scene.views(Role::Test).first() {
+            Some(v) if preview => Some(TimedView {
+                view: ViewFrame::load(scene, Role::Test, v, t0)?,
+                time: (kind == NerfKind::NerfT).then_some(0.0),
+            }),
+            _ => None,
+        };
+        Ok(Self { images, held_out })
+    }
+}
+
+/// A NeRF, its Adam and its pixel stream.
+pub struct NerfTrainer {
+    kind: NerfKind,
+    cfg: NerfSection,
+    nerf: Nerf,
+    opt: ModuleOptimizer,
+    rng: Rng,
+    data: NerfData,
+}
+
+impl NerfTrainer {
+    /// A trainer of `nerf` on `data`; the pixel stream follows `seed`.
+    pub fn new(kind: NerfKind, cfg: &NerfSection, nerf: Nerf, data: NerfData, seed: u64) -> Self {
+        Self {
+            kind,
+            opt: cfg.optim.adam(),
+            rng: Rng::stream(seed, kind.stage()),
+            cfg: cfg.clone(),
+            nerf,
+            data,
+        }
+    }
+
+    /// The trained NeRF.
+    pub fn into_nerf(self) -> Nerf {
+        self.nerf
+    }
+}
+
+impl Trainer for NerfTrainer {
+    fn stage(&self) -> &'static str {
+        self.kind.stage()
+    }
+
+    fn total_steps(&self) -> u64 {
+        self.cfg.iters
+    }
+
+    fn step(&mut self, step: u64) -> anyhow::Result<StepStats> {
+        let lr = self.cfg.optim.lr_at(step);
+        let device = self.nerf.device();
+        let n = self.data.images.len();
+        let k = self.cfg.images_per_step.min(n);
+        let picks = self.rng.sample_indices(k, n)?;
+        let mut rays = RayBatch::default();
+        let mut times = Vec::new();
+        let mut targets = Vec::with_capacity(k);
+        for (i, &pick) in picks.iter().enumerate() {
+            let image = &self.data.images[pick];
+            let count = self.cfg.rays / k + usize::from(i < self.cfg.rays % k);
+            let (w, h) = (image.view.camera.width, image.view.camera.height);
+            let pixels = self.rng.sample_pixels(
+                count.min((w * h) as usize),
+                w,
+                h,
+                self.cfg.precrop_at(step),
+            )?;
+            let (r, target) = image.view.batch(&pixels, &device);
+            times.extend(image.time.map(|t| vec![t; r.len()]).unwrap_or_default());
+            rays.origins.extend(r.origins);
+            rays.dirs.extend(r.dirs);
+            targets.push(target);
+        }
+        let target = Tensor::cat(targets, 0);
+        let times = self.nerf.config.time.then_some(times);
+        let jitter: Option<&mut dyn rand::RngCore> = if self.nerf.config.stratified {
+            Some(&mut self.rng)
+        } else {
+            None
+        };
+        let out = self.nerf.render_rays(&rays, times.as_deref(), jitter)?;
+        let loss = out.loss(target);
+        let fine_mse = scalar(&loss.fine);
+        let value = scalar(&loss.total);
+        let mut grad_norm = 0.0;
+        if value.is_finite()
+            && let Some(grads) = guard::backward(loss.total)
+        {
+            let grads = GradientsParams::from_grads(grads, &self.nerf);
+            grad_norm = guard::grad_norm(&grads, &self.nerf);
+            if grad_norm.is_finite() {
+                self.nerf = self.opt.step(lr, self.nerf.clone(), grads);
+            }
+        }
+        Ok(StepStats {
+            loss: value,
+            psnr: Some(psnr_from_mse(if out.fine.is_some() {
+                fine_mse
+            } else {
+                scalar(&loss.coarse)
+            })),
+            lr_physnerf: Some(lr),
+            lr_dlf: None,
+            rays: rays.len(),
+            grad_norms: vec![("physnerf", grad_norm)],
+            updated: true,
+        })
+    }
+
+    fn evaluate(&mut self, _done: u64) -> anyhow::Result<Option<Evaluation>> {
+        let Some(held) = &self.data.held_out else {
+            return Ok(None);
+        };
+        let cam = &held.view.camera;
+        let image = self.nerf.render_image(cam, held.time)?;
+        let (w, h) = (cam.width as usize, cam.height as usize);
+        let pred = RgbImage::new(w, h, image.best().to_vec())?;
+        let truth = RgbImage::new(w, h, held.view.image.rgb.clone())?;
+        Ok(Some(Evaluation {
+            psnr: Some(psnr(&pred, &truth)?),
+            picture: Some(side_by_side(&pred, &truth)),
+            scores: Vec::new(),
+        }))
+    }
+
+    fn save(&self, dir: &Path) -> anyhow::Result<StageState> {
+        checkpoint::save_module(&self.nerf, &dir.join("nerf.bpk"))?;
+        checkpoint::save_optimizer(&self.opt, &dir.join("optim_nerf.bpk"))?;
+        Ok(self.rng.to_state())
+    }
+
+    fn load(&mut self, dir: &Path, _done: u64, state: StageState) -> anyhow::Result<()> {
+        self.nerf = checkpoint::load_module(self.nerf.clone(), &dir.join("nerf.bpk"))?;
+        self.opt = checkpoint::load_optimizer(
+            self.cfg.optim.adam(),
+            &self.nerf,
+            &dir.join("optim_nerf.bpk"),
+        )?;
+        self.rng = Rng::from_stage_state(&state, dir)?;
+        Ok(())
+    }
+}
+
+/// The NeRF of `kind` for `run`'s scene (the ray segment is the scene's), freshly initialised
+/// from the experiment's seed.
+pub fn new_nerf(run: &Run, kind: NerfKind) -> anyhow::Result<Nerf> {
+    run.device.seed(run.exp.seed);
+    Nerf::new(nerf_config(run, kind), &run.device).context("building the NeRF from [nerf.model]")
+}
+
+fn nerf_config(run: &Run, kind: NerfKind) -> NerfConfig {
+    let (near, far) = run.exp.scene.bounds(0.0, 0.0);
+    NerfConfig {
+        near: near as f64,
+        far: far as f64,
+        time: kind == NerfKind::NerfT,
+        ..run.exp.nerf.model.clone()
+    }
+}
+
+/// Trains (or resumes, or finds finished) the NeRF of `kind` in `run` and returns it.
+pub fn train(run: &Run, log: &mut MetricsLog, kind: NerfKind) -> anyhow::Result<Nerf> {
+    let cfg = &run.exp.nerf;
+    let views = run.exp.warmup.views(&run.scene);
+    let data = NerfData::load(&run.scene, kind, &views, cfg.preview_every > 0)?;
+    tracing::info!(
+        model = kind.label(),
+        images = data.images.len(),
+        iters = cfg.iters,
+        rays = cfg.rays,
+        "NeRF training"
+    );
+    let mut trainer = NerfTrainer::new(kind, cfg, new_nerf(run, kind)?, data, run.exp.seed);
+    let cadence = Cadence {
+        log_every: cfg.log_every,
+        evaluate_every: cfg.preview_every,
+        checkpoint_every: cfg.ckpt_every,
+    };
+    super::drive(run, log, &mut trainer, StageKind::Nerf, cadence, None)?;
+    Ok(trainer.into_nerf())
+}

@@ -1,0 +1,171 @@
+//! The NeRF baselines and the initial particles from images through the trainer: NeRF-T needs
+//! the warm-up views at every frame and says how to get them; a baseline resumes exactly and is
+//! scored on NeuroFluid's test frames; recovered initial particles feed every stage of `run`;
+//! a NeRF that sees no fluid is refused with the reason.
+
+use std::path::Path;
+
+use neurofluid_core::scene::{Particles, Role};
+use neurofluid_tests::{params, seeded_turn, tiny_experiment};
+use neurofluid_train::config::Experiment;
+use neurofluid_train::metrics_log::MetricsLog;
+use neurofluid_train::stages::nerf::{self, NerfKind};
+use neurofluid_train::stages::preflight::Stage;
+use neurofluid_train::stages::{Run, Start, baseline, eval, initial, run_all};
+
+/// The tiny experiment with a tiny NeRF; `every_frame` renders the warm-up views at every frame.
+fn experiment(tmp: &Path, name: &str, every_frame: bool, iters: u64) -> Experiment {
+    let mut e = tiny_experiment(tmp, name);
+    e.scene.dir = Some(tmp.join(if every_frame { "scene_all" } else { "scene" }));
+    e.apply_overrides(&[
+        format!("nerf.iters={iters}"),
+        "nerf.rays=96".into(),
+        "nerf.ckpt_every=3".into(),
+        "nerf.log_every=1".into(),
+        "nerf.preview_every=0".into(),
+        "nerf.precrop_iters=2".into(),
+        "nerf.model.width=16".into(),
+        "nerf.model.skip=1".into(),
+        "nerf.model.depth=3".into(),
+        "nerf.model.n_samples=8".into(),
+        "nerf.model.n_importance=8".into(),
+        format!("scene.generate.warmup_every_frame={every_frame}"),
+    ])
+    .unwrap();
+    e
+}
+
+#[test]
+fn nerf_t_needs_the_warmup_views_at_every_frame() {
+    let tmp = tempfile::tempdir().unwrap();
+    let e = experiment(tmp.path(), "t", false, 3);
+    let err = Run::prepare(e, Start::Resume, &[Stage::NerfT])
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("warmup_every_frame"), "{err}");
+    // asking for them regenerates the scene with them
+    let e = experiment(tmp.path(), "t", true, 3);
+    let run = Run::prepare(e, Start::Resume, &[Stage::NerfT]).unwrap();
+    assert_eq!(
+        run.scene.frames(Role::Warmup),
+        run.scene.frames(Role::Train)
+    );
+}
+
+#[test]
+fn a_baseline_resumes_exactly_and_is_scored_on_the_test_frames() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let straight = Run::prepare(
+        experiment(tmp.path(), "straight", true, 6),
+        Start::Resume,
+        &[Stage::NerfT],
+    )
+    .unwrap();
+    let mut log = MetricsLog::open(&straight.dir).unwrap();
+    let a = nerf::train(&straight, &mut log, NerfKind::NerfT).unwrap();
+
+    let first = Run::prepare(
+        experiment(tmp.path(), "pieces", true, 3),
+        Start::Resume,
+        &[Stage::NerfT],
+    )
+    .unwrap();
+    let mut log = first.open_log().unwrap();
+    nerf::train(&first, &mut log, NerfKind::NerfT).unwrap();
+    drop((log, first));
+    let second = Run::prepare(
+        experiment(tmp.path(), "pieces", true, 6),
+        Start::Resume,
+        &[Stage::NerfT],
+    )
+    .unwrap();
+    let mut log = second.open_log().unwrap();
+    let b = nerf::train(&second, &mut log, NerfKind::NerfT).unwrap();
+    assert_eq!(params(&a), params(&b), "the resumed NeRF-T differs");
+    let rows = neurofluid_train::metrics_log::read_jsonl(log.jsonl_path())
+        .unwrap()
+        .iter()
+        .filter(|r| r.stage == "nerf-t")
+        .count();
+    assert_eq!(rows, 6, "one metrics row per step, none repeated");
+
+    let scores = baseline::evaluate(&second, &b, NerfKind::NerfT).unwrap();
+    let test = second.scene.frames(Role::Test);
+    let frames = eval::rendered_steps(test.len(), second.exp.eval.render_every);
+    assert_eq!(scores.model, "NeRF-T");
+    assert_eq!(
+        scores.images.iter().map(|s| s.t).collect::<Vec<_>>(),
+        frames
+    );
+    assert!(scores.images.iter().all(|s| s.psnr.is_finite()));
+    let read = baseline::read_all(&second).unwrap();
+    assert_eq!(read, vec![scores]);
+}
+
+#[test]
+fn particles_from_images_feed_every_stage() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let mut e = experiment(tmp.path(), "fromimages", false, 3);
+    e.apply_overrides(&["scene.initial=from_images"]).unwrap();
+    // before any recovery the stages that start from them refuse to start, saying why
+    let err = Run::prepare(e.clone(), Start::Resume, &[Stage::Warmup])
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("init-particles"), "{err}");
+
+    // recovered particles (here: the truth moved up by two radii and thinned to every other one)
+    let run = Run::prepare(e.clone(), Start::Resume, &[Stage::Nerf]).unwrap();
+    let truth = run.scene.particles(Role::Warmup, 0).unwrap();
+    let moved: Vec<[f32; 3]> = truth
+        .pos
+        .iter()
+        .step_by(2)
+        .map(|p| [p[0], p[1] + 0.05, p[2]])
+        .collect();
+    let n = moved.len();
+    Particles {
+        pos: moved.clone(),
+        vel: vec![[0.0; 3]; n],
+    }
+    .write(&initial::particles_path(&run))
+    .unwrap();
+    drop(run);
+
+    let run = Run::prepare(
+        e,
+        Start::Resume,
+        &[Stage::Warmup, Stage::Joint, Stage::Eval],
+    )
+    .unwrap();
+    let start = initial::starting_particles(&run, Role::Test, 0, "start").unwrap();
+    assert_eq!(start.pos, moved);
+    let mut log = run.open_log().unwrap();
+    neurofluid_train::stages::warmup::run(&run, &mut log).unwrap();
+    let grounded = neurofluid_train::stages::joint::run(&run, &mut log).unwrap();
+    let report = eval::run(&run, &grounded).unwrap();
+    assert!(report.initial_from_images);
+    assert!(report.markdown().contains("initial particles from images"));
+    // the rollouts start from the recovered particles: at t = 1 the truth is about two radii
+    // (50 × 10⁻³) from them, far more than from a rollout of the true state
+    assert!(report.frames[0].neurofluid > 20.0, "{:?}", report.frames[0]);
+}
+
+#[test]
+fn a_nerf_that_sees_no_fluid_is_refused_with_the_reason() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let mut e = experiment(tmp.path(), "nofluid", false, 2);
+    // a surface no untrained NeRF reaches: σ_iso = −ln(1e-9)/(2r) ≈ 414
+    e.apply_overrides(&["scene.initial=from_images", "initial.opacity=0.999999999"])
+        .unwrap();
+    let run = Run::prepare(e, Start::Resume, &Stage::ALL).unwrap();
+    let mut log = run.open_log().unwrap();
+    let err = format!("{:#}", run_all(&run, &mut log).unwrap_err());
+    assert!(err.contains("no value above the threshold"), "{err}");
+    assert!(
+        !initial::particles_path(&run).exists(),
+        "no particle file after a failed recovery"
+    );
+}
