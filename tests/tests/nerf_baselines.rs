@@ -46,10 +46,26 @@ fn nerf_t_needs_the_warmup_views_at_every_frame() {
     // asking for them regenerates the scene with them
     let e = experiment(tmp.path(), "t", true, 3);
     let run = Run::prepare(e, Start::Resume, &[Stage::NerfT]).unwrap();
-    assert_eq!(
-        run.scene.frames(Role::Warmup),
-        run.scene.frames(Role::Train)
-    );
+    let scene = &run.scene;
+    assert_eq!(scene.frames(Role::Warmup), scene.frames(Role::Train));
+    // every warm-up view sees the same particles at a frame, from its own camera
+    let t = scene.frames(Role::Train).end - 1;
+    let views = scene.views(Role::Warmup);
+    let first = scene.image(Role::Warmup, &views[0], t).unwrap();
+    let p0 = scene.particles(Role::Train, t).unwrap();
+    for v in &views[1..] {
+        assert_ne!(
+            scene.image(Role::Warmup, v, t).unwrap().rgb,
+            first.rgb,
+            "{v}"
+        );
+        let path = scene
+            .view_split(Role::Warmup, v)
+            .unwrap()
+            .particle_path(t)
+            .unwrap();
+        assert_eq!(Particles::read(&path).unwrap().pos, p0.pos, "{v}");
+    }
 }
 
 #[test]

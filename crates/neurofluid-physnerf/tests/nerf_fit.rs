@@ -78,7 +78,6 @@ fn train(config: NerfConfig, images: &[(RayBatch, Vec<f32>, Option<f64>)], iters
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let device = Device::flex().autodiff();
     device.seed(3);
-    let config_time = config.time;
     let mut model = Nerf::new(config, &device).unwrap();
     let mut opt = AdamConfig::new().init();
     let mut rng = ChaCha8Rng::seed_from_u64(7);

@@ -54,8 +54,7 @@ impl StageKind {
         }
         let warmup = ["seed", "scene", "physnerf", "warmup", "nerf", "initial"]
             .iter()
-            .any(|p| under(p))
-            && !under("nerf.iters");
+            .any(|p| under(p));
         match self {
             StageKind::Nerf => {
                 ["seed", "scene", "nerf"].iter().any(|p| under(p)) && !under("nerf.iters")
@@ -252,6 +251,43 @@ mod tests {
             changes_keys(&softplus.changes_since(&older)),
             ["physnerf.density"]
         );
+    }
+
+    /// The NeRF shapes its own stage always, and the warm-up and joint stages only when the
+    /// initial particles come from it.
+    #[test]
+    fn the_nerf_shapes_the_training_stages_only_from_images() {
+        let base = exp(&[]);
+        let wide = exp(&["nerf.model.width=64", "initial.opacity=0.7"]);
+        let nerf = Settings::of_stage(&wide, StageKind::Nerf)
+            .changes_since(&Settings::of_stage(&base, StageKind::Nerf));
+        assert_eq!(changes_keys(&nerf), ["nerf.model.width"]);
+        for stage in [StageKind::Warmup, StageKind::Joint] {
+            assert_eq!(
+                Settings::of_stage(&wide, stage),
+                Settings::of_stage(&base, stage)
+            );
+        }
+        let from = |o: &[&str]| {
+            let mut all = vec!["scene.initial=from_images"];
+            all.extend_from_slice(o);
+            Settings::of_stage(&exp(&all), StageKind::Warmup)
+        };
+        let changed =
+            from(&["nerf.model.width=64", "initial.opacity=0.7"]).changes_since(&from(&[]));
+        assert_eq!(
+            changes_keys(&changed),
+            ["initial.opacity", "nerf.model.width"]
+        );
+        // where the NeRF's stage stops is free for the NeRF, but shapes the particles the
+        // warm-up starts from
+        let longer = exp(&["nerf.iters=5"]);
+        assert_eq!(
+            Settings::of_stage(&longer, StageKind::Nerf),
+            Settings::of_stage(&base, StageKind::Nerf)
+        );
+        let longer = from(&["nerf.iters=5"]).changes_since(&from(&[]));
+        assert_eq!(changes_keys(&longer), ["nerf.iters"]);
     }
 
     fn changes_keys(c: &[Change]) -> Vec<&str> {

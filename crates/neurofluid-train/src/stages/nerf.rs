@@ -227,7 +227,7 @@ impl Trainer for NerfTrainer {
             lr_physnerf: Some(lr),
             lr_dlf: None,
             rays: rays.len(),
-            grad_norms: vec![("physnerf", grad_norm)],
+            grad_norms: vec![("nerf", grad_norm)],
             updated: true,
         })
     }

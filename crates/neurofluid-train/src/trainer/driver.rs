@@ -198,7 +198,8 @@ impl<'s> Driver<'s> {
                 .find(|(g, _)| *g == group)
                 .map(|(_, n)| *n)
         };
-        row.grad_norm_physnerf = norm("physnerf");
+        // the renderer's column: PhysNeRF, or the NeRF of a NeRF stage
+        row.grad_norm_physnerf = norm("physnerf").or_else(|| norm("nerf"));
         row.grad_norm_dlf = norm("dlf");
         row
     }

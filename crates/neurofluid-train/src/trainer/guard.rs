@@ -72,12 +72,23 @@ fn entry<'a, T: Copy>(
 }
 
 fn no_gradient(group: &str, count: u64) -> String {
+    let why = match group {
+        "physnerf" => {
+            ". For PhysNeRF this means no ray sample was given any density: no sample has \
+             physnerf.k neighbours within physnerf.search_radius inside [scene.near, scene.far], \
+             or the network starts with σ ≤ 0 everywhere (ReLU density; `physnerf.density = \
+             \"softplus\"` cannot start dead)"
+        }
+        "nerf" => {
+            ". For a NeRF this means its ReLU density is 0 on every sample: it collapsed to the \
+             white background, or started that way (more `nerf.precrop_iters`, a lower \
+             `nerf.optim.lr` or another seed)"
+        }
+        _ => "",
+    };
     format!(
         "{group} received no gradient in {count} updates in a row: the loss depends on none of \
-         its parameters. For PhysNeRF this means no ray sample was given any density: no sample \
-         has physnerf.k neighbours within physnerf.search_radius inside [scene.near, scene.far], \
-         or the network starts with σ ≤ 0 everywhere (ReLU density; `physnerf.density = \
-         \"softplus\"` cannot start dead)"
+         its parameters{why}"
     )
 }
 
