@@ -185,3 +185,16 @@ fn a_nerf_that_sees_no_fluid_is_refused_with_the_reason() {
         "no particle file after a failed recovery"
     );
 }
+
+#[test]
+fn a_nerf_without_warmup_views_is_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut e = experiment(tmp.path(), "noviews", false, 2);
+    let err = e.apply_overrides(&["warmup.views=[]"]).unwrap_err().to_string();
+    assert!(err.contains("warmup.views"), "{err}");
+    let run = Run::prepare(e, Start::Resume, &[Stage::Nerf]).unwrap();
+    let err = nerf::NerfData::load(&run.scene, NerfKind::Nerf, &[], false)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("no warm-up views"), "{err}");
+}
