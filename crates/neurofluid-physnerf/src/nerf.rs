@@ -40,6 +40,10 @@ pub struct NerfConfig {
     /// NeRF-T: the time is an input.
     #[serde(skip)]
     pub time: bool,
+    /// Density only inside this box (min, max): none outside it. Off in the original NeRF; with
+    /// few views a NeRF otherwise explains each view by floaters near its camera.
+    #[serde(skip)]
+    pub bounds: Option<([f64; 3], [f64; 3])>,
     /// Coarse samples per ray (64).
     pub n_samples: usize,
     /// Importance samples per ray (128); 0 renders coarse only.
@@ -70,6 +74,7 @@ impl Default for NerfConfig {
             near: 2.0,
             far: 6.0,
             time: false,
+            bounds: None,
             n_samples: 64,
             n_importance: 128,
             freq_x: 10,
@@ -264,14 +269,34 @@ impl Nerf {
         for chunk in points.chunks((self.config.chunk * 64).max(1)) {
             let q = chunk.len();
             let flat: Vec<f32> = chunk.iter().flat_map(|p| p.map(|c| c as f32)).collect();
+            let inside = model.inside_bounds(&flat, &device);
             let x = host_tensor(flat, [q, 3], &device);
             let e_x = model.position_input(x, time.map(|t| vec![t as f32; q]), &device);
             // density does not depend on the direction: any unit vector will do
             let d = host_tensor([0.0f32, 0.0, 1.0].repeat(q), [q, 3], &device);
             let (_, sigma) = model.fine.forward(e_x, posenc(d, self.config.freq_d));
+            let sigma = match inside {
+                Some(m) => sigma * m,
+                None => sigma,
+            };
             out.extend(read::<f32, 2>(relu(sigma))?);
         }
         Ok(out)
+    }
+
+    /// `[Q, 1]` ones inside `config.bounds` and zeros outside (`None` without bounds); `x` is
+    /// `[Q·3]` flat.
+    fn inside_bounds(&self, x: &[f32], device: &Device) -> Option<Tensor<2>> {
+        let (lo, hi) = self.config.bounds?;
+        let m: Vec<f32> = x
+            .chunks_exact(3)
+            .map(|p| {
+                let inside = (0..3).all(|a| f64::from(p[a]) >= lo[a] && f64::from(p[a]) <= hi[a]);
+                if inside { 1.0 } else { 0.0 }
+            })
+            .collect();
+        let q = m.len();
+        Some(host_tensor(m, [q, 1], device))
     }
 
     fn position_input(&self, x: Tensor<2>, times: Option<Vec<f32>>, device: &Device) -> Tensor<2> {
@@ -318,11 +343,16 @@ impl Nerf {
                 .flat_map(|&ti| std::iter::repeat_n(ti as f32, s))
                 .collect()
         });
+        let inside = self.inside_bounds(&x, &device);
         let e_x = self.position_input(host_tensor(x, [q, 3], &device), t_samples, &device);
         let e_d = posenc(host_tensor(d, [q, 3], &device), self.config.freq_d);
         timings.encoding += t1.elapsed();
         let t2 = std::time::Instant::now();
         let (rgb, sigma) = net.forward(e_x, e_d);
+        let sigma = match inside {
+            Some(m) => sigma * m,
+            None => sigma,
+        };
         timings.mlp += t2.elapsed();
         let t3 = std::time::Instant::now();
         let dl = host_tensor(deltas(z, s, dirs), [r, s], &device);
@@ -345,5 +375,40 @@ impl Nerf {
             nbr_idx_sum: Vec::new(),
             evaluated: q,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bounds_leave_no_density_outside_the_box_and_change_nothing_inside() {
+        let device = Device::flex();
+        device.seed(1);
+        let free = Nerf::new(
+            NerfConfig {
+                width: 16,
+                depth: 3,
+                skip: 1,
+                ..NerfConfig::default()
+            },
+            &device,
+        )
+        .unwrap();
+        let boxed = Nerf {
+            config: NerfConfig {
+                bounds: Some(([-0.5; 3], [0.5; 3])),
+                ..free.config.clone()
+            },
+            ..free.clone()
+        };
+        let inside = [[0.1, -0.2, 0.3], [0.49, 0.0, -0.49]];
+        let outside = [[0.6, 0.0, 0.0], [0.0, -0.51, 0.0], [2.0, 2.0, 2.0]];
+        assert_eq!(
+            boxed.density_at(&inside, None).unwrap(),
+            free.density_at(&inside, None).unwrap()
+        );
+        assert_eq!(boxed.density_at(&outside, None).unwrap(), vec![0.0; 3]);
     }
 }

@@ -159,6 +159,10 @@ pub struct NerfSection {
     pub rays: usize,
     /// Images drawn per iteration (4: the warm-up views of frame 0 for NeRF).
     pub images_per_step: usize,
+    /// Density only inside the scene's box (false: the original NeRF, density anywhere on the
+    /// ray). With four views a NeRF explains each view by floaters near its camera; the fluid
+    /// is known to be inside the box.
+    pub clip_to_box: bool,
     /// Adam and schedule (5e-4, ×0.1 per 250k steps).
     pub optim: OptimConfig<NerfGroup>,
     /// Iterations with s < precrop_iters draw pixels from the central window (500).
@@ -180,6 +184,7 @@ impl Default for NerfSection {
             iters: 200_000,
             rays: 1024,
             images_per_step: 4,
+            clip_to_box: false,
             optim: OptimConfig::default(),
             precrop_iters: 500,
             precrop_frac: 0.5,

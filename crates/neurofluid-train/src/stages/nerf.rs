@@ -275,10 +275,16 @@ pub fn new_nerf(run: &Run, kind: NerfKind) -> anyhow::Result<Nerf> {
 
 fn nerf_config(run: &Run, kind: NerfKind) -> NerfConfig {
     let (near, far) = run.exp.scene.bounds(0.0, 0.0);
+    let b = run.scene.manifest().box_interior;
     NerfConfig {
         near: near as f64,
         far: far as f64,
         time: kind == NerfKind::NerfT,
+        bounds: run
+            .exp
+            .nerf
+            .clip_to_box
+            .then(|| (b.min.map(f64::from), b.max.map(f64::from))),
         ..run.exp.nerf.model.clone()
     }
 }
