@@ -174,8 +174,12 @@ fn a_nerf_that_sees_no_fluid_is_refused_with_the_reason() {
     let tmp = tempfile::tempdir().unwrap();
     let mut e = experiment(tmp.path(), "nofluid", false, 2);
     // a surface no untrained NeRF reaches: σ_iso = −ln(1e-9)/(2r) ≈ 414
-    e.apply_overrides(&["scene.initial=from_images", "initial.opacity=0.999999999"])
-        .unwrap();
+    e.apply_overrides(&[
+        "scene.initial=from_images",
+        "initial.threshold=opacity",
+        "initial.opacity=0.999999999",
+    ])
+    .unwrap();
     let run = Run::prepare(e, Start::Resume, &Stage::ALL).unwrap();
     let mut log = run.open_log().unwrap();
     let err = format!("{:#}", run_all(&run, &mut log).unwrap_err());
@@ -190,7 +194,10 @@ fn a_nerf_that_sees_no_fluid_is_refused_with_the_reason() {
 fn a_nerf_without_warmup_views_is_refused() {
     let tmp = tempfile::tempdir().unwrap();
     let mut e = experiment(tmp.path(), "noviews", false, 2);
-    let err = e.apply_overrides(&["warmup.views=[]"]).unwrap_err().to_string();
+    let err = e
+        .apply_overrides(&["warmup.views=[]"])
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("warmup.views"), "{err}");
     let run = Run::prepare(e, Start::Resume, &[Stage::Nerf]).unwrap();
     let err = nerf::NerfData::load(&run.scene, NerfKind::Nerf, &[], false)

@@ -36,7 +36,7 @@ pub use errors::{ConfigError, from_toml_str, line_col};
 pub(crate) use errors::{from_table, read_text};
 pub use sections::{
     BuiltinScene, DlfSection, EvalSection, InitialParticles, InitialSection, JointSection,
-    NerfSection, PlyEncoding, SceneScale, SceneSection, WarmupSection,
+    NerfSection, PlyEncoding, SceneScale, SceneSection, SurfaceThreshold, WarmupSection,
 };
 pub use settings::{Settings, StageKind};
 

@@ -202,14 +202,29 @@ impl NerfSection {
     }
 }
 
+/// Where the surface of the NeRF's density lies.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SurfaceThreshold {
+    /// Half the largest density inside the box (the classic half-maximum rule; it adapts to how
+    /// transparent the fluid looks: glass-like water leaves a NeRF's density far below an
+    /// opaque object's).
+    #[default]
+    HalfMax,
+    /// The density at which one particle spacing (2r) of fluid absorbs `opacity` of the light,
+    /// σ_iso = −ln(1 − opacity)/(2r): an absolute rule for opaque fluids.
+    Opacity,
+}
+
 /// `[initial]`: how the particles at t = 0 are recovered from the NeRF of frame 0.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct InitialSection {
     /// Grid spacing of the density samples, in particle radii (1: 0.025 in DLF's units).
     pub cell_radii: f64,
-    /// The surface's opacity threshold: the density σ at which one particle spacing (2r) of
-    /// fluid absorbs this fraction of the light, σ_iso = −ln(1 − opacity)/(2r) (0.5).
+    /// Which rule puts the surface (`half_max`).
+    pub threshold: SurfaceThreshold,
+    /// The opacity of the `opacity` rule (0.5).
     pub opacity: f64,
     /// Keep only the largest connected body (drops NeRF's floaters; true).
     pub largest_only: bool,
@@ -219,6 +234,7 @@ impl Default for InitialSection {
     fn default() -> Self {
         Self {
             cell_radii: 1.0,
+            threshold: SurfaceThreshold::HalfMax,
             opacity: 0.5,
             largest_only: true,
         }
@@ -226,9 +242,13 @@ impl Default for InitialSection {
 }
 
 impl InitialSection {
-    /// The density threshold σ_iso for particles of radius `radius`.
-    pub fn iso(&self, radius: f64) -> f64 {
-        -(1.0 - self.opacity).ln() / (2.0 * radius)
+    /// The density threshold σ_iso for particles of radius `radius`, given the largest density
+    /// sampled in the box.
+    pub fn iso(&self, radius: f64, max_density: f64) -> f64 {
+        match self.threshold {
+            SurfaceThreshold::HalfMax => 0.5 * max_density,
+            SurfaceThreshold::Opacity => -(1.0 - self.opacity).ln() / (2.0 * radius),
+        }
     }
 }
 
@@ -440,5 +460,24 @@ impl Default for EvalSection {
             viewer: true,
             views: None,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn surface_thresholds_follow_their_rules() {
+        let half = InitialSection::default();
+        assert_eq!(half.iso(0.025, 8.0), 4.0);
+        let opaque = InitialSection {
+            threshold: SurfaceThreshold::Opacity,
+            opacity: 0.5,
+            ..InitialSection::default()
+        };
+        // one spacing (0.05) at σ_iso absorbs half the light: exp(−σ·0.05) = 0.5
+        let s = opaque.iso(0.025, 8.0);
+        assert!(((-s * 0.05).exp() - 0.5).abs() < 1e-12, "{s}");
     }
 }

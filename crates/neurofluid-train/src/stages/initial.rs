@@ -150,7 +150,9 @@ pub fn recover(run: &Run, log: &mut MetricsLog) -> anyhow::Result<InitialReport>
     let mut grid = DensityGrid::new(lo, cell, dims, vec![0.0; dims.iter().product()])?;
     tracing::info!(?dims, cell, "sampling the NeRF's density over the box");
     grid.values = nerf.density_at(&grid.points(), None)?;
-    let iso = cfg.iso(radius);
+    let max = grid.values.iter().copied().fold(0.0f32, f32::max);
+    let iso = cfg.iso(radius, f64::from(max));
+    tracing::info!(max_density = max, iso, "surface threshold");
     let settings = FillSettings {
         iso,
         spacing: 2.0 * radius,
@@ -159,8 +161,8 @@ pub fn recover(run: &Run, log: &mut MetricsLog) -> anyhow::Result<InitialReport>
     let filled = surface_and_fill(&grid, &settings, (lo, hi)).with_context(|| {
         format!(
             "recovering the initial particles from the NeRF of frame 0 (σ_iso = {iso:.2}, \
-             initial.opacity = {})",
-            cfg.opacity
+             initial.threshold = {:?})",
+            cfg.threshold
         )
     })?;
     let t0 = scene.frames(Role::Warmup).start;
