@@ -222,23 +222,8 @@ impl PhysNerfConfig {
     /// The first field with an invalid value, and what was expected.
     pub fn problem(&self) -> Option<(&'static str, String)> {
         let ok = |v: f64| v.is_finite();
-        if !(ok(self.near) && ok(self.far) && self.near >= 0.0) {
-            return Some((
-                "near",
-                format!("expected finite bounds ≥ 0, got {}/{}", self.near, self.far),
-            ));
-        }
-        if self.far <= self.near {
-            return Some((
-                "far",
-                format!("expected far > near, got {}/{}", self.near, self.far),
-            ));
-        }
-        if self.n_samples < 3 {
-            return Some((
-                "n_samples",
-                format!("expected at least 3, got {}", self.n_samples),
-            ));
+        if let Some(p) = self.depth_plan().problem() {
+            return Some(p);
         }
         if !(ok(self.search_radius) && self.search_radius > 0.0) {
             return Some((
@@ -252,25 +237,7 @@ impl PhysNerfConfig {
         if self.chunk == 0 {
             return Some(("chunk", "expected at least 1 ray per chunk".into()));
         }
-        if self.depth < 2 {
-            return Some((
-                "depth",
-                format!("expected an MLP of depth ≥ 2, got {}", self.depth),
-            ));
-        }
-        if self.width == 0 {
-            return Some(("width", "expected an MLP of width ≥ 1, got 0".into()));
-        }
-        if self.skip == 0 || self.skip >= self.depth {
-            return Some((
-                "skip",
-                format!(
-                    "expected 0 < skip < depth ({}), got {}",
-                    self.depth, self.skip
-                ),
-            ));
-        }
-        None
+        self.mlp_shape().problem()
     }
 }
 

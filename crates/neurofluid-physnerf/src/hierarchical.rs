@@ -34,6 +34,29 @@ pub struct DepthPlan {
     pub n_importance: usize,
 }
 
+impl DepthPlan {
+    /// The first field with an invalid value, and what was expected.
+    pub fn problem(&self) -> Option<(&'static str, String)> {
+        let (near, far) = (self.near, self.far);
+        if !(near.is_finite() && far.is_finite() && near >= 0.0) {
+            return Some((
+                "near",
+                format!("expected finite bounds ≥ 0, got {near}/{far}"),
+            ));
+        }
+        if far <= near {
+            return Some(("far", format!("expected far > near, got {near}/{far}")));
+        }
+        if self.n_samples < 3 {
+            return Some((
+                "n_samples",
+                format!("expected at least 3, got {}", self.n_samples),
+            ));
+        }
+        None
+    }
+}
+
 pub(crate) fn read<T: Real, const D: usize>(t: Tensor<D>) -> Result<Vec<T>> {
     t.try_into_vec_as::<T>()
         .map_err(|e| PhysNerfError::Readback(format!("{e:?}")))

@@ -22,6 +22,31 @@ pub struct MlpShape {
     pub in_dir: usize,
 }
 
+impl MlpShape {
+    /// The first field with an invalid value, and what was expected.
+    pub fn problem(&self) -> Option<(&'static str, String)> {
+        if self.depth < 2 {
+            return Some((
+                "depth",
+                format!("expected an MLP of depth ≥ 2, got {}", self.depth),
+            ));
+        }
+        if self.width == 0 {
+            return Some(("width", "expected an MLP of width ≥ 1, got 0".into()));
+        }
+        if self.skip == 0 || self.skip >= self.depth {
+            return Some((
+                "skip",
+                format!(
+                    "expected 0 < skip < depth ({}), got {}",
+                    self.depth, self.skip
+                ),
+            ));
+        }
+        None
+    }
+}
+
 /// One NeRF network (coarse or fine). Field names follow nerf_pl's parameter names.
 #[derive(Module, Debug)]
 pub struct NerfMlp {

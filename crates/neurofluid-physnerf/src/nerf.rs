@@ -115,49 +115,28 @@ impl NerfConfig {
 
     /// The first field with an invalid value, and what was expected.
     pub fn problem(&self) -> Option<(&'static str, String)> {
-        if !(self.near.is_finite() && self.far.is_finite() && self.near >= 0.0) {
-            return Some((
-                "near",
-                format!("expected finite bounds ≥ 0, got {}/{}", self.near, self.far),
-            ));
+        if let Some(p) = self.depth_plan().problem() {
+            return Some(p);
         }
-        if self.far <= self.near {
-            return Some((
-                "far",
-                format!("expected far > near, got {}/{}", self.near, self.far),
-            ));
-        }
-        if self.n_samples < 3 {
-            return Some((
-                "n_samples",
-                format!("expected at least 3, got {}", self.n_samples),
-            ));
-        }
-        if self.depth < 2 {
-            return Some(("depth", format!("expected ≥ 2, got {}", self.depth)));
-        }
-        if self.width == 0 {
-            return Some(("width", "expected ≥ 1, got 0".into()));
-        }
-        if self.skip == 0 || self.skip >= self.depth {
-            return Some((
-                "skip",
-                format!(
-                    "expected 0 < skip < depth ({}), got {}",
-                    self.depth, self.skip
-                ),
-            ));
+        if let Some(p) = self.mlp_shape().problem() {
+            return Some(p);
         }
         if self.chunk == 0 {
             return Some(("chunk", "expected at least 1 ray per chunk".into()));
         }
-        if self.freq_x > 20 || self.freq_d > 20 || self.freq_t > 20 {
-            return Some((
-                "freq_x",
-                "expected at most 20 frequencies per input (2^19 rad per unit)".into(),
-            ));
-        }
-        None
+        [
+            ("freq_x", self.freq_x),
+            ("freq_d", self.freq_d),
+            ("freq_t", self.freq_t),
+        ]
+        .into_iter()
+        .find(|&(_, f)| f > 20)
+        .map(|(field, f)| {
+            (
+                field,
+                format!("expected at most 20 frequencies per input (2^19 rad per unit), got {f}"),
+            )
+        })
     }
 }
 

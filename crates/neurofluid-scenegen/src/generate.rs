@@ -33,7 +33,7 @@ pub struct Simulation {
     pub kinetic_energy: Vec<f64>,
 }
 
-fn bar(len: u64, what: &str, show: bool) -> ProgressBar {
+pub(crate) fn bar(len: u64, what: &str, show: bool) -> ProgressBar {
     if !show {
         return ProgressBar::hidden();
     }
@@ -223,102 +223,67 @@ pub struct Report {
     pub clamped: usize,
 }
 
-/// Generates the preset into `out` (created if needed): simulation, renders, particles,
-/// transforms, box and manifest. Existing files of the same names are replaced atomically.
-pub fn generate(p: &Preset, out: &Path, progress: bool) -> Result<Report, SceneError> {
-    std::fs::create_dir_all(out).map_err(|e| SceneError::io(out, e))?;
-    let n_frames = p.train_frames.max(p.test_frames);
-    info!(scene = %p.name, scale = p.scale.name(), frames = n_frames, "simulating");
-    let t0 = Instant::now();
-    let sim = simulate(p, n_frames, progress);
-    let simulate_s = t0.elapsed().as_secs_f64();
+/// Seconds spent rendering (density fields and rays) and writing files.
+#[derive(Debug, Clone, Copy, Default)]
+pub(crate) struct Timings {
+    /// Building density fields and rendering.
+    pub render_s: f64,
+    /// Writing images and particle files.
+    pub write_s: f64,
+}
+
+/// The file stem of frame `t` (`0007`).
+fn frame_stem(t: usize) -> String {
+    format!("{t:04}")
+}
+
+/// Whether a scene of preset `p` holds warm-up view `i` (0: view_1, which also trains) at frame
+/// `t`: every warm-up view at frame 0, view_1 at every training frame, and with
+/// `warmup_every_frame` every warm-up view at every training frame.
+pub(crate) fn has_warm_view(p: &Preset, i: usize, t: usize) -> bool {
+    t == 0 || ((i == 0 || p.warmup_every_frame) && t < p.train_frames)
+}
+
+/// The transforms entry of view `v` at frame `t` of `split`.
+pub(crate) fn frame_entry(v: &ViewSpec, split: &str, t: usize) -> FrameEntry {
+    let name = frame_stem(t);
+    FrameEntry {
+        file_path: format!("{split}/{name}"),
+        transform_matrix: v.camera.c2w,
+        particle_path: Some(format!("particles/{name}.npz")),
+        intrinsics: Intrinsics::default(),
+    }
+}
+
+/// The transforms file of one view of the preset holding `frames`.
+pub(crate) fn transforms_file(p: &Preset, frames: Vec<FrameEntry>) -> TransformsFile {
+    // NeRF's and nerfstudio's intrinsics of the same camera (nerfstudio's principal point sits
+    // on pixel centres)
+    let size = p.image_size;
+    let focal = focal_from_angle_x(size, p.camera_angle_x);
+    TransformsFile {
+        camera_angle_x: Some(p.camera_angle_x),
+        intrinsics: Intrinsics {
+            fl_x: Some(focal),
+            fl_y: Some(focal),
+            cx: Some(size as f32 / 2.0 + 0.5),
+            cy: Some(size as f32 / 2.0 + 0.5),
+            w: Some(size),
+            h: Some(size),
+            ..Intrinsics::default()
+        },
+        bounding_box: Some("box.pt".into()),
+        frames,
+    }
+}
+
+/// The manifest of a scene generated from `p` (its warm-up frames are 0..1, or every training
+/// frame with `warmup_every_frame`; `generator` holds the preset's serialisation).
+pub fn scene_manifest(p: &Preset) -> SceneManifest {
     let (warm, test) = views(p);
     let rg = ring(p);
-
-    let mut render_s = 0.0;
-    let mut write_s = 0.0;
-    let mut images = 0;
-    let volume = (2.0 * p.radius as f32).powi(3);
-    let support = p.surface_support * p.radius as f32;
-    let pb = bar(n_frames as u64, "render", progress);
-    let mut warm_frames: Vec<Vec<FrameEntry>> = vec![Vec::new(); warm.len()];
-    let mut test_frames: Vec<Vec<FrameEntry>> = vec![Vec::new(); test.len()];
-    for (t, particles) in sim.frames.iter().enumerate() {
-        let name = format!("{t:04}");
-        let mut jobs: Vec<(&ViewSpec, &str, usize, bool)> = Vec::new();
-        for (i, v) in warm.iter().enumerate() {
-            if t == 0 || ((i == 0 || p.warmup_every_frame) && t < p.train_frames) {
-                jobs.push((v, "train", i, true));
-            }
-        }
-        for (i, v) in test.iter().enumerate() {
-            if t < p.test_frames {
-                jobs.push((v, "test", i, false));
-            }
-        }
-        let tr = Instant::now();
-        let field = DensityField::build(&particles.pos, volume, support, p.voxel, p.iso);
-        let rendered: Vec<Vec<u8>> = jobs
-            .iter()
-            .map(|(v, ..)| render(&v.camera, &field, p.appearance, p.samples_per_axis))
-            .collect();
-        render_s += tr.elapsed().as_secs_f64();
-        let tw = Instant::now();
-        for ((v, split, i, is_warm), rgba) in jobs.iter().zip(rendered) {
-            let dir = out.join(&v.name).join(split);
-            write_png_rgba(
-                &dir.join(format!("{name}.png")),
-                p.image_size,
-                p.image_size,
-                &rgba,
-            )?;
-            particles.write(&dir.join("particles").join(format!("{name}.npz")))?;
-            let entry = FrameEntry {
-                file_path: format!("{split}/{name}"),
-                transform_matrix: v.camera.c2w,
-                particle_path: Some(format!("particles/{name}.npz")),
-                intrinsics: Intrinsics::default(),
-            };
-            if *is_warm {
-                warm_frames[*i].push(entry);
-            } else {
-                test_frames[*i].push(entry);
-            }
-            images += 1;
-        }
-        write_s += tw.elapsed().as_secs_f64();
-        pb.inc(1);
-    }
-    pb.finish_and_clear();
-
-    let tw = Instant::now();
-    for (specs, frames, split) in [(&warm, warm_frames, "train"), (&test, test_frames, "test")] {
-        for (v, frames) in specs.iter().zip(frames) {
-            // NeRF's and nerfstudio's intrinsics of the same camera (nerfstudio's principal
-            // point sits on pixel centres)
-            let size = p.image_size;
-            let focal = focal_from_angle_x(size, p.camera_angle_x);
-            TransformsFile {
-                camera_angle_x: Some(p.camera_angle_x),
-                intrinsics: Intrinsics {
-                    fl_x: Some(focal),
-                    fl_y: Some(focal),
-                    cx: Some(size as f32 / 2.0 + 0.5),
-                    cy: Some(size as f32 / 2.0 + 0.5),
-                    w: Some(size),
-                    h: Some(size),
-                    ..Intrinsics::default()
-                },
-                bounding_box: Some("box.pt".into()),
-                frames,
-            }
-            .write(&transforms_path(out, &v.name, split))?;
-        }
-    }
-    sim.walls.write(&out.join("box.npz"))?;
-    sim.walls.write_pickle(&out.join("box.pt"))?;
     let r = p.radius as f32;
-    let manifest = SceneManifest {
+    SceneManifest {
         name: p.name.clone(),
         up_axis: UpAxis::Y,
         particle_radius: r,
@@ -359,9 +324,111 @@ pub fn generate(p: &Preset, out: &Path, progress: bool) -> Result<Report, SceneE
         near: rg.near,
         far: rg.far,
         generator: serde_json::to_value(p).ok(),
-    };
-    manifest.write(&out.join(MANIFEST_FILE))?;
-    write_s += tw.elapsed().as_secs_f64();
+    }
+}
+
+/// Renders frame `t` (its particles `particles`) from each `(view, split)` of `jobs` and writes
+/// `view/split/NNNN.png` and the frame's particles `view/split/particles/NNNN.npz`; returns the
+/// views' transforms entries in the order of `jobs`. The frame's density field is built once
+/// and shared by its views. This is the one way the generator renders a view at a frame:
+/// [`generate`] and [`crate::warmup::render_warmup_frames`] both call it.
+pub(crate) fn render_frame(
+    p: &Preset,
+    out: &Path,
+    t: usize,
+    particles: &Particles,
+    jobs: &[(&ViewSpec, &str)],
+    time: &mut Timings,
+) -> Result<Vec<FrameEntry>, SceneError> {
+    if jobs.is_empty() {
+        return Ok(Vec::new());
+    }
+    let volume = (2.0 * p.radius as f32).powi(3);
+    let support = p.surface_support * p.radius as f32;
+    let tr = Instant::now();
+    let field = DensityField::build(&particles.pos, volume, support, p.voxel, p.iso);
+    let rendered: Vec<Vec<u8>> = jobs
+        .iter()
+        .map(|(v, _)| render(&v.camera, &field, p.appearance, p.samples_per_axis))
+        .collect();
+    time.render_s += tr.elapsed().as_secs_f64();
+    let tw = Instant::now();
+    let name = frame_stem(t);
+    let mut entries = Vec::with_capacity(jobs.len());
+    for ((v, split), rgba) in jobs.iter().zip(rendered) {
+        let dir = out.join(&v.name).join(split);
+        write_png_rgba(
+            &dir.join(format!("{name}.png")),
+            p.image_size,
+            p.image_size,
+            &rgba,
+        )?;
+        particles.write(&dir.join("particles").join(format!("{name}.npz")))?;
+        entries.push(frame_entry(v, split, t));
+    }
+    time.write_s += tw.elapsed().as_secs_f64();
+    Ok(entries)
+}
+
+/// Generates the preset into `out` (created if needed): simulation, renders, particles,
+/// transforms, box and manifest. Existing files of the same names are replaced atomically.
+/// With `p.warmup_every_frame` every warm-up view is rendered at every training frame, in the
+/// same frame loop: the same files as generating without it and then
+/// [`crate::render_warmup_frames`].
+pub fn generate(p: &Preset, out: &Path, progress: bool) -> Result<Report, SceneError> {
+    std::fs::create_dir_all(out).map_err(|e| SceneError::io(out, e))?;
+    let n_frames = p.train_frames.max(p.test_frames);
+    info!(scene = %p.name, scale = p.scale.name(), frames = n_frames, "simulating");
+    let t0 = Instant::now();
+    let sim = simulate(p, n_frames, progress);
+    let simulate_s = t0.elapsed().as_secs_f64();
+    let (warm, test) = views(p);
+
+    let mut time = Timings::default();
+    let mut images = 0;
+    let pb = bar(n_frames as u64, "render", progress);
+    let mut warm_frames: Vec<Vec<FrameEntry>> = vec![Vec::new(); warm.len()];
+    let mut test_frames: Vec<Vec<FrameEntry>> = vec![Vec::new(); test.len()];
+    for (t, particles) in sim.frames.iter().enumerate() {
+        // (view, split) to render, and where its entry goes (warm-up or test view i)
+        let mut jobs: Vec<(&ViewSpec, &str)> = Vec::new();
+        let mut slots: Vec<(bool, usize)> = Vec::new();
+        for (i, v) in warm.iter().enumerate() {
+            if has_warm_view(p, i, t) {
+                jobs.push((v, "train"));
+                slots.push((true, i));
+            }
+        }
+        for (i, v) in test.iter().enumerate() {
+            if t < p.test_frames {
+                jobs.push((v, "test"));
+                slots.push((false, i));
+            }
+        }
+        let entries = render_frame(p, out, t, particles, &jobs, &mut time)?;
+        images += entries.len();
+        for ((is_warm, i), entry) in slots.into_iter().zip(entries) {
+            if is_warm {
+                warm_frames[i].push(entry);
+            } else {
+                test_frames[i].push(entry);
+            }
+        }
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+
+    let tw = Instant::now();
+    for (specs, frames, split) in [(&warm, warm_frames, "train"), (&test, test_frames, "test")] {
+        for (v, frames) in specs.iter().zip(frames) {
+            transforms_file(p, frames).write(&transforms_path(out, &v.name, split))?;
+        }
+    }
+    sim.walls.write(&out.join("box.npz"))?;
+    sim.walls.write_pickle(&out.join("box.pt"))?;
+    scene_manifest(p).write(&out.join(MANIFEST_FILE))?;
+    let render_s = time.render_s;
+    let write_s = time.write_s + tw.elapsed().as_secs_f64();
     let report = Report {
         out: out.to_path_buf(),
         particles: sim.frames[0].len(),

@@ -112,11 +112,12 @@ impl Mesh {
             .sum()
     }
 
-    /// Whether every edge is shared by exactly two triangles, in opposite directions (a closed,
-    /// consistently oriented surface).
-    pub fn is_closed(&self) -> bool {
+    /// The edges not shared by exactly two triangles running through them in opposite
+    /// directions, and the number of all edges.
+    pub fn open_edges(&self) -> (usize, usize) {
         // per undirected edge: (uses, uses in one direction − uses in the other)
-        let mut edges: HashMap<(u32, u32), (u32, i32)> = HashMap::new();
+        let mut edges: HashMap<(u32, u32), (u32, i32)> =
+            HashMap::with_capacity(self.triangles.len() * 2);
         for t in &self.triangles {
             for k in 0..3 {
                 let (a, b) = (t[k], t[(k + 1) % 3]);
@@ -125,7 +126,14 @@ impl Mesh {
                 e.1 += if a < b { 1 } else { -1 };
             }
         }
-        !self.triangles.is_empty() && edges.values().all(|&e| e == (2, 0))
+        let open = edges.values().filter(|&&e| e != (2, 0)).count();
+        (open, edges.len())
+    }
+
+    /// Whether every edge is shared by exactly two triangles, in opposite directions (a closed,
+    /// consistently oriented surface).
+    pub fn is_closed(&self) -> bool {
+        !self.triangles.is_empty() && self.open_edges().0 == 0
     }
 
     /// Writes the mesh as OBJ (`.obj`) or binary PLY (`.ply`), by the extension, atomically.

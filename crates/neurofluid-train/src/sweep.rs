@@ -10,7 +10,8 @@
 //! label = "w/o p_c"
 //! set = ["physnerf.encoding.pc=false"]
 //! ```
-//! Without `[[variant]]` the paper's Table 5 set is used: full, w/o p_c, σ_p, v_D, d_c.
+//! Without `[[variant]]` the paper's Table 5 set is used: full, unknown initial particle positions
+//! (from images), w/o p_c, σ_p, v_D, d_c.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -58,7 +59,8 @@ pub struct Variant {
     pub set: Vec<String>,
 }
 
-/// The paper's Table 5 ablations: the full model and each particle encoding switched off.
+/// The paper's Table 5: the full model, the initial particles recovered from images instead of
+/// given ("unknown initial particle positions"), and each particle encoding switched off.
 pub fn table5_variants() -> Vec<Variant> {
     let v = |name: &str, label: &str, set: &[&str]| Variant {
         name: name.into(),
@@ -67,6 +69,11 @@ pub fn table5_variants() -> Vec<Variant> {
     };
     vec![
         v("full", "Full model", &[]),
+        v(
+            "from_images",
+            "Unknown initial particle positions",
+            &["scene.initial=from_images"],
+        ),
         v("no_pc", "w/o p_c", &["physnerf.encoding.pc=false"]),
         v(
             "no_sigma_p",
@@ -294,10 +301,33 @@ mod tests {
     fn default_variants_are_table5() {
         let s = sweep("base = \"b.toml\"\nset = [\"joint.epochs=1\"]\n").unwrap();
         let names: Vec<&str> = s.variants.iter().map(|v| v.name.as_str()).collect();
-        assert_eq!(names, ["full", "no_pc", "no_sigma_p", "no_vd", "no_dc"]);
+        assert_eq!(
+            names,
+            [
+                "full",
+                "from_images",
+                "no_pc",
+                "no_sigma_p",
+                "no_vd",
+                "no_dc"
+            ]
+        );
+        let initial: Vec<_> = s
+            .variants
+            .iter()
+            .map(|v| v.experiment.scene.initial)
+            .collect();
+        assert_eq!(initial[1], crate::config::InitialParticles::FromImages);
+        assert!(
+            initial
+                .iter()
+                .enumerate()
+                .all(|(i, &x)| (x == crate::config::InitialParticles::FromImages) == (i == 1))
+        );
         let enc: Vec<_> = s
             .variants
             .iter()
+            .filter(|v| v.name != "from_images")
             .map(|v| v.experiment.physnerf.encoding)
             .collect();
         assert!(enc[0].pc && enc[0].sigma_p && enc[0].vd && enc[0].dc);
@@ -308,13 +338,13 @@ mod tests {
         assert!(s.variants.iter().all(|v| v.experiment.joint.epochs == 1));
         let dirs: std::collections::HashSet<_> =
             s.variants.iter().map(|v| v.experiment.out_dir()).collect();
-        assert_eq!(dirs.len(), 5);
+        assert_eq!(dirs.len(), 6);
         assert_eq!(
-            s.variants[1].experiment.out_dir(),
+            s.variants[2].experiment.out_dir(),
             PathBuf::from("runs/s/no_pc")
         );
-        assert_eq!(s.variants[1].experiment.name, "quick-no_pc");
-        assert_eq!(s.variants[2].label, "w/o σ_p");
+        assert_eq!(s.variants[2].experiment.name, "quick-no_pc");
+        assert_eq!(s.variants[3].label, "w/o σ_p");
     }
 
     #[test]

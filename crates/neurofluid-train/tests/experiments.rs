@@ -95,7 +95,17 @@ fn encoding_sweep_expands_to_table5() {
     let sweep = Sweep::load(&experiments_dir().join("sweep-encodings.toml")).unwrap();
     assert_eq!(sweep.name, "sweep-encodings");
     let names: Vec<&str> = sweep.variants.iter().map(|v| v.name.as_str()).collect();
-    assert_eq!(names, ["full", "no_pc", "no_sigma_p", "no_vd", "no_dc"]);
+    assert_eq!(
+        names,
+        [
+            "full",
+            "from_images",
+            "no_pc",
+            "no_sigma_p",
+            "no_vd",
+            "no_dc"
+        ]
+    );
     let off: Vec<usize> = sweep
         .variants
         .iter()
@@ -107,14 +117,25 @@ fn encoding_sweep_expands_to_table5() {
                 .count()
         })
         .collect();
-    assert_eq!(off, [0, 1, 1, 1, 1]);
+    assert_eq!(off, [0, 0, 1, 1, 1, 1]);
+    let from_images: Vec<bool> = sweep
+        .variants
+        .iter()
+        .map(|v| {
+            v.experiment.scene.initial == neurofluid_train::config::InitialParticles::FromImages
+        })
+        .collect();
+    assert_eq!(from_images, [false, true, false, false, false, false]);
     let base = example("quick-watercube.toml");
     for v in &sweep.variants {
         assert_eq!(
             v.experiment.out_dir(),
             Path::new("runs/sweep-encodings").join(&v.name)
         );
-        assert_eq!(v.experiment.joint, base.joint, "only the encodings vary");
+        assert_eq!(
+            v.experiment.joint, base.joint,
+            "only the encodings and the initial particles vary"
+        );
     }
 }
 

@@ -34,22 +34,15 @@ pub fn generate_scene_if_missing(exp: &Experiment) -> anyhow::Result<PathBuf> {
             );
         }
         Some(cfg) => {
-            // a scene generated before the warm-up views were asked for at every frame is
-            // generated again (deterministically: the files it had come out the same)
-            let lacks_views = cfg.warmup_every_frame == Some(true)
-                && neurofluid_core::scene::Scene::open(&dir)
-                    .is_ok_and(|s| s.frames(Role::Warmup).len() < s.frames(Role::Train).len());
-            if lacks_views {
-                tracing::info!("the scene lacks warm-up views at every frame: rendering them");
-            }
-            if lacks_views || !dir.join(MANIFEST_FILE).is_file() {
+            let preset = Preset::resolve(&cfg);
+            if !dir.join(MANIFEST_FILE).is_file() {
                 tracing::info!(
                     "generating the built-in scene {} ({}) into {}",
                     cfg.name.name(),
                     cfg.scale.name(),
                     dir.display()
                 );
-                let report = neurofluid_scenegen::generate(&Preset::resolve(&cfg), &dir, true)
+                let report = neurofluid_scenegen::generate(&preset, &dir, true)
                     .with_context(|| format!("generating the scene into {}", dir.display()))?;
                 tracing::info!(
                     particles = report.particles,
@@ -58,6 +51,21 @@ pub fn generate_scene_if_missing(exp: &Experiment) -> anyhow::Result<PathBuf> {
                     seconds = report.simulate_s + report.render_s + report.write_s,
                     "scene generated"
                 );
+            } else if cfg.warmup_every_frame == Some(true)
+                && neurofluid_core::scene::Scene::open(&dir)
+                    .is_ok_and(|s| s.frames(Role::Warmup).len() < s.frames(Role::Train).len())
+            {
+                // a scene generated before the warm-up views were asked for at every frame: its
+                // stored particles are rendered from those views (nothing is simulated again)
+                tracing::info!("the scene lacks warm-up views at every frame: rendering them");
+                neurofluid_scenegen::render_warmup_frames(&preset, &dir, true).with_context(
+                    || {
+                        format!(
+                            "adding the warm-up views at every frame to {}",
+                            dir.display()
+                        )
+                    },
+                )?;
             }
         }
     }
