@@ -27,12 +27,10 @@ fn resumed_run_matches_uninterrupted_run() {
     let _turn = seeded_turn();
     let tmp = tempfile::tempdir().unwrap();
 
-    let straight = Run::prepare(
-        experiment(tmp.path(), "straight"),
-        Start::Resume,
-        &Stage::ALL,
-    )
-    .unwrap();
+    // DLF† given as the pretrained weights themselves: its rollout must be the baseline's
+    let mut e = experiment(tmp.path(), "straight");
+    e.eval.supervised_dlf = Some(e.dlf.weights.clone());
+    let straight = Run::prepare(e, Start::Resume, &Stage::ALL).unwrap();
     let mut log = MetricsLog::open(&straight.dir).unwrap();
     warmup::run(&straight, &mut log).unwrap();
     let a = joint::run(&straight, &mut log).unwrap();
@@ -67,6 +65,20 @@ fn resumed_run_matches_uninterrupted_run() {
     let s = report.summary();
     assert!(s.grounding.neurofluid_d.unwrap().is_finite());
     assert!(s.grounding.dlf_d.unwrap().is_finite());
+    for f in &report.frames {
+        assert_eq!(
+            f.supervised_dlf, f.dlf,
+            "DLF† of the same weights, t = {}",
+            f.t
+        );
+    }
+    assert!(
+        report
+            .markdown()
+            .contains("| DLF† (supervised on the training frames) |")
+    );
+    let plot = straight.dir.join("eval").join(eval::DISTANCE_PLOT);
+    assert_eq!(image::image_dimensions(&plot).unwrap(), (720, 360));
     assert!(
         straight.dir.join("eval").join("report.json").is_file()
             || straight.dir.join("eval").read_dir().unwrap().count() > 0

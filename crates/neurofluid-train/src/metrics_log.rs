@@ -14,7 +14,7 @@ pub const CSV_FILE: &str = "metrics.csv";
 /// JSON-lines file name inside a run folder.
 pub const JSONL_FILE: &str = "metrics.jsonl";
 /// The CSV header.
-pub const CSV_HEADER: &str = "stage,step,loss,psnr,lr_physnerf,lr_dlf,rays_per_s,time_s,grad_norm_physnerf,grad_norm_dlf,ssim,lpips";
+pub const CSV_HEADER: &str = "stage,step,loss,psnr,lr_physnerf,lr_dlf,rays_per_s,time_s,grad_norm_physnerf,grad_norm_dlf,ssim,lpips,rollout_d,grad_alignment,psnr_true";
 
 /// Errors of the metrics log.
 #[derive(Debug, thiserror::Error)]
@@ -82,6 +82,16 @@ pub struct MetricsRow {
     /// LPIPS of an evaluation render.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub lpips: Option<f64>,
+    /// Joint stage: d (× 1000) of DLF's rollout over the training frames against the truth.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rollout_d: Option<f64>,
+    /// Joint stage: mean cosine between the image gradient's descent direction at the
+    /// prediction and the true error.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub grad_alignment: Option<f64>,
+    /// Joint stage: the renderer's PSNR on the true particles of training frames.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub psnr_true: Option<f64>,
 }
 
 impl MetricsRow {
@@ -100,7 +110,23 @@ impl MetricsRow {
             grad_norm_dlf: None,
             ssim: None,
             lpips: None,
+            rollout_d: None,
+            grad_alignment: None,
+            psnr_true: None,
         }
+    }
+
+    /// Sets the column named `name` (`rollout_d`, `grad_alignment`, `psnr_true`); false for a
+    /// name that is not a column.
+    pub fn set_score(&mut self, name: &str, value: f64) -> bool {
+        let slot = match name {
+            "rollout_d" => &mut self.rollout_d,
+            "grad_alignment" => &mut self.grad_alignment,
+            "psnr_true" => &mut self.psnr_true,
+            _ => return false,
+        };
+        *slot = Some(value);
+        true
     }
 
     /// The CSV line (with its newline); empty cells for missing values.
@@ -118,6 +144,9 @@ impl MetricsRow {
             cell(self.grad_norm_dlf),
             cell(self.ssim),
             cell(self.lpips),
+            cell(self.rollout_d),
+            cell(self.grad_alignment),
+            cell(self.psnr_true),
         ]])
     }
 }
@@ -287,8 +316,8 @@ mod tests {
         assert_eq!(lines.len(), 4, "{csv}");
         assert_eq!(lines[0], CSV_HEADER);
         assert_eq!(lines.iter().filter(|l| l.starts_with("stage,")).count(), 1);
-        assert_eq!(lines[1], "warmup,0,0.1,10,0.0005,,,0,,,,");
-        assert_eq!(lines[3], "joint,0,0.2,,,0.00001,,9,,,,");
+        assert_eq!(lines[1], "warmup,0,0.1,10,0.0005,,,0,,,,,,,");
+        assert_eq!(lines[3], "joint,0,0.2,,,0.00001,,9,,,,,,,");
         let rows = read_jsonl(&dir.path().join(JSONL_FILE)).unwrap();
         assert_eq!(rows.len(), 3);
         assert_eq!(rows[1], row("warmup", 10, 0.05));

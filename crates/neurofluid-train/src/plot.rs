@@ -1,6 +1,7 @@
-//! Loss and PSNR curves as a PNG, drawn with `plotters` and a bundled font (no system fonts
-//! needed). One column per stage (warm-up, joint, …); the top row is the loss (log scale when it
-//! spans a decade or more), the bottom row the PSNR.
+//! Plots as PNGs, drawn with `plotters` and a bundled font (no system fonts needed): the
+//! training curves (one column per stage — warm-up, joint, …; the loss on top, log scale when it
+//! spans a decade or more, the PSNR below) and the evaluation's particle distance d(t) of each
+//! rollout.
 
 use std::path::{Path, PathBuf};
 
@@ -9,6 +10,7 @@ use plotters::prelude::*;
 use plotters::style::FontStyle;
 
 use crate::metrics_log::{MetricsError, MetricsRow, read_jsonl};
+use crate::report::{EvalReport, Rollout};
 
 /// Errors of the plotter.
 #[derive(Debug, thiserror::Error)]
@@ -32,6 +34,10 @@ const PANEL_H: u32 = 260;
 pub const LOSS_COLOUR: Rgb<u8> = Rgb([31, 90, 180]);
 /// Colour of the PSNR curves.
 pub const PSNR_COLOUR: Rgb<u8> = Rgb([200, 60, 30]);
+/// Colour of the renderer's PSNR on the true particles (joint diagnostics).
+pub const PSNR_TRUE_COLOUR: Rgb<u8> = Rgb([120, 120, 120]);
+/// Colour of the training-rollout d and the gradient alignment (joint diagnostics).
+pub const DIAGNOSTIC_COLOUR: Rgb<u8> = Rgb([46, 158, 91]);
 
 /// DejaVu Sans (Bitstream Vera licence, `assets/fonts/`), compiled in: plots and picture labels
 /// need no system font.
@@ -53,39 +59,44 @@ fn rgb(c: Rgb<u8>) -> RGBColor {
     RGBColor(c.0[0], c.0[1], c.0[2])
 }
 
-/// One panel: `points` (x = step) of one quantity, log-scaled when it spans a decade or more.
+/// One curve of a panel: its points (x = step) and colour.
+type Series = (Vec<(f64, f64)>, Rgb<u8>);
+
+/// One panel: curves (x = step) of one quantity, log-scaled when they span a decade or more.
 fn draw_panel<DB: DrawingBackend>(
     area: &DrawingArea<DB, plotters::coord::Shift>,
     title: &str,
-    points: &[(f64, f64)],
-    colour: Rgb<u8>,
+    series: &[Series],
     allow_log: bool,
 ) -> Result<(), String> {
     let e = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
-    if points.is_empty() {
+    let points = || series.iter().flat_map(|(p, _)| p.iter());
+    if points().next().is_none() {
         area.titled(title, (FONT_FAMILY, 14)).map_err(e)?;
         return Ok(());
     }
-    let (mut x0, mut x1) = points
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
-            (a.min(p.0), b.max(p.0))
-        });
+    let (mut x0, mut x1) = points().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
+        (a.min(p.0), b.max(p.0))
+    });
     if x1 <= x0 {
         (x0, x1) = (x0 - 1.0, x1 + 1.0);
     }
-    let (lo, hi) = points
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
-            (a.min(p.1), b.max(p.1))
-        });
+    let (lo, hi) = points().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
+        (a.min(p.1), b.max(p.1))
+    });
     let mut chart = ChartBuilder::on(area);
     chart
         .caption(title, (FONT_FAMILY, 14))
         .margin(8)
         .x_label_area_size(24)
         .y_label_area_size(56);
-    let line = LineSeries::new(points.iter().copied(), rgb(colour).stroke_width(2));
+    let lines = || {
+        series.iter().filter(|(p, _)| !p.is_empty()).map(|(p, c)| {
+            // a single point (one evaluation so far) as a dot
+            let size = if p.len() == 1 { 3 } else { 0 };
+            LineSeries::new(p.iter().copied(), rgb(*c).stroke_width(2)).point_size(size)
+        })
+    };
     if allow_log && lo > 0.0 && hi / lo >= 10.0 {
         let mut c = chart
             .build_cartesian_2d(x0..x1, (lo..hi).log_scale())
@@ -95,7 +106,9 @@ fn draw_panel<DB: DrawingBackend>(
             .y_label_formatter(&|v| format!("{v:.0e}"))
             .draw()
             .map_err(e)?;
-        c.draw_series(line).map_err(e)?;
+        for line in lines() {
+            c.draw_series(line).map_err(e)?;
+        }
     } else {
         let pad = if hi > lo {
             0.05 * (hi - lo)
@@ -109,13 +122,17 @@ fn draw_panel<DB: DrawingBackend>(
             .label_style((FONT_FAMILY, 11))
             .draw()
             .map_err(e)?;
-        c.draw_series(line).map_err(e)?;
+        for line in lines() {
+            c.draw_series(line).map_err(e)?;
+        }
     }
     Ok(())
 }
 
 /// Draws the curves of `rows` into an image: one column per stage (first-seen order), loss on
-/// top, PSNR below; x = the stage's step. Non-finite values are skipped.
+/// top, PSNR below (with the renderer's PSNR on the true particles where logged), and, when any
+/// row has them, the joint stage's diagnostics in further rows (training-rollout d, gradient
+/// alignment); x = the stage's step. Non-finite values are skipped.
 pub fn render_curves(rows: &[MetricsRow]) -> RgbImage {
     register_bundled_font();
     let mut stages: Vec<&str> = Vec::new();
@@ -124,8 +141,23 @@ pub fn render_curves(rows: &[MetricsRow]) -> RgbImage {
             stages.push(&r.stage);
         }
     }
+    // the quantities below loss and PSNR, each a row when some row logged it
+    type Column = fn(&MetricsRow) -> Option<f64>;
+    let extra: Vec<(&str, Column)> = [
+        (
+            "rollout d (training frames)",
+            (|r: &MetricsRow| r.rollout_d) as Column,
+        ),
+        ("gradient alignment (cos)", |r: &MetricsRow| {
+            r.grad_alignment
+        }),
+    ]
+    .into_iter()
+    .filter(|(_, f)| rows.iter().any(|r| f(r).is_some()))
+    .collect();
     let cols = stages.len().max(1);
-    let (w, h) = (cols as u32 * PANEL_W, 2 * PANEL_H);
+    let n_rows = 2 + extra.len();
+    let (w, h) = (cols as u32 * PANEL_W, n_rows as u32 * PANEL_H);
     let mut buf = vec![255u8; (w * h * 3) as usize];
     let drawn = (|| -> Result<(), String> {
         let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
@@ -138,26 +170,41 @@ pub fn render_curves(rows: &[MetricsRow]) -> RgbImage {
             )
             .map_err(|e| e.to_string())?;
         }
-        let areas = root.split_evenly((2, cols));
+        let areas = root.split_evenly((n_rows, cols));
         for (i, stage) in stages.iter().enumerate() {
-            let of = |f: &dyn Fn(&MetricsRow) -> Option<f64>| -> Vec<(f64, f64)> {
+            // the stage's rows and those of its evaluations (`<stage>-preview`)
+            let preview = format!("{stage}-preview");
+            let of = |f: &dyn Fn(&MetricsRow) -> Option<f64>, own: bool| -> Vec<(f64, f64)> {
                 rows.iter()
-                    .filter(|r| r.stage == *stage)
+                    .filter(|r| {
+                        if own {
+                            r.stage == *stage
+                        } else {
+                            r.stage == preview
+                        }
+                    })
                     .filter_map(|r| f(r).map(|v| (r.step as f64, v)))
                     .filter(|(_, v)| v.is_finite())
                     .collect()
             };
-            let loss = of(&|r| Some(r.loss).filter(|l| *l > 0.0));
-            draw_panel(
-                &areas[i],
-                &format!("{stage}: loss"),
-                &loss,
-                LOSS_COLOUR,
-                true,
-            )?;
-            let psnr = of(&|r| r.psnr);
-            let title = format!("{stage}: PSNR (dB)");
-            draw_panel(&areas[cols + i], &title, &psnr, PSNR_COLOUR, false)?;
+            let loss = of(&|r| Some(r.loss).filter(|l| *l > 0.0), true);
+            let title = format!("{stage}: loss");
+            draw_panel(&areas[i], &title, &[(loss, LOSS_COLOUR)], true)?;
+            let psnr = of(&|r| r.psnr, true);
+            let psnr_true = of(&|r| r.psnr_true, false);
+            let title = if psnr_true.is_empty() {
+                format!("{stage}: PSNR (dB)")
+            } else {
+                format!("{stage}: PSNR (dB); grey: on the true particles")
+            };
+            let series = [(psnr, PSNR_COLOUR), (psnr_true, PSNR_TRUE_COLOUR)];
+            draw_panel(&areas[cols + i], &title, &series, false)?;
+            for (k, (name, f)) in extra.iter().enumerate() {
+                let points = of(&|r| f(r), false);
+                let title = format!("{stage}: {name}");
+                let area = &areas[(2 + k) * cols + i];
+                draw_panel(area, &title, &[(points, DIAGNOSTIC_COLOUR)], false)?;
+            }
         }
         root.present().map_err(|e| e.to_string())
     })();
@@ -167,9 +214,108 @@ pub fn render_curves(rows: &[MetricsRow]) -> RgbImage {
     RgbImage::from_raw(w, h, buf).expect("buffer of the image's size")
 }
 
-/// Writes the curves of `rows` as a PNG at `path` (atomically).
-pub fn plot_curves(rows: &[MetricsRow], path: &Path) -> Result<(), PlotError> {
-    let img = render_curves(rows);
+/// The colour of a rollout's curve (as in the viewer).
+pub fn rollout_colour(model: Rollout) -> Rgb<u8> {
+    match model {
+        Rollout::Dlf => Rgb([217, 130, 43]),
+        Rollout::SupervisedDlf => Rgb([128, 60, 170]),
+        Rollout::NeuroFluid => Rgb([46, 158, 91]),
+    }
+}
+
+const DISTANCE_W: u32 = 720;
+const DISTANCE_H: u32 = 360;
+
+/// Draws d(t) of every rollout of `report` (the paper's Table 2 as a curve): one line per model,
+/// a dashed line where the grounding window ends.
+pub fn render_distances(report: &EvalReport) -> RgbImage {
+    register_bundled_font();
+    let (w, h) = (DISTANCE_W, DISTANCE_H);
+    let mut buf = vec![255u8; (w * h * 3) as usize];
+    let series: Vec<(Rollout, Vec<(f64, f64)>)> = Rollout::ALL
+        .into_iter()
+        .map(|m| {
+            let points = report
+                .frames
+                .iter()
+                .filter_map(|f| m.of(f).map(|d| (f.t as f64, d)))
+                .filter(|(_, d)| d.is_finite())
+                .collect::<Vec<_>>();
+            (m, points)
+        })
+        .filter(|(_, p)| !p.is_empty())
+        .collect();
+    let drawn = (|| -> Result<(), String> {
+        let e = |e: DrawingAreaErrorKind<_>| e.to_string();
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(e)?;
+        let all = || series.iter().flat_map(|(_, p)| p.iter());
+        let x1 = all().map(|p| p.0).fold(1.0, f64::max);
+        let y1 = all().map(|p| p.1).fold(1.0, f64::max) * 1.05;
+        let mut chart = ChartBuilder::on(&root)
+            .caption(
+                "particle distance d(t) (× 1000; 25 = one particle radius)",
+                (FONT_FAMILY, 15),
+            )
+            .margin(10)
+            .x_label_area_size(30)
+            .y_label_area_size(50)
+            .build_cartesian_2d(0.0..x1, 0.0..y1)
+            .map_err(e)?;
+        chart
+            .configure_mesh()
+            .x_desc("t (frames from the first test frame)")
+            .label_style((FONT_FAMILY, 12))
+            .draw()
+            .map_err(e)?;
+        let end = report.windows.grounding.1 as f64 + 0.5;
+        if end < x1 {
+            let grey = RGBColor(150, 150, 150);
+            chart
+                .draw_series(DashedLineSeries::new(
+                    [(end, 0.0), (end, y1)],
+                    6,
+                    4,
+                    grey.stroke_width(1),
+                ))
+                .map_err(e)?;
+        }
+        for (model, points) in &series {
+            let colour = rgb(rollout_colour(*model));
+            chart
+                .draw_series(LineSeries::new(
+                    points.iter().copied(),
+                    colour.stroke_width(2),
+                ))
+                .map_err(e)?
+                .label(model.label())
+                .legend(move |(x, y)| {
+                    PathElement::new([(x, y), (x + 18, y)], colour.stroke_width(2))
+                });
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::LowerRight)
+            .label_font((FONT_FAMILY, 13))
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()
+            .map_err(e)?;
+        root.present().map_err(e)
+    })();
+    if let Err(e) = drawn {
+        tracing::warn!("drawing the distance curves: {e}");
+    }
+    RgbImage::from_raw(w, h, buf).expect("buffer of the image's size")
+}
+
+/// Writes d(t) of every rollout of `report` as a PNG at `path` (atomically).
+pub fn plot_distances(report: &EvalReport, path: &Path) -> Result<(), PlotError> {
+    write_png(&render_distances(report), path)
+}
+
+/// Encodes `img` as a PNG and writes it at `path` (atomically).
+fn write_png(img: &RgbImage, path: &Path) -> Result<(), PlotError> {
     let mut bytes = Vec::new();
     let err = |message: String| PlotError::Write {
         path: path.to_path_buf(),
@@ -181,6 +327,11 @@ pub fn plot_curves(rows: &[MetricsRow], path: &Path) -> Result<(), PlotError> {
     )
     .map_err(|e| err(e.to_string()))?;
     neurofluid_core::atomic::write_bytes(path, &bytes).map_err(|e| err(e.to_string()))
+}
+
+/// Writes the curves of `rows` as a PNG at `path` (atomically).
+pub fn plot_curves(rows: &[MetricsRow], path: &Path) -> Result<(), PlotError> {
+    write_png(&render_curves(rows), path)
 }
 
 /// Reads a `metrics.jsonl` and writes its curves as a PNG.
@@ -256,6 +407,99 @@ mod tests {
             .filter(|&(x, y)| img.get_pixel(x, y).0.iter().all(|&v| v < 100))
             .count();
         assert!(dark > 30, "{dark}");
+    }
+
+    #[test]
+    fn joint_diagnostics_get_rows_of_their_own() {
+        let mut rows = rows();
+        // three evaluations of the joint stage: rollout d falls, the alignment rises
+        for (k, step) in [32u64, 65, 98].into_iter().enumerate() {
+            let mut r = MetricsRow::new("joint-preview", step, 1e-3, 500.0);
+            r.psnr = Some(25.0);
+            r.set_score("rollout_d", 40.0 - 10.0 * k as f64);
+            r.set_score("grad_alignment", 0.1 * k as f64);
+            r.set_score("psnr_true", 28.0);
+            assert!(!r.set_score("not_a_column", 1.0));
+            rows.push(r);
+        }
+        let img = render_curves(&rows);
+        // warmup, joint and joint-preview columns; loss, PSNR, rollout d and alignment rows
+        assert_eq!((img.width(), img.height()), (3 * PANEL_W, 4 * PANEL_H));
+        let d = coloured(&img, 1, 2, DIAGNOSTIC_COLOUR);
+        let left = d.iter().min_by_key(|p| p.0).unwrap();
+        let right = d.iter().max_by_key(|p| p.0).unwrap();
+        assert!(
+            left.1 + 100 < right.1,
+            "rollout d falls: {left:?} {right:?}"
+        );
+        let a = coloured(&img, 1, 3, DIAGNOSTIC_COLOUR);
+        let left = a.iter().min_by_key(|p| p.0).unwrap();
+        let right = a.iter().max_by_key(|p| p.0).unwrap();
+        assert!(
+            left.1 > right.1 + 100,
+            "alignment rises: {left:?} {right:?}"
+        );
+        // the PSNR on the true particles is drawn in grey beside the PSNR (text and grid are
+        // grey too: compare with the same plot without it)
+        let without: Vec<MetricsRow> = rows
+            .iter()
+            .cloned()
+            .map(|mut r| {
+                r.psnr_true = None;
+                r
+            })
+            .collect();
+        let grey = |img: &RgbImage| coloured(img, 1, 1, PSNR_TRUE_COLOUR).len();
+        let (with, plain) = (grey(&img), grey(&render_curves(&without)));
+        assert!(with > plain + 100, "{with} vs {plain}");
+        // the warm-up has no diagnostics
+        assert!(coloured(&img, 0, 2, DIAGNOSTIC_COLOUR).is_empty());
+    }
+
+    #[test]
+    fn distances_go_where_the_data_goes() {
+        use crate::report::{FrameDistance, Windows};
+        let mut r = EvalReport::new("e", "s", "c", Windows::paper());
+        // DLF drifts twice as fast as NeuroFluid; no DLF† in this report
+        r.frames = (1..=59)
+            .map(|t| FrameDistance {
+                t,
+                neurofluid: t as f64,
+                dlf: Some(2.0 * t as f64),
+                supervised_dlf: None,
+            })
+            .collect();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("d.png");
+        plot_distances(&r, &path).unwrap();
+        let img = image::open(&path).unwrap().to_rgb8();
+        assert_eq!((img.width(), img.height()), (DISTANCE_W, DISTANCE_H));
+        let pixels = |m: Rollout| {
+            let c = rollout_colour(m);
+            img.enumerate_pixels()
+                .filter(|(_, _, p)| (0..3).all(|k| p.0[k].abs_diff(c.0[k]) < 30))
+                .map(|(x, y, _)| (x, y))
+                .collect::<Vec<_>>()
+        };
+        let (dlf, nf) = (pixels(Rollout::Dlf), pixels(Rollout::NeuroFluid));
+        assert!(
+            dlf.len() > 300 && nf.len() > 300,
+            "{} {}",
+            dlf.len(),
+            nf.len()
+        );
+        assert!(pixels(Rollout::SupervisedDlf).is_empty());
+        // at the right end DLF (d = 118) is drawn higher (smaller y) than NeuroFluid (d = 59),
+        // and both rise from left to right
+        let right = |p: &[(u32, u32)]| *p.iter().max_by_key(|q| q.0).unwrap();
+        let left = |p: &[(u32, u32)]| *p.iter().min_by_key(|q| q.0).unwrap();
+        assert!(
+            right(&dlf).1 + 100 < right(&nf).1,
+            "{:?} {:?}",
+            right(&dlf),
+            right(&nf)
+        );
+        assert!(right(&nf).1 + 50 < left(&nf).1);
     }
 
     #[test]

@@ -1,7 +1,8 @@
 //! The evaluation report (spec §6): per-frame particle distance d (GT→pred nearest neighbour
-//! × 1000) of NeuroFluid and of the DLF baseline, the grounding (t = 1–49) and prediction
-//! (t = 50–59) means, and PSNR/SSIM per view; written as JSON, per-frame CSV and markdown,
-//! each atomically.
+//! × 1000) of NeuroFluid, of the DLF baseline and, when asked, of DLF† (DLF fine-tuned with
+//! supervision on the training frames); the paper's Table 2 columns (mean d over the grounding
+//! window t = 1–49, d at its last frame, the same over the prediction window t = 50–59) and
+//! PSNR/SSIM/LPIPS per view; written as JSON, per-frame CSV and markdown, each atomically.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -77,6 +78,57 @@ pub struct FrameDistance {
     /// The pretrained DLF it started from (the paper's baseline), if evaluated.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub dlf: Option<f64>,
+    /// DLF† (`eval.supervised_dlf`): DLF fine-tuned with supervision on the training frames,
+    /// the paper's supervised reference, if evaluated.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub supervised_dlf: Option<f64>,
+}
+
+/// The models whose rollouts are scored by d, in table order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Rollout {
+    /// The pretrained DLF (the paper's DLF).
+    Dlf,
+    /// DLF fine-tuned with supervision on the training frames (the paper's DLF†).
+    SupervisedDlf,
+    /// The grounded DLF.
+    NeuroFluid,
+}
+
+impl Rollout {
+    /// Every rollout, in table order.
+    pub const ALL: [Rollout; 3] = [Rollout::Dlf, Rollout::SupervisedDlf, Rollout::NeuroFluid];
+
+    /// The rollout's d in `f`, if it was evaluated.
+    pub fn of(self, f: &FrameDistance) -> Option<f64> {
+        match self {
+            Rollout::Dlf => f.dlf,
+            Rollout::SupervisedDlf => f.supervised_dlf,
+            Rollout::NeuroFluid => Some(f.neurofluid),
+        }
+    }
+
+    /// The name in tables and plots.
+    pub fn label(self) -> &'static str {
+        match self {
+            Rollout::Dlf => "DLF",
+            Rollout::SupervisedDlf => "DLF†",
+            Rollout::NeuroFluid => "NeuroFluid",
+        }
+    }
+}
+
+/// One row of the paper's Table 2: d over the grounding and prediction windows.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct DistanceRow {
+    /// Mean d over the grounding window (the paper's d_avg, t < 50).
+    pub grounding_mean: Option<f64>,
+    /// d at the last frame of the grounding window (t = 49).
+    pub grounding_last: Option<f64>,
+    /// Mean d over the prediction window (t ≥ 50).
+    pub prediction_mean: Option<f64>,
+    /// d at the last frame of the prediction window (t = 59).
+    pub prediction_last: Option<f64>,
 }
 
 /// Image metrics of one rendered test image.
@@ -102,6 +154,9 @@ pub struct WindowMeans {
     pub neurofluid_d: Option<f64>,
     /// The DLF baseline's mean d.
     pub dlf_d: Option<f64>,
+    /// DLF†'s mean d.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub supervised_dlf_d: Option<f64>,
     /// Mean PSNR over views and frames.
     pub psnr: Option<f64>,
     /// Mean SSIM over views and frames.
@@ -213,10 +268,40 @@ impl EvalReport {
         WindowMeans {
             neurofluid_d: mean(frames().map(|f| f.neurofluid)),
             dlf_d: mean(frames().filter_map(|f| f.dlf)),
+            supervised_dlf_d: mean(frames().filter_map(|f| f.supervised_dlf)),
             psnr: mean(images().map(|i| i.psnr)),
             ssim: mean(images().map(|i| i.ssim)),
             lpips: mean(images().filter_map(|i| i.lpips)),
         }
+    }
+
+    /// The paper's Table 2 row of `model`: `None` where the model was not evaluated.
+    pub fn distance_row(&self, model: Rollout) -> Option<DistanceRow> {
+        let d = |t: usize| {
+            self.frames
+                .iter()
+                .find(|f| f.t == t)
+                .and_then(|f| model.of(f))
+        };
+        let window = |(a, b): (usize, usize)| {
+            mean(
+                self.frames
+                    .iter()
+                    .filter(|f| (a..=b).contains(&f.t))
+                    .filter_map(|f| model.of(f)),
+            )
+        };
+        let (g, p) = (self.windows.grounding, self.windows.prediction);
+        let row = DistanceRow {
+            grounding_mean: window(g),
+            grounding_last: d(g.1),
+            prediction_mean: window(p),
+            prediction_last: d(p.1),
+        };
+        self.frames
+            .iter()
+            .any(|f| model.of(f).is_some())
+            .then_some(row)
     }
 
     /// The summary: window means and per-view image means (views in first-seen order).
@@ -260,37 +345,39 @@ impl EvalReport {
         );
         let _ = writeln!(
             md,
-            "| model | grounding d (t = {}–{}) | prediction d (t = {}–{}) | PSNR | SSIM | LPIPS |",
-            g.0, g.1, p.0, p.1
+            "| model | d_avg (t = {}–{}) | d (t = {}) | d_avg (t = {}–{}) | d (t = {}) | PSNR | SSIM | LPIPS |",
+            g.0, g.1, g.1, p.0, p.1, p.1
         );
-        let _ = writeln!(md, "|---|---:|---:|---:|---:|---:|");
-        if s.all.dlf_d.is_some() {
-            let suffix = if self.initial_from_images {
-                ", from the same particles"
-            } else {
-                ""
+        let _ = writeln!(md, "|---|---:|---:|---:|---:|---:|---:|---:|");
+        let from_images = self.initial_from_images;
+        for model in Rollout::ALL {
+            let Some(row) = self.distance_row(model) else {
+                continue;
+            };
+            let (label, images) = match model {
+                Rollout::Dlf if from_images => ("DLF (pretrained, from the same particles)", None),
+                Rollout::Dlf => ("DLF (pretrained baseline)", None),
+                Rollout::SupervisedDlf => ("DLF† (supervised on the training frames)", None),
+                Rollout::NeuroFluid if from_images => {
+                    ("NeuroFluid, initial particles from images", Some(s.all))
+                }
+                Rollout::NeuroFluid => ("NeuroFluid", Some(s.all)),
+            };
+            let image = |f: fn(&WindowMeans) -> Option<f64>, digits| {
+                images.map_or_else(|| "–".to_string(), |m| fmt_opt(f(&m), digits))
             };
             let _ = writeln!(
                 md,
-                "| DLF (pretrained baseline{suffix}) | {} | {} | – | – | – |",
-                fmt_opt(s.grounding.dlf_d, 2),
-                fmt_opt(s.prediction.dlf_d, 2)
+                "| {label} | {} | {} | {} | {} | {} | {} | {} |",
+                fmt_opt(row.grounding_mean, 2),
+                fmt_opt(row.grounding_last, 2),
+                fmt_opt(row.prediction_mean, 2),
+                fmt_opt(row.prediction_last, 2),
+                image(|m| m.psnr, 2),
+                image(|m| m.ssim, 4),
+                image(|m| m.lpips, 4),
             );
         }
-        let suffix = if self.initial_from_images {
-            ", initial particles from images"
-        } else {
-            ""
-        };
-        let _ = writeln!(
-            md,
-            "| NeuroFluid{suffix} | {} | {} | {} | {} | {} |",
-            fmt_opt(s.grounding.neurofluid_d, 2),
-            fmt_opt(s.prediction.neurofluid_d, 2),
-            fmt_opt(s.all.psnr, 2),
-            fmt_opt(s.all.ssim, 4),
-            fmt_opt(s.all.lpips, 4)
-        );
         let _ = writeln!(
             md,
             "\nd = mean distance from each ground-truth particle to the nearest predicted one, × 1000 \
@@ -364,7 +451,12 @@ impl EvalReport {
             .collect();
         ts.sort_unstable();
         ts.dedup();
-        let mut header = vec!["t".to_string(), "neurofluid_d".into(), "dlf_d".into()];
+        let mut header = vec![
+            "t".to_string(),
+            "neurofluid_d".into(),
+            "dlf_d".into(),
+            "supervised_dlf_d".into(),
+        ];
         for v in &views {
             header.extend([
                 format!("{v}_psnr"),
@@ -378,6 +470,7 @@ impl EvalReport {
                 t.to_string(),
                 cell(f.map(|f| f.neurofluid)),
                 cell(f.and_then(|f| f.dlf)),
+                cell(f.and_then(|f| f.supervised_dlf)),
             ];
             for v in &views {
                 let i = self.images.iter().find(|i| i.t == t && &i.view == v);
@@ -457,6 +550,7 @@ mod tests {
                 t,
                 neurofluid: nf,
                 dlf: Some(dlf),
+                supervised_dlf: None,
             });
             for view in ["view_5", "view_6"] {
                 let bonus = if view == "view_6" { 1.0 } else { 0.0 };
@@ -504,6 +598,49 @@ mod tests {
     }
 
     #[test]
+    fn table2_rows_hold_window_means_and_last_frames() {
+        let mut r = sample_report();
+        assert_eq!(r.distance_row(Rollout::SupervisedDlf), None);
+        // DLF† d(t) = 0.5·t, read back from the core metric as the others
+        let gt: Vec<[f32; 3]> = (0..20).map(|i| [i as f32, 0.0, 0.0]).collect();
+        for f in &mut r.frames {
+            let shifted: Vec<[f32; 3]> = gt
+                .iter()
+                .map(|p| [p[0] + 0.0005 * f.t as f32, p[1], p[2]])
+                .collect();
+            f.supervised_dlf = Some(gt_to_pred_distance(&gt, &shifted).mean);
+        }
+        let close = |a: Option<f64>, b: f64| (a.unwrap() - b).abs() < 5e-3;
+        let row = r.distance_row(Rollout::SupervisedDlf).unwrap();
+        assert!(close(row.grounding_mean, 12.5), "{row:?}");
+        assert!(close(row.grounding_last, 24.5), "{row:?}");
+        assert!(close(row.prediction_mean, 27.25), "{row:?}");
+        assert!(close(row.prediction_last, 29.5), "{row:?}");
+        let nf = r.distance_row(Rollout::NeuroFluid).unwrap();
+        assert!(close(nf.grounding_last, 49.0) && close(nf.prediction_last, 59.0));
+        assert!(close(r.summary().grounding.supervised_dlf_d, 12.5));
+        let md = r.markdown();
+        let rows: Vec<&str> = md
+            .lines()
+            .filter(|l| l.starts_with("| D") || l.starts_with("| N"))
+            .collect();
+        assert!(rows[0].starts_with("| DLF (pretrained"), "{md}");
+        assert!(
+            rows[1].starts_with(
+                "| DLF† (supervised on the training frames) | 12.50 | 24.50 | 27.25 | 29.50 | – |"
+            ),
+            "{md}"
+        );
+        assert!(rows[2].starts_with("| NeuroFluid |"), "{md}");
+        let csv = r.frames_csv();
+        let second: Vec<&str> = csv.lines().nth(2).unwrap().split(',').collect();
+        assert!(
+            (second[3].parse::<f64>().unwrap() - 1.0).abs() < 1e-3,
+            "{second:?}"
+        );
+    }
+
+    #[test]
     fn writers_produce_json_csv_and_markdown() {
         let dir = tempfile::tempdir().unwrap();
         let r = sample_report();
@@ -525,7 +662,7 @@ mod tests {
         let lines: Vec<&str> = csv.lines().collect();
         assert_eq!(
             lines[0],
-            "t,neurofluid_d,dlf_d,view_5_psnr,view_5_ssim,view_5_lpips,view_6_psnr,view_6_ssim,\
+            "t,neurofluid_d,dlf_d,supervised_dlf_d,view_5_psnr,view_5_ssim,view_5_lpips,view_6_psnr,view_6_ssim,\
              view_6_lpips"
         );
         assert_eq!(lines.len(), 60);
@@ -533,12 +670,17 @@ mod tests {
         assert_eq!(cells[0], "1");
         assert!((cells[1].parse::<f64>().unwrap() - 1.0).abs() < 1e-3);
         let md = std::fs::read_to_string(dir.path().join(MARKDOWN_FILE)).unwrap();
+        // Table 2: DLF d(t) = 2t: mean 50 over 1..=49, 98 at 49, 109 over 50..=59, 118 at 59
         assert!(
-            md.contains("| DLF (pretrained baseline) | 50.00 | 109.00 |"),
+            md.contains("| DLF (pretrained baseline) | 50.00 | 98.00 | 109.00 | 118.00 | – |"),
             "{md}"
         );
-        assert!(md.contains("| NeuroFluid | 25.00 | 54.50 |"), "{md}");
-        assert!(md.contains("grounding d (t = 1–49)"));
+        assert!(
+            md.contains("| NeuroFluid | 25.00 | 49.00 | 54.50 | 59.00 | 23.50 |"),
+            "{md}"
+        );
+        assert!(!md.contains("DLF†"), "{md}");
+        assert!(md.contains("d_avg (t = 1–49) | d (t = 49) | d_avg (t = 50–59) | d (t = 59)"));
         assert!(md.contains("| view_6 | 59 |"));
         assert!(EvalReport::read_json(&dir.path().join("nope.json")).is_err());
     }

@@ -381,6 +381,7 @@ mod tests {
             for t in 1..=59 {
                 let nf = if t < 50 { d } else { 2.0 * d };
                 r.frames.push(FrameDistance {
+                    supervised_dlf: None,
                     t,
                     neurofluid: nf,
                     dlf: None,

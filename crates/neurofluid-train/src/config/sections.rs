@@ -426,6 +426,10 @@ pub struct EvalSection {
     pub ply_format: PlyEncoding,
     /// Also roll out the pretrained DLF (the paper's baseline).
     pub baseline: bool,
+    /// DLF† weights: DLF fine-tuned with supervision on the training frames (`pretrain-dlf
+    /// --scene`), the paper's supervised reference; rolled out beside the others when set.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub supervised_dlf: Option<PathBuf>,
     /// Write, per test view, an animation of truth | DLF | NeuroFluid over the rendered frames
     /// and a picture of the particle sets coloured by their distance to the truth (renders the
     /// baseline's particles too).
@@ -456,6 +460,7 @@ impl Default for EvalSection {
             write_ply: true,
             ply_format: PlyEncoding::Binary,
             baseline: true,
+            supervised_dlf: None,
             animate: true,
             viewer: true,
             views: None,

@@ -23,7 +23,7 @@ use crate::config::PlyEncoding;
 use crate::metrics_log::{MetricsLog, MetricsRow};
 use crate::pictures::{TRUTH_COLOUR, column_of, particle_view, row_of, viridis, write_apng};
 use crate::ply::{PlyFormat, write_ply};
-use crate::report::{EvalReport, FrameDistance, ImageScore, Windows};
+use crate::report::{EvalReport, FrameDistance, ImageScore, Rollout, Windows};
 use crate::trainer::Picture;
 use crate::viewer::{Recording, TrackInput};
 
@@ -155,6 +155,9 @@ pub(crate) fn at_least_wide(camera: &Camera, width: u32) -> Camera {
     )
 }
 
+/// The d(t) curves of the rollouts inside `eval/`.
+pub const DISTANCE_PLOT: &str = "distance.png";
+
 /// Folder of the animations and particle pictures inside `eval/`.
 pub const ANIMATIONS: &str = "animations";
 
@@ -206,6 +209,15 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
     } else {
         None
     };
+    let supervised = match &cfg.supervised_dlf {
+        Some(path) => {
+            let net = run.load_dlf(path).context("eval.supervised_dlf")?;
+            Some(rollout_positions(
+                run, &net, &start.pos, &start.vel, steps, "DLF†",
+            )?)
+        }
+        None => None,
+    };
     let mut report = EvalReport::new(
         &run.exp.name,
         &scene.manifest().name,
@@ -220,6 +232,9 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
             t,
             neurofluid: gt_to_pred_distance(&gt[t].pos, &grounded[t]).mean,
             dlf: baseline
+                .as_ref()
+                .map(|b| gt_to_pred_distance(&gt[t].pos, &b[t]).mean),
+            supervised_dlf: supervised
                 .as_ref()
                 .map(|b| gt_to_pred_distance(&gt[t].pos, &b[t]).mean),
         })
@@ -337,16 +352,18 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
             "#2e9e5b",
             report.frames.iter().map(|f| (f.t, f.neurofluid)).collect(),
         );
-        if baseline.is_some() {
-            rec = rec.with_curve(
-                "DLF d",
-                "#d9822b",
-                report
-                    .frames
-                    .iter()
-                    .filter_map(|f| f.dlf.map(|d| (f.t, d)))
-                    .collect(),
-            );
+        for (model, colour) in [
+            (Rollout::Dlf, "#d9822b"),
+            (Rollout::SupervisedDlf, "#803caa"),
+        ] {
+            let points: Vec<(usize, f64)> = report
+                .frames
+                .iter()
+                .filter_map(|f| model.of(f).map(|d| (f.t, d)))
+                .collect();
+            if !points.is_empty() {
+                rec = rec.with_curve(&format!("{} d", model.label()), colour, points);
+            }
         }
         let jsonl = run.dir.join(crate::metrics_log::JSONL_FILE);
         if jsonl.is_file() {
@@ -368,6 +385,7 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
         rec.write(&dir.join(VIEWER_FILE))?;
     }
     report.write_all(&dir)?;
+    crate::plot::plot_distances(&report, &dir.join(DISTANCE_PLOT))?;
     log_images(run, &report)?;
     Ok(report)
 }

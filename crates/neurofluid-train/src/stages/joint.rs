@@ -7,21 +7,30 @@
 //! MSE_coarse + MSE_fine + w·L1(outside the box) to the window's loss. Two Adams, each with its
 //! own schedule, update PhysNeRF and DLF at the end of every window of `bptt_steps` transitions
 //! (1 = the reference's truncated BPTT), after which the carried state is detached.
+//!
+//! The image loss is differentiated in two parts, which give the gradients of the one loss by
+//! the chain rule: the render of x_{t+1} (a leaf) gives PhysNeRF's gradients and g = ∂L/∂x_{t+1}
+//! at once; DLF's come from the surrogate Σ x_{t+1}·g (plus the boundary term), differentiated
+//! through the transitions of the window. The split exposes g, which the diagnostics compare with
+//! the true error (x_true − x_pred): [`Diagnostics`], at every evaluation, with the rollout d over
+//! the training frames and the renderer's PSNR on the true particles, where the scene has them.
 
 use std::path::Path;
 
 use anyhow::Context;
-use burn::optim::{GradientsParams, ModuleOptimizer};
+use burn::optim::{GradientsAccumulator, GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
+use neurofluid_core::metrics::gt_to_pred_distance;
 use neurofluid_core::npz::{NpzReader, NpzWriter};
 use neurofluid_core::scene::{Aabb, Particles, Role, Scene};
 use neurofluid_dlf::{Boundary, DlfNet};
-use neurofluid_physnerf::PhysNerf;
+use neurofluid_physnerf::{PhysNerf, RayBatch};
 
 use super::run_folder::Run;
 use super::views::{
-    ViewFrame, load_particles, points_tensor, render_beside_truth, scalar, tensor_points,
+    ViewFrame, check_sequence, load_particles, points_tensor, render_beside_truth, scalar,
+    tensor_points,
 };
 use super::warmup;
 use crate::config::{JointSection, StageKind};
@@ -65,6 +74,8 @@ pub struct JointData {
     pub walls: (Vec<[f32; 3]>, Vec<[f32; 3]>),
     /// The box interior (the boundary penalty's bounds).
     pub interior: Aabb,
+    /// The true positions at every training frame, when the scene has them (diagnostics only).
+    pub truth: Option<Vec<Vec<[f32; 3]>>>,
 }
 
 impl JointData {
@@ -83,11 +94,17 @@ impl JointData {
             .collect::<anyhow::Result<Vec<_>>>()?;
         let initial = load_particles(scene, Role::Train, frames.start, "first training frame")?;
         let walls = scene.boundary()?;
+        // the diagnostics' ground truth: every training frame's particles, if the scene has them
+        let truth = scene
+            .particle_sequence(Role::Train)
+            .ok()
+            .filter(|seq| seq.len() == targets.len() && check_sequence(seq, frames.start).is_ok());
         Ok(Self {
             targets,
             initial,
             walls: (walls.points, walls.normals),
             interior: scene.manifest().box_interior,
+            truth: truth.map(|seq| seq.into_iter().map(|p| p.pos).collect()),
         })
     }
 
@@ -100,6 +117,109 @@ impl JointData {
 /// The carried particle state (positions, velocities) on the device.
 type State = (Tensor<2>, Tensor<2>);
 
+/// What the joint stage measures besides its loss, at every evaluation (metrics columns
+/// `rollout_d`, `grad_alignment`, `psnr_true`).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Diagnostics {
+    /// d (× 1000) of DLF's rollout from the first true frame over the training frames
+    /// t = 1 … T−1, against the true particles: is the simulator getting closer to the truth?
+    pub rollout_d: Option<f64>,
+    /// The mean, over the transitions since the last evaluation, of the cosine between the image
+    /// loss's descent direction at the prediction, −∂L/∂x_{t+1}, and the true error
+    /// x_true − x_pred (particles matched by index): does the image signal point at the truth?
+    pub grad_alignment: Option<f64>,
+    /// PSNR of the renderer on the *true* particles of every 7th training frame (the same
+    /// pixels at every evaluation): renderer error apart from dynamics error.
+    pub psnr_true: Option<f64>,
+}
+
+impl Diagnostics {
+    /// The named scores of an evaluation.
+    pub fn scores(&self) -> Vec<(&'static str, f64)> {
+        [
+            ("rollout_d", self.rollout_d),
+            ("grad_alignment", self.grad_alignment),
+            ("psnr_true", self.psnr_true),
+        ]
+        .into_iter()
+        .filter_map(|(k, v)| v.map(|v| (k, v)))
+        .collect()
+    }
+}
+
+/// The cosine between `a` and `b`, each N×3 flattened; `None` when either is zero or the
+/// counts differ.
+pub fn cosine(a: &[[f32; 3]], b: &[[f32; 3]]) -> Option<f64> {
+    if a.len() != b.len() {
+        return None;
+    }
+    let (mut ab, mut aa, mut bb) = (0.0f64, 0.0f64, 0.0f64);
+    for (p, q) in a.iter().zip(b) {
+        for k in 0..3 {
+            let (x, y) = (f64::from(p[k]), f64::from(q[k]));
+            ab += x * y;
+            aa += x * x;
+            bb += y * y;
+        }
+    }
+    (aa > 0.0 && bb > 0.0).then(|| ab / (aa.sqrt() * bb.sqrt()))
+}
+
+/// The image loss of one transition, differentiated at the predicted positions.
+#[derive(Debug)]
+pub struct SplitImageLoss {
+    /// MSE_coarse + MSE_fine.
+    pub loss: f64,
+    /// PSNR of the fine render.
+    pub psnr: f64,
+    /// PhysNeRF's gradients (`None` when the loss depends on nothing trainable).
+    pub physnerf_grads: Option<GradientsParams>,
+    /// ∂L/∂x_{t+1} per particle (`None` when the render does not depend on the positions).
+    pub dx: Option<Vec<[f32; 3]>>,
+}
+
+/// Renders `rays` from the positions `pred` (detached: a leaf) and differentiates the image loss
+/// against `colours` once, for PhysNeRF's gradients and g = ∂L/∂x_{t+1}.
+pub fn split_image_loss(
+    physnerf: &PhysNerf,
+    pred: &Tensor<2>,
+    rays: &RayBatch,
+    colours: Tensor<2>,
+    jitter: Option<&mut dyn rand::RngCore>,
+) -> anyhow::Result<SplitImageLoss> {
+    let x = pred.clone().detach().require_grad();
+    let out = physnerf.render_rays(&x, rays, jitter)?;
+    let image_loss = physnerf.loss(&out, colours);
+    let psnr = psnr_from_mse(scalar(&image_loss.fine));
+    let loss = scalar(&image_loss.total);
+    let (physnerf_grads, dx) = match guard::backward(image_loss.total) {
+        Some(mut grads) => (
+            Some(GradientsParams::from_module(&mut grads, physnerf)),
+            x.grad(&grads).map(|g| tensor_points(&g)),
+        ),
+        None => (None, None),
+    };
+    Ok(SplitImageLoss {
+        loss,
+        psnr,
+        physnerf_grads,
+        dx,
+    })
+}
+
+/// Σ x_{t+1}·g with g = ∂L/∂x_{t+1} held constant: its gradient with respect to anything
+/// x_{t+1} depends on (DLF's weights, earlier states) is the image loss's, by the chain rule.
+/// Zero without a g.
+pub fn dlf_surrogate(pred: &Tensor<2>, dx: Option<&[[f32; 3]]>) -> Tensor<1> {
+    match dx {
+        Some(g) => (pred.clone() * points_tensor(g, &pred.device())).sum(),
+        None => pred.clone().sum().mul_scalar(0.0),
+    }
+}
+
+/// Every this many training frames the renderer is scored on the true particles.
+const PSNR_TRUE_EVERY: usize = 7;
+
 /// DLF and PhysNeRF, their two Adams, the pixel stream and the carried state.
 pub struct JointTrainer {
     cfg: JointSection,
@@ -111,8 +231,15 @@ pub struct JointTrainer {
     data: JointData,
     boundary: Boundary,
     state: State,
-    /// The window's loss so far (several transitions with `bptt_steps` > 1).
+    /// DLF's surrogate loss of the window so far (several transitions with `bptt_steps` > 1).
     pending: Option<Tensor<1>>,
+    /// The window's loss so far.
+    pending_loss: f64,
+    /// PhysNeRF's gradients of the window so far.
+    physnerf_grads: GradientsAccumulator<PhysNerf>,
+    /// Sum and count of the gradient alignment since the last evaluation.
+    alignment: (f64, usize),
+    seed: u64,
     /// The target frame of the last step (what a preview shows).
     last_target: usize,
 }
@@ -141,6 +268,10 @@ impl JointTrainer {
             boundary,
             state,
             pending: None,
+            pending_loss: 0.0,
+            physnerf_grads: GradientsAccumulator::new(),
+            alignment: (0.0, 0),
+            seed,
             last_target: 1,
         }
     }
@@ -192,15 +323,32 @@ impl Trainer for JointTrainer {
         } else {
             None
         };
-        let out = self.physnerf.render_rays(&pred.pos, &rays, jitter)?;
-        let image_loss = self.physnerf.loss(&out, colours);
-        let psnr = psnr_from_mse(scalar(&image_loss.fine));
-        let loss = image_loss.total
-            + boundary_penalty(pred.pos.clone(), &self.data.interior)
-                .mul_scalar(self.cfg.boundary_weight);
+        let split = split_image_loss(&self.physnerf, &pred.pos, &rays, colours, jitter)?;
+        let boundary = boundary_penalty(pred.pos.clone(), &self.data.interior)
+            .mul_scalar(self.cfg.boundary_weight);
+        self.pending_loss += split.loss + scalar(&boundary);
+        if let Some(g) = split.physnerf_grads {
+            self.physnerf_grads.accumulate(&self.physnerf, g);
+        }
+        let psnr = split.psnr;
+        let dx = split.dx;
+        let surrogate = dlf_surrogate(&pred.pos, dx.as_deref()) + boundary;
+        if let (Some(g), Some(truth)) = (&dx, &self.data.truth) {
+            let predicted = tensor_points(&pred.pos);
+            let descent: Vec<[f32; 3]> = g.iter().map(|v| v.map(|c| -c)).collect();
+            let error: Vec<[f32; 3]> = truth[t + 1]
+                .iter()
+                .zip(&predicted)
+                .map(|(a, b)| [a[0] - b[0], a[1] - b[1], a[2] - b[2]])
+                .collect();
+            if let Some(c) = cosine(&descent, &error) {
+                self.alignment.0 += c;
+                self.alignment.1 += 1;
+            }
+        }
         self.pending = Some(match self.pending.take() {
-            None => loss,
-            Some(p) => p + loss,
+            None => surrogate,
+            Some(p) => p + surrogate,
         });
         self.state = (pred.pos, pred.vel);
         let done = step + 1;
@@ -210,14 +358,15 @@ impl Trainer for JointTrainer {
         let mut stats = StepStats {
             psnr: Some(psnr),
             rays: self.cfg.rays,
+            loss: self.pending_loss,
             ..StepStats::default()
         };
         if !window_end {
-            stats.loss = scalar(self.pending.as_ref().context("no loss")?);
             return Ok(stats);
         }
-        let loss = self.pending.take().context("no loss to optimise")?;
-        stats.loss = scalar(&loss);
+        let surrogate = self.pending.take().context("no loss to optimise")?;
+        self.pending_loss = 0.0;
+        let g_physnerf = self.physnerf_grads.grads();
         if !stats.loss.is_finite() {
             return Ok(stats);
         }
@@ -225,18 +374,17 @@ impl Trainer for JointTrainer {
             self.cfg.physnerf_optim.lr_at(step),
             self.cfg.dlf_optim.lr_at(step),
         );
-        let (mut norm_p, mut norm_d) = (0.0, 0.0);
-        if let Some(mut grads) = guard::backward(loss) {
-            let g_physnerf = GradientsParams::from_module(&mut grads, &self.physnerf);
-            let g_dlf = GradientsParams::from_module(&mut grads, &self.dlf);
-            norm_p = guard::grad_norm(&g_physnerf, &self.physnerf);
-            norm_d = guard::grad_norm(&g_dlf, &self.dlf);
-            if norm_p.is_finite() && norm_d.is_finite() {
-                self.physnerf = self
-                    .opt_physnerf
-                    .step(lr_p, self.physnerf.clone(), g_physnerf);
-                self.dlf = self.opt_dlf.step(lr_d, self.dlf.clone(), g_dlf);
-            }
+        let g_dlf = match guard::backward(surrogate) {
+            Some(mut grads) => GradientsParams::from_module(&mut grads, &self.dlf),
+            None => GradientsParams::new(),
+        };
+        let norm_p = guard::grad_norm(&g_physnerf, &self.physnerf);
+        let norm_d = guard::grad_norm(&g_dlf, &self.dlf);
+        if norm_p.is_finite() && norm_d.is_finite() {
+            self.physnerf = self
+                .opt_physnerf
+                .step(lr_p, self.physnerf.clone(), g_physnerf);
+            self.dlf = self.opt_dlf.step(lr_d, self.dlf.clone(), g_dlf);
         }
         stats.grad_norms = vec![("physnerf", norm_p), ("dlf", norm_d)];
         // the carried state leaves the graph: truncated backpropagation through time
@@ -268,10 +416,13 @@ impl Trainer for JointTrainer {
         Ok(())
     }
 
-    /// The training view at the frame just predicted, rendered from the prediction.
+    /// The training view at the frame just predicted, rendered from the prediction, and the
+    /// [`Diagnostics`].
     fn evaluate(&mut self, _done: u64) -> anyhow::Result<Option<Evaluation>> {
         let target = &self.data.targets[self.last_target];
-        render_beside_truth(&self.physnerf, target, &self.state.0).map(Some)
+        let mut evaluation = render_beside_truth(&self.physnerf, target, &self.state.0)?;
+        evaluation.scores = self.diagnostics()?.scores();
+        Ok(Some(evaluation))
     }
 
     fn save(&self, dir: &Path) -> anyhow::Result<StageState> {
@@ -312,6 +463,55 @@ impl Trainer for JointTrainer {
             );
         }
         Ok(())
+    }
+}
+
+impl JointTrainer {
+    /// The [`Diagnostics`] now (the gradient alignment since the last call).
+    pub fn diagnostics(&mut self) -> anyhow::Result<Diagnostics> {
+        let (sum, n) = std::mem::take(&mut self.alignment);
+        let mut d = Diagnostics {
+            grad_alignment: (n > 0).then(|| sum / n as f64),
+            ..Diagnostics::default()
+        };
+        let Some(truth) = &self.data.truth else {
+            return Ok(d);
+        };
+        // DLF's rollout from the first true frame, without gradients
+        let dlf = self.dlf.valid();
+        let boundary = dlf.boundary(&self.data.walls.0, &self.data.walls.1, &dlf.device());
+        let steps = truth.len() - 1;
+        let first = &self.data.initial;
+        let rollout = neurofluid_dlf::rollout::rollout(
+            &dlf,
+            &first.pos,
+            &first.vel,
+            &boundary,
+            steps,
+            |_| {},
+        );
+        let distances: Vec<f64> = (1..=steps)
+            .map(|t| gt_to_pred_distance(&truth[t], &rollout.pos[t]).mean)
+            .collect();
+        d.rollout_d = Some(distances.iter().sum::<f64>() / distances.len().max(1) as f64);
+        // the renderer on the true particles, at the same pixels every time
+        let physnerf = self.physnerf.valid();
+        let device = dlf.device();
+        let mut rng = Rng::stream(self.seed, "joint-diagnostics");
+        let (mut mse, mut frames) = (0.0, 0);
+        for t in (1..truth.len()).step_by(PSNR_TRUE_EVERY) {
+            let target = &self.data.targets[t];
+            let (w, h) = (target.camera.width, target.camera.height);
+            let pixels = rng.sample_pixels(self.cfg.rays, w, h, None)?;
+            let (rays, colours) = target.batch(&pixels, &device);
+            let out = physnerf.render_rays(&points_tensor(&truth[t], &device), &rays, None)?;
+            mse += scalar(&physnerf.loss(&out, colours).fine);
+            frames += 1;
+        }
+        if frames > 0 {
+            d.psnr_true = Some(psnr_from_mse(mse / frames as f64));
+        }
+        Ok(d)
     }
 }
 

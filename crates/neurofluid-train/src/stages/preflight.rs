@@ -205,6 +205,9 @@ pub fn check(run: &Run, stages: &[Stage], start: Start) -> anyhow::Result<()> {
         p.check(|| "the box".to_string(), scene.boundary());
         // the grounded DLF is built from the pretrained weights' model, baseline or not
         check_dlf(&mut p);
+        if let Some(path) = &exp.eval.supervised_dlf {
+            p.check(|| "eval.supervised_dlf".to_string(), run.load_dlf(path));
+        }
         if exp.eval.render {
             let frames: Vec<usize> = eval::rendered_steps(test.len(), exp.eval.render_every)
                 .into_iter()

@@ -92,7 +92,8 @@ impl EventSink for ProgressBars {
 }
 
 /// The run's metrics log: the driver's rows, and one `<stage>-preview` row per evaluation with
-/// a PSNR (its loss is the MSE that PSNR stands for).
+/// a PSNR (its loss is the MSE that PSNR stands for) holding the evaluation's scores that are
+/// metrics columns (the joint stage's diagnostics).
 #[derive(Debug)]
 pub struct MetricsSink<'a>(pub &'a mut MetricsLog);
 
@@ -110,6 +111,9 @@ impl EventSink for MetricsSink<'_> {
                     let mse = 10f64.powf(-psnr / 10.0);
                     let mut row = MetricsRow::new(&format!("{stage}-preview"), *done, mse, *time_s);
                     row.psnr = Some(psnr);
+                    for (name, v) in &evaluation.scores {
+                        row.set_score(name, *v);
+                    }
                     self.0.append(&row)?;
                 }
             }

@@ -1,0 +1,174 @@
+//! The joint stage's split of the image gradient and its diagnostics: the split (PhysNeRF's
+//! gradients and ∂L/∂x from a render of the detached prediction, DLF's from the surrogate
+//! Σ x·g) gives the gradients of the direct backward through DLF and the renderer; the rollout d,
+//! gradient alignment and PSNR on the true particles reach the metrics log, and the rollout d
+//! is the one an independent rollout of the grounded DLF gives.
+
+use burn::module::{Module, ModuleVisitor, Param};
+use burn::optim::GradientsParams;
+use burn::prelude::*;
+use neurofluid_core::metrics::gt_to_pred_distance;
+use neurofluid_core::scene::Role;
+use neurofluid_core::tensors::points_tensor;
+use neurofluid_physnerf::PhysNerf;
+use neurofluid_tests::{seeded_turn, tiny_experiment};
+use neurofluid_train::metrics_log::{MetricsLog, read_jsonl};
+use neurofluid_train::sampler::Rng;
+use neurofluid_train::stages::joint::{self, JointData, dlf_surrogate, split_image_loss};
+use neurofluid_train::stages::preflight::Stage;
+use neurofluid_train::stages::{Run, Start, warmup};
+
+/// Every parameter's gradient in `grads`, in the module's order (empty where it has none).
+fn gradients<M: Module>(module: &M, grads: &GradientsParams) -> Vec<Vec<f32>> {
+    struct Collect<'a>(&'a GradientsParams, Vec<Vec<f32>>);
+    impl ModuleVisitor for Collect<'_> {
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            let g = self.0.get::<D>(param.id);
+            self.1
+                .push(g.map_or_else(Vec::new, |g| g.into_data().try_to_vec::<f32>().unwrap()));
+        }
+    }
+    let mut c = Collect(grads, Vec::new());
+    module.visit(&mut c);
+    c.1
+}
+
+/// The largest difference between `a` and `b` relative to `b`'s largest magnitude.
+fn relative_difference(a: &[Vec<f32>], b: &[Vec<f32>]) -> f64 {
+    assert_eq!(a.len(), b.len());
+    let scale = b
+        .iter()
+        .flatten()
+        .fold(0.0f64, |m, v| m.max(f64::from(v.abs())));
+    assert!(scale > 0.0, "no gradient at all");
+    let mut worst = 0.0f64;
+    for (x, y) in a.iter().zip(b) {
+        assert_eq!(
+            x.len(),
+            y.len(),
+            "a parameter has a gradient on one side only"
+        );
+        for (u, v) in x.iter().zip(y) {
+            worst = worst.max(f64::from((u - v).abs()));
+        }
+    }
+    worst / scale
+}
+
+#[test]
+fn split_image_gradient_equals_the_direct_one() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let run = Run::prepare(
+        tiny_experiment(tmp.path(), "split"),
+        Start::Resume,
+        &[Stage::Warmup],
+    )
+    .unwrap();
+    let data = JointData::load(&run.scene, &run.exp.joint).unwrap();
+    let physnerf = PhysNerf::new(run.physnerf_config(), &run.device).unwrap();
+    let dlf = run.load_dlf(&run.exp.dlf.weights).unwrap();
+    let device = dlf.device();
+    let boundary = dlf.boundary(&data.walls.0, &data.walls.1, &device);
+    let target = &data.targets[2];
+    let (w, h) = (target.camera.width, target.camera.height);
+    let pixels = Rng::new(3).sample_pixels(512, w, h, None).unwrap();
+    let (rays, colours) = target.batch(&pixels, &device);
+    let start = || {
+        (
+            points_tensor(&data.initial.pos, &device),
+            points_tensor(&data.initial.vel, &device),
+        )
+    };
+
+    // two transitions, the loss at the second: the gradient crosses a transition too
+    let (x0, v0) = start();
+    let p1 = dlf.step(x0, v0, &boundary);
+    let p2 = dlf.step(p1.pos, p1.vel, &boundary);
+    let out = physnerf.render_rays(&p2.pos, &rays, None).unwrap();
+    let mut grads = physnerf.loss(&out, colours.clone()).total.backward();
+    let direct_dlf = GradientsParams::from_module(&mut grads, &dlf);
+    let direct_physnerf = GradientsParams::from_module(&mut grads, &physnerf);
+
+    let (x0, v0) = start();
+    let p1 = dlf.step(x0, v0, &boundary);
+    let p2 = dlf.step(p1.pos, p1.vel, &boundary);
+    let split = split_image_loss(&physnerf, &p2.pos, &rays, colours, None).unwrap();
+    let dx = split.dx.expect("the render depends on the positions");
+    assert!(dx.iter().flatten().any(|v| *v != 0.0));
+    let mut grads = dlf_surrogate(&p2.pos, Some(&dx)).backward();
+    let split_dlf = GradientsParams::from_module(&mut grads, &dlf);
+    let split_physnerf = split.physnerf_grads.expect("PhysNeRF's gradients");
+
+    let d = relative_difference(&gradients(&dlf, &split_dlf), &gradients(&dlf, &direct_dlf));
+    assert!(d < 1e-4, "DLF's gradients differ by {d:e} of their scale");
+    let p = relative_difference(
+        &gradients(&physnerf, &split_physnerf),
+        &gradients(&physnerf, &direct_physnerf),
+    );
+    assert!(
+        p < 1e-5,
+        "PhysNeRF's gradients differ by {p:e} of their scale"
+    );
+}
+
+#[test]
+fn diagnostics_reach_the_metrics_and_match_an_independent_rollout() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let mut e = tiny_experiment(tmp.path(), "diagnostics");
+    // an evaluation after every epoch, two epochs
+    e.apply_overrides(&["joint.epochs=2", "joint.preview_every=3", "joint.rays=512"])
+        .unwrap();
+    let run = Run::prepare(e, Start::Resume, &[Stage::Warmup, Stage::Joint]).unwrap();
+    assert_eq!(
+        run.scene.frames(Role::Train).len(),
+        4,
+        "3 transitions an epoch"
+    );
+    let mut log = MetricsLog::open(&run.dir).unwrap();
+    warmup::run(&run, &mut log).unwrap();
+    let grounded = joint::run(&run, &mut log).unwrap();
+
+    let rows: Vec<_> = read_jsonl(log.jsonl_path())
+        .unwrap()
+        .into_iter()
+        .filter(|r| r.stage == "joint-preview")
+        .collect();
+    assert_eq!(rows.iter().map(|r| r.step).collect::<Vec<_>>(), [3, 6]);
+    for r in &rows {
+        let a = r.grad_alignment.expect("alignment");
+        assert!((-1.0..=1.0).contains(&a), "{a}");
+        assert!(r.psnr_true.expect("PSNR on the true particles").is_finite());
+    }
+    let csv = std::fs::read_to_string(log.csv_path()).unwrap();
+    assert!(
+        csv.lines()
+            .next()
+            .unwrap()
+            .ends_with("rollout_d,grad_alignment,psnr_true")
+    );
+
+    // the last evaluation follows the last update: its rollout d is the grounded DLF's
+    let truth = run.scene.particle_sequence(Role::Train).unwrap();
+    let net = grounded.dlf.valid();
+    let walls = run.scene.boundary().unwrap();
+    let boundary = net.boundary(&walls.points, &walls.normals, &net.device());
+    let rollout = neurofluid_dlf::rollout::rollout(
+        &net,
+        &truth[0].pos,
+        &truth[0].vel,
+        &boundary,
+        truth.len() - 1,
+        |_| {},
+    );
+    let expected = (1..truth.len())
+        .map(|t| gt_to_pred_distance(&truth[t].pos, &rollout.pos[t]).mean)
+        .sum::<f64>()
+        / (truth.len() - 1) as f64;
+    let logged = rows[1].rollout_d.expect("rollout d");
+    assert!(
+        (logged - expected).abs() <= 1e-9 * expected.max(1.0),
+        "logged {logged}, independent {expected}"
+    );
+}
