@@ -2,7 +2,8 @@
 //! gradients and ∂L/∂x from a render of the detached prediction, DLF's from the surrogate
 //! Σ x·g) gives the gradients of the direct backward through DLF and the renderer; the rollout d,
 //! gradient alignment and PSNR on the true particles reach the metrics log, and the rollout d
-//! is the one an independent rollout of the grounded DLF gives.
+//! is the one an independent rollout of the grounded DLF gives; rays drawn mostly from the
+//! fluid's pixels train as the uniform ones do.
 
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::GradientsParams;
@@ -12,7 +13,7 @@ use neurofluid_core::scene::Role;
 use neurofluid_core::tensors::points_tensor;
 use neurofluid_physnerf::PhysNerf;
 use neurofluid_tests::{seeded_turn, tiny_experiment};
-use neurofluid_train::metrics_log::{MetricsLog, read_jsonl};
+use neurofluid_train::metrics_log::{MetricsLog, MetricsRow, read_jsonl};
 use neurofluid_train::sampler::Rng;
 use neurofluid_train::stages::joint::{self, JointData, dlf_surrogate, split_image_loss};
 use neurofluid_train::stages::preflight::Stage;
@@ -53,6 +54,15 @@ fn relative_difference(a: &[Vec<f32>], b: &[Vec<f32>]) -> f64 {
         }
     }
     worst / scale
+}
+
+/// The metrics rows of `stage`.
+fn rows_of(jsonl: &std::path::Path, stage: &str) -> Vec<MetricsRow> {
+    read_jsonl(jsonl)
+        .unwrap()
+        .into_iter()
+        .filter(|r| r.stage == stage)
+        .collect()
 }
 
 #[test]
@@ -130,11 +140,7 @@ fn diagnostics_reach_the_metrics_and_match_an_independent_rollout() {
     warmup::run(&run, &mut log).unwrap();
     let grounded = joint::run(&run, &mut log).unwrap();
 
-    let rows: Vec<_> = read_jsonl(log.jsonl_path())
-        .unwrap()
-        .into_iter()
-        .filter(|r| r.stage == "joint-preview")
-        .collect();
+    let rows = rows_of(log.jsonl_path(), "joint-preview");
     assert_eq!(rows.iter().map(|r| r.step).collect::<Vec<_>>(), [3, 6]);
     for r in &rows {
         let a = r.grad_alignment.expect("alignment");
@@ -170,5 +176,42 @@ fn diagnostics_reach_the_metrics_and_match_an_independent_rollout() {
     assert!(
         (logged - expected).abs() <= 1e-9 * expected.max(1.0),
         "logged {logged}, independent {expected}"
+    );
+}
+
+#[test]
+fn foreground_rays_train_and_see_more_fluid() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let mut e = tiny_experiment(tmp.path(), "foreground");
+    e.apply_overrides(&["joint.foreground_rays=0.75", "joint.rays=256"])
+        .unwrap();
+    let run = Run::prepare(e, Start::Resume, &[Stage::Warmup, Stage::Joint]).unwrap();
+    let mut log = MetricsLog::open(&run.dir).unwrap();
+    warmup::run(&run, &mut log).unwrap();
+    let before = neurofluid_tests::params(&run.load_dlf(&run.exp.dlf.weights).unwrap());
+    let grounded = joint::run(&run, &mut log).unwrap();
+    let after = neurofluid_tests::params(&grounded.dlf);
+    assert!(after.iter().flatten().all(|v| v.is_finite()));
+    assert!(before != after, "DLF unchanged with foreground rays");
+    // most of the rays of a step now see fluid: the batch PSNR is lower than on the mostly
+    // white uniform draw of the same models
+    let psnr = |stage_rows: &[MetricsRow]| {
+        stage_rows.iter().filter_map(|r| r.psnr).sum::<f64>() / stage_rows.len() as f64
+    };
+    let rows = rows_of(log.jsonl_path(), "joint");
+    let focused = psnr(&rows);
+    drop((log, run));
+    let mut e = tiny_experiment(tmp.path(), "uniform");
+    e.apply_overrides(&["joint.rays=256"]).unwrap();
+    let run = Run::prepare(e, Start::Resume, &[Stage::Warmup, Stage::Joint]).unwrap();
+    let mut log = MetricsLog::open(&run.dir).unwrap();
+    warmup::run(&run, &mut log).unwrap();
+    joint::run(&run, &mut log).unwrap();
+    let rows = rows_of(log.jsonl_path(), "joint");
+    let uniform = psnr(&rows);
+    assert!(
+        focused < uniform,
+        "focused {focused:.2} dB vs uniform {uniform:.2} dB"
     );
 }

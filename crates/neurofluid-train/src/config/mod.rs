@@ -273,6 +273,9 @@ impl Experiment {
             return bad("joint.boundary_weight", "expected a weight ≥ 0");
         }
         check_frac(j.precrop_frac, "joint.precrop_frac", origin)?;
+        if !(0.0..=1.0).contains(&j.foreground_rays) {
+            return bad("joint.foreground_rays", "expected a share in [0, 1]");
+        }
         let n = &self.nerf;
         if let Some((field, msg)) = n.model.problem() {
             return bad(&format!("nerf.model.{field}"), &msg);
@@ -524,6 +527,10 @@ mod tests {
             (
                 "[scene]\nbuiltin = \"watercube\"\n[warmup]\nprecrop_frac = 1.5\n",
                 "warmup.precrop_frac",
+            ),
+            (
+                "[scene]\nbuiltin = \"watercube\"\n[joint]\nforeground_rays = 1.5\n",
+                "joint.foreground_rays",
             ),
             (
                 "[scene]\nbuiltin = \"watercube\"\n[joint.physnerf_optim.schedule]\nkind = \"multi_step\"\nmilestones = [5, 3]\ngamma = 0.5\n",

@@ -354,6 +354,10 @@ pub struct JointSection {
     pub precrop_iters: u64,
     /// Central window fraction (0.5).
     pub precrop_frac: f64,
+    /// The share of each step's rays drawn from the pixels where the target shows fluid or the
+    /// projected prediction covers ([`crate::focus`]); the rest uniform over the image. 0 = the
+    /// reference's uniform draw.
+    pub foreground_rays: f64,
     /// Training view; unset = the scene manifest's (view_1).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub view: Option<String>,
@@ -376,6 +380,7 @@ impl Default for JointSection {
             boundary_weight: 1.0,
             precrop_iters: 500,
             precrop_frac: 0.5,
+            foreground_rays: 0.0,
             view: None,
             log_every: 49,
             ckpt_every: 500,

@@ -32,7 +32,11 @@ const FREE: &[&str] = &[
 
 /// Keys added after a release, with the value that keeps the earlier behaviour: a checkpoint
 /// that does not record such a key was made with that value, so it is not a change.
-const ADDED_KEYS: &[(&str, &str)] = &[("physnerf.density", "\"relu\"")];
+const ADDED_KEYS: &[(&str, &str)] = &[
+    ("physnerf.density", "\"relu\""),
+    ("scene.initial", "\"true\""),
+    ("joint.foreground_rays", "0.0"),
+];
 
 /// The stages whose state the settings shape.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -34,6 +34,7 @@ use super::views::{
 };
 use super::warmup;
 use crate::config::{JointSection, StageKind};
+use crate::focus::{image_foreground, mark_particles, sample_focused};
 use crate::metrics_log::{MetricsLog, psnr_from_mse};
 use crate::sampler::Rng;
 use crate::trainer::checkpoint::{self, first_existing};
@@ -76,6 +77,10 @@ pub struct JointData {
     pub interior: Aabb,
     /// The true positions at every training frame, when the scene has them (diagnostics only).
     pub truth: Option<Vec<Vec<[f32; 3]>>>,
+    /// Where each target image shows fluid (`joint.foreground_rays`).
+    pub foreground: Vec<Vec<bool>>,
+    /// The particle radius (the projected footprint of a particle).
+    pub radius: f32,
 }
 
 impl JointData {
@@ -94,6 +99,7 @@ impl JointData {
             .collect::<anyhow::Result<Vec<_>>>()?;
         let initial = load_particles(scene, Role::Train, frames.start, "first training frame")?;
         let walls = scene.boundary()?;
+        let foreground = targets.iter().map(|v| image_foreground(&v.image)).collect();
         // the diagnostics' ground truth: every training frame's particles, if the scene has them
         let truth = scene
             .particle_sequence(Role::Train)
@@ -105,6 +111,8 @@ impl JointData {
             walls: (walls.points, walls.normals),
             interior: scene.manifest().box_interior,
             truth: truth.map(|seq| seq.into_iter().map(|p| p.pos).collect()),
+            foreground,
+            radius: scene.manifest().particle_radius,
         })
     }
 
@@ -314,9 +322,16 @@ impl Trainer for JointTrainer {
         let target = &self.data.targets[t + 1];
         self.last_target = t + 1;
         let (w, h) = (target.camera.width, target.camera.height);
-        let pixels = self
-            .rng
-            .sample_pixels(self.cfg.rays, w, h, self.cfg.precrop_at(step))?;
+        let pixels = match self.cfg.precrop_at(step) {
+            None if self.cfg.foreground_rays > 0.0 => {
+                let mut mask = self.data.foreground[t + 1].clone();
+                let predicted = tensor_points(&pred.pos);
+                mark_particles(&mut mask, &target.camera, &predicted, self.data.radius);
+                let share = self.cfg.foreground_rays;
+                sample_focused(&mut self.rng, self.cfg.rays, w, h, &mask, share)?
+            }
+            precrop => self.rng.sample_pixels(self.cfg.rays, w, h, precrop)?,
+        };
         let (rays, colours) = target.batch(&pixels, &device);
         let jitter: Option<&mut dyn rand::RngCore> = if self.physnerf.config.stratified {
             Some(&mut self.rng)
