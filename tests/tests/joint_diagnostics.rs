@@ -215,3 +215,49 @@ fn foreground_rays_train_and_see_more_fluid() {
         "focused {focused:.2} dB vs uniform {uniform:.2} dB"
     );
 }
+
+/// The largest change of any weight between `a` and `b`.
+fn largest_change(a: &[Vec<f32>], b: &[Vec<f32>]) -> f64 {
+    a.iter()
+        .flatten()
+        .zip(b.iter().flatten())
+        .map(|(x, y)| f64::from((x - y).abs()))
+        .fold(0.0, f64::max)
+}
+
+#[test]
+fn dlf_every_sums_transitions_into_one_step() {
+    // Adam's first step moves every weight by at most its learning rate (m̂/√v̂ = ±1): one DLF
+    // step per epoch of 3 transitions stays within lr, three steps go beyond
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let lr = 1e-3;
+    let mut moved = Vec::new();
+    for every in [3, 1] {
+        let mut e = tiny_experiment(tmp.path(), &format!("every{every}"));
+        e.apply_overrides(&[
+            format!("joint.dlf_every={every}"),
+            format!("joint.dlf_optim.lr={lr}"),
+            "joint.dlf_optim.schedule.kind=\"constant\"".into(),
+            "joint.rays=256".into(),
+        ])
+        .unwrap();
+        let run = Run::prepare(e, Start::Resume, &[Stage::Warmup, Stage::Joint]).unwrap();
+        let mut log = MetricsLog::open(&run.dir).unwrap();
+        warmup::run(&run, &mut log).unwrap();
+        let before = neurofluid_tests::params(&run.load_dlf(&run.exp.dlf.weights).unwrap());
+        let grounded = joint::run(&run, &mut log).unwrap();
+        moved.push(largest_change(
+            &before,
+            &neurofluid_tests::params(&grounded.dlf),
+        ));
+        // one metrics row per DLF step
+        let steps: Vec<u64> = rows_of(log.jsonl_path(), "joint")
+            .iter()
+            .map(|r| r.step)
+            .collect();
+        assert_eq!(steps, if every == 3 { vec![3] } else { vec![1, 2, 3] });
+    }
+    assert!(moved[0] > 0.0 && moved[0] <= lr * 1.001, "{moved:?}");
+    assert!(moved[1] > 1.5 * lr, "{moved:?}");
+}

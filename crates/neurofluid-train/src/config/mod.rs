@@ -260,6 +260,9 @@ impl Experiment {
         if j.rays == 0 {
             return bad("joint.rays", "expected at least 1");
         }
+        if j.dlf_every == 0 {
+            return bad("joint.dlf_every", "expected at least 1");
+        }
         if j.bptt_steps == 0 {
             return bad("joint.bptt_steps", "expected at least 1");
         }

@@ -344,6 +344,10 @@ pub struct JointSection {
     pub rays: usize,
     /// Transitions unrolled per optimiser step (1 = the reference's truncated BPTT).
     pub bptt_steps: usize,
+    /// DLF steps once every this many windows of `bptt_steps` transitions (and at the end of
+    /// every epoch), its gradients summed over them; PhysNeRF steps after every window (1 = the
+    /// reference: both every transition).
+    pub dlf_every: usize,
     /// PhysNeRF's Adam and schedule (3e-4, halved after 10k, 75k, 150k).
     pub physnerf_optim: OptimConfig<JointPhysNerfGroup>,
     /// DLF's Adam and schedule (1e-5, halved after 10k, 30k, 50k, 100k, 300k).
@@ -375,6 +379,7 @@ impl Default for JointSection {
             epochs: 20_000,
             rays: 1024,
             bptt_steps: 1,
+            dlf_every: 1,
             physnerf_optim: OptimConfig::default(),
             dlf_optim: OptimConfig::default(),
             boundary_weight: 1.0,

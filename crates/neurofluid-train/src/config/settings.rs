@@ -36,6 +36,7 @@ const ADDED_KEYS: &[(&str, &str)] = &[
     ("physnerf.density", "\"relu\""),
     ("scene.initial", "\"true\""),
     ("joint.foreground_rays", "0.0"),
+    ("joint.dlf_every", "1"),
 ];
 
 /// The stages whose state the settings shape.

@@ -6,7 +6,9 @@
 //! the prediction with the camera of frame t+1 at `rays` random pixels of image t+1, and adds
 //! MSE_coarse + MSE_fine + w·L1(outside the box) to the window's loss. Two Adams, each with its
 //! own schedule, update PhysNeRF and DLF at the end of every window of `bptt_steps` transitions
-//! (1 = the reference's truncated BPTT), after which the carried state is detached.
+//! (1 = the reference's truncated BPTT), after which the carried state is detached. With
+//! `dlf_every` > 1, DLF steps only after every `dlf_every`-th window (and at the end of every
+//! epoch), with its gradients summed over those windows, while PhysNeRF steps after each.
 //!
 //! The image loss is differentiated in two parts, which give the gradients of the one loss by
 //! the chain rule: the render of x_{t+1} (a leaf) gives PhysNeRF's gradients and g = ∂L/∂x_{t+1}
@@ -367,9 +369,12 @@ impl Trainer for JointTrainer {
         });
         self.state = (pred.pos, pred.vel);
         let done = step + 1;
-        let window_end = done.is_multiple_of(self.cfg.bptt_steps.max(1) as u64)
-            || (t + 1) as u64 == transitions
-            || done == self.total_steps();
+        let edge = (t + 1) as u64 == transitions || done == self.total_steps();
+        let window = self.cfg.bptt_steps.max(1) as u64;
+        let window_end = edge || done.is_multiple_of(window);
+        // DLF steps at the end of every `dlf_every`-th window (and of every epoch)
+        let dlf_end =
+            window_end && (edge || done.is_multiple_of(window * self.cfg.dlf_every.max(1) as u64));
         let mut stats = StepStats {
             psnr: Some(psnr),
             rays: self.cfg.rays,
@@ -379,7 +384,6 @@ impl Trainer for JointTrainer {
         if !window_end {
             return Ok(stats);
         }
-        let surrogate = self.pending.take().context("no loss to optimise")?;
         self.pending_loss = 0.0;
         let g_physnerf = self.physnerf_grads.grads();
         if !stats.loss.is_finite() {
@@ -389,24 +393,37 @@ impl Trainer for JointTrainer {
             self.cfg.physnerf_optim.lr_at(step),
             self.cfg.dlf_optim.lr_at(step),
         );
-        let g_dlf = match guard::backward(surrogate) {
-            Some(mut grads) => GradientsParams::from_module(&mut grads, &self.dlf),
-            None => GradientsParams::new(),
-        };
         let norm_p = guard::grad_norm(&g_physnerf, &self.physnerf);
-        let norm_d = guard::grad_norm(&g_dlf, &self.dlf);
-        if norm_p.is_finite() && norm_d.is_finite() {
+        let g_dlf = if dlf_end {
+            let surrogate = self.pending.take().context("no loss to optimise")?;
+            Some(match guard::backward(surrogate) {
+                Some(mut grads) => GradientsParams::from_module(&mut grads, &self.dlf),
+                None => GradientsParams::new(),
+            })
+        } else {
+            None
+        };
+        let norm_d = g_dlf.as_ref().map(|g| guard::grad_norm(g, &self.dlf));
+        if norm_p.is_finite() && norm_d.is_none_or(f64::is_finite) {
             self.physnerf = self
                 .opt_physnerf
                 .step(lr_p, self.physnerf.clone(), g_physnerf);
-            self.dlf = self.opt_dlf.step(lr_d, self.dlf.clone(), g_dlf);
+            if let Some(g) = g_dlf {
+                self.dlf = self.opt_dlf.step(lr_d, self.dlf.clone(), g);
+            }
         }
-        stats.grad_norms = vec![("physnerf", norm_p), ("dlf", norm_d)];
-        // the carried state leaves the graph: truncated backpropagation through time
+        // the carried state leaves the graph: truncated backpropagation through time (DLF's
+        // pending surrogate keeps the graphs of its transitions until its own step)
         self.state = (self.state.0.clone().detach(), self.state.1.clone().detach());
-        stats.lr_physnerf = Some(lr_p);
-        stats.lr_dlf = Some(lr_d);
-        stats.updated = true;
+        // a point to log, evaluate and checkpoint at: nothing pending in either group (between
+        // DLF's steps, PhysNeRF's norm is still checked for divergence)
+        stats.grad_norms = vec![("physnerf", norm_p)];
+        if let Some(norm_d) = norm_d {
+            stats.grad_norms = vec![("physnerf", norm_p), ("dlf", norm_d)];
+            stats.lr_physnerf = Some(lr_p);
+            stats.lr_dlf = Some(lr_d);
+            stats.updated = true;
+        }
         Ok(stats)
     }
 
