@@ -173,11 +173,18 @@ fn io(path: &Path) -> impl FnOnce(std::io::Error) -> MetricsError + '_ {
 }
 
 impl MetricsLog {
-    /// Opens (creating) the log in `dir`, appending to existing files.
+    /// Opens (creating) the log in `dir`, appending to existing files. A CSV written under
+    /// another header (an earlier release's columns) is first written again from the JSONL.
     pub fn open(dir: &Path) -> Result<Self, MetricsError> {
         std::fs::create_dir_all(dir).map_err(io(dir))?;
         let csv_path = dir.join(CSV_FILE);
         let jsonl_path = dir.join(JSONL_FILE);
+        if let Ok(text) = std::fs::read_to_string(&csv_path)
+            && text.lines().next().is_some_and(|h| h != CSV_HEADER)
+            && jsonl_path.is_file()
+        {
+            return Self::open_resumed(dir, |_| true);
+        }
         let open = |p: &Path| {
             OpenOptions::new()
                 .create(true)
@@ -323,6 +330,26 @@ mod tests {
         assert_eq!(rows[1], row("warmup", 10, 0.05));
         assert_eq!(rows[2].lr_dlf, Some(1e-5));
         assert_eq!(rows[2].psnr, None);
+    }
+
+    #[test]
+    fn a_csv_of_other_columns_is_rewritten_from_the_jsonl() {
+        let dir = tempfile::tempdir().unwrap();
+        {
+            let mut log = MetricsLog::open(dir.path()).unwrap();
+            log.append(&row("warmup", 0, 0.1)).unwrap();
+        }
+        // an earlier release's header and row
+        let old = "stage,step,loss\nwarmup,0,0.1\n";
+        std::fs::write(dir.path().join(CSV_FILE), old).unwrap();
+        let mut log = MetricsLog::open(dir.path()).unwrap();
+        log.append(&row("warmup", 10, 0.05)).unwrap();
+        let csv = std::fs::read_to_string(dir.path().join(CSV_FILE)).unwrap();
+        let lines: Vec<&str> = csv.lines().collect();
+        assert_eq!(lines.len(), 3, "{csv}");
+        assert_eq!(lines[0], CSV_HEADER);
+        assert!(lines[1].starts_with("warmup,0,0.1,10,"), "{csv}");
+        assert!(lines[2].starts_with("warmup,10,0.05,"), "{csv}");
     }
 
     #[test]
