@@ -201,6 +201,9 @@ pub fn render_curves(rows: &[MetricsRow]) -> RgbImage {
             draw_panel(&areas[cols + i], &title, &series, false)?;
             for (k, (name, f)) in extra.iter().enumerate() {
                 let points = of(&|r| f(r), false);
+                if points.is_empty() {
+                    continue;
+                }
                 let title = format!("{stage}: {name}");
                 let area = &areas[(2 + k) * cols + i];
                 draw_panel(area, &title, &[(points, DIAGNOSTIC_COLOUR)], false)?;
