@@ -80,7 +80,7 @@ fn split_image_gradient_equals_the_direct_one() {
     let dlf = run.load_dlf(&run.exp.dlf.weights).unwrap();
     let device = dlf.device();
     let boundary = dlf.boundary(&data.walls.0, &data.walls.1, &device);
-    let target = &data.targets[2];
+    let target = data.target(2);
     let (w, h) = (target.camera.width, target.camera.height);
     let pixels = Rng::new(3).sample_pixels(512, w, h, None).unwrap();
     let (rays, colours) = target.batch(&pixels, &device);
@@ -260,4 +260,45 @@ fn dlf_every_sums_transitions_into_one_step() {
     }
     assert!(moved[0] > 0.0 && moved[0] <= lr * 1.001, "{moved:?}");
     assert!(moved[1] > 1.5 * lr, "{moved:?}");
+}
+
+#[test]
+fn extra_views_join_the_loss_and_need_their_frames() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    // without the warm-up views at every frame: refused before training, saying how to get them
+    let mut e = tiny_experiment(tmp.path(), "views");
+    e.apply_overrides(&["joint.extra_views=[\"view_2\", \"view_3\"]"])
+        .unwrap();
+    let err = format!(
+        "{:#}",
+        Run::prepare(e.clone(), Start::Resume, &[Stage::Warmup, Stage::Joint]).unwrap_err()
+    );
+    assert!(
+        err.contains("joint.extra_views (view_2, view_3)") && err.contains("warmup_every_frame"),
+        "{err}"
+    );
+    e.scene.dir = Some(tmp.path().join("scene_all"));
+    e.apply_overrides(&["scene.generate.warmup_every_frame=true", "joint.rays=257"])
+        .unwrap();
+    let run = Run::prepare(e, Start::Resume, &[Stage::Warmup, Stage::Joint]).unwrap();
+    let data = JointData::load(&run.scene, &run.exp.joint).unwrap();
+    assert_eq!(data.views.len(), 3);
+    assert!(data.views.iter().all(|v| v.len() == 4));
+    // the three views see the same frame from their own cameras
+    assert_ne!(data.views[1][3].image.rgb, data.views[2][3].image.rgb);
+    let mut log = MetricsLog::open(&run.dir).unwrap();
+    warmup::run(&run, &mut log).unwrap();
+    let before = neurofluid_tests::params(&run.load_dlf(&run.exp.dlf.weights).unwrap());
+    let grounded = joint::run(&run, &mut log).unwrap();
+    assert!(before != neurofluid_tests::params(&grounded.dlf));
+    // the step's 257 rays, shared among the views
+    let rows = rows_of(log.jsonl_path(), "joint");
+    assert!(!rows.is_empty() && rows.iter().all(|r| r.loss.is_finite()));
+    assert_eq!(
+        (0..3)
+            .map(|i| neurofluid_train::stages::views::ray_share(257, 3, i))
+            .collect::<Vec<_>>(),
+        [86, 86, 85]
+    );
 }

@@ -365,6 +365,10 @@ pub struct JointSection {
     /// Training view; unset = the scene manifest's (view_1).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub view: Option<String>,
+    /// Warm-up views whose images at every training frame join the training view's in every
+    /// step's loss, the step's rays shared among the views (needs the warm-up views at every
+    /// frame: `scene.generate.warmup_every_frame`). Empty = the paper's single view.
+    pub extra_views: Vec<String>,
     /// Log a metrics row every this many iterations.
     pub log_every: u64,
     /// Checkpoint every this many iterations (500; 0 = only at the end).
@@ -387,6 +391,7 @@ impl Default for JointSection {
             precrop_frac: 0.5,
             foreground_rays: 0.0,
             view: None,
+            extra_views: Vec::new(),
             log_every: 49,
             ckpt_every: 500,
             preview_every: 500,

@@ -37,6 +37,7 @@ const ADDED_KEYS: &[(&str, &str)] = &[
     ("scene.initial", "\"true\""),
     ("joint.foreground_rays", "0.0"),
     ("joint.dlf_every", "1"),
+    ("joint.extra_views", "[]"),
 ];
 
 /// The stages whose state the settings shape.

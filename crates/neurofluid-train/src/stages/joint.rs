@@ -31,8 +31,8 @@ use neurofluid_physnerf::{PhysNerf, RayBatch};
 
 use super::run_folder::Run;
 use super::views::{
-    ViewFrame, check_sequence, load_particles, points_tensor, render_beside_truth, scalar,
-    tensor_points,
+    ViewFrame, batch_of, check_sequence, load_particles, points_tensor, ray_share,
+    render_beside_truth, scalar, tensor_points,
 };
 use super::warmup;
 use crate::config::{JointSection, StageKind};
@@ -69,8 +69,9 @@ pub fn boundary_penalty(pos: Tensor<2>, interior: &Aabb) -> Tensor<1> {
 /// the first training frame, and the box.
 #[derive(Debug, Clone)]
 pub struct JointData {
-    /// The training view at frames 0 … T−1 of the training split.
-    pub targets: Vec<ViewFrame>,
+    /// The images of frames 0 … T−1 of the training split, per view: the training view first,
+    /// then `joint.extra_views`.
+    pub views: Vec<Vec<ViewFrame>>,
     /// The true state at the first training frame (every epoch starts from it).
     pub initial: Particles,
     /// Box particles and their normals.
@@ -79,8 +80,8 @@ pub struct JointData {
     pub interior: Aabb,
     /// The true positions at every training frame, when the scene has them (diagnostics only).
     pub truth: Option<Vec<Vec<[f32; 3]>>>,
-    /// Where each target image shows fluid (`joint.foreground_rays`).
-    pub foreground: Vec<Vec<bool>>,
+    /// Where each image of `views` shows fluid (`joint.foreground_rays`).
+    pub foreground: Vec<Vec<Vec<bool>>>,
     /// The particle radius (the projected footprint of a particle).
     pub radius: f32,
 }
@@ -95,20 +96,40 @@ impl JointData {
             frames.len()
         );
         let view = cfg.view(scene).context("the scene has no training view")?;
-        let targets = frames
-            .clone()
-            .map(|t| ViewFrame::load(scene, Role::Train, &view, t))
+        let warm = scene.frames(Role::Warmup);
+        anyhow::ensure!(
+            cfg.extra_views.is_empty() || (warm.start <= frames.start && warm.end >= frames.end),
+            "joint.extra_views trains on warm-up views at every training frame, but the scene has \
+             them only at frames {}..{} (training frames {}..{}); for a built-in scene, set \
+             `scene.generate.warmup_every_frame = true` and the generator renders them",
+            warm.start,
+            warm.end,
+            frames.start,
+            frames.end
+        );
+        let sources = std::iter::once((Role::Train, &view))
+            .chain(cfg.extra_views.iter().map(|v| (Role::Warmup, v)));
+        let views = sources
+            .map(|(role, v)| {
+                frames
+                    .clone()
+                    .map(|t| ViewFrame::load(scene, role, v, t))
+                    .collect::<anyhow::Result<Vec<_>>>()
+            })
             .collect::<anyhow::Result<Vec<_>>>()?;
         let initial = load_particles(scene, Role::Train, frames.start, "first training frame")?;
         let walls = scene.boundary()?;
-        let foreground = targets.iter().map(|v| image_foreground(&v.image)).collect();
+        let foreground = views
+            .iter()
+            .map(|frames| frames.iter().map(|v| image_foreground(&v.image)).collect())
+            .collect();
         // the diagnostics' ground truth: every training frame's particles, if the scene has them
         let truth = scene
             .particle_sequence(Role::Train)
             .ok()
-            .filter(|seq| seq.len() == targets.len() && check_sequence(seq, frames.start).is_ok());
+            .filter(|seq| seq.len() == frames.len() && check_sequence(seq, frames.start).is_ok());
         Ok(Self {
-            targets,
+            views,
             initial,
             walls: (walls.points, walls.normals),
             interior: scene.manifest().box_interior,
@@ -120,7 +141,12 @@ impl JointData {
 
     /// Transitions per epoch.
     pub fn transitions(&self) -> u64 {
-        (self.targets.len() - 1) as u64
+        (self.views[0].len() - 1) as u64
+    }
+
+    /// The training view's image of training frame `t` (counted from the split's first).
+    pub fn target(&self, t: usize) -> &ViewFrame {
+        &self.views[0][t]
     }
 }
 
@@ -321,20 +347,28 @@ impl Trainer for JointTrainer {
         let pred = self
             .dlf
             .step(self.state.0.clone(), self.state.1.clone(), &self.boundary);
-        let target = &self.data.targets[t + 1];
         self.last_target = t + 1;
-        let (w, h) = (target.camera.width, target.camera.height);
-        let pixels = match self.cfg.precrop_at(step) {
-            None if self.cfg.foreground_rays > 0.0 => {
-                let mut mask = self.data.foreground[t + 1].clone();
-                let predicted = tensor_points(&pred.pos);
-                mark_particles(&mut mask, &target.camera, &predicted, self.data.radius);
-                let share = self.cfg.foreground_rays;
-                sample_focused(&mut self.rng, self.cfg.rays, w, h, &mask, share)?
-            }
-            precrop => self.rng.sample_pixels(self.cfg.rays, w, h, precrop)?,
-        };
-        let (rays, colours) = target.batch(&pixels, &device);
+        // the step's rays, shared among the views (one view: the reference)
+        let predicted = (self.cfg.foreground_rays > 0.0).then(|| tensor_points(&pred.pos));
+        let n_views = self.data.views.len();
+        let mut parts = Vec::with_capacity(n_views);
+        for (v, frames) in self.data.views.iter().enumerate() {
+            let target = &frames[t + 1];
+            let (w, h) = (target.camera.width, target.camera.height);
+            let count = ray_share(self.cfg.rays, n_views, v);
+            let pixels = match (self.cfg.precrop_at(step), &predicted) {
+                (None, Some(predicted)) => {
+                    let mut mask = self.data.foreground[v][t + 1].clone();
+                    mark_particles(&mut mask, &target.camera, predicted, self.data.radius);
+                    let share = self.cfg.foreground_rays;
+                    sample_focused(&mut self.rng, count, w, h, &mask, share)?
+                }
+                (precrop, _) => self.rng.sample_pixels(count, w, h, precrop)?,
+            };
+            parts.push((target, pixels));
+        }
+        let parts: Vec<(&ViewFrame, &[u32])> = parts.iter().map(|(v, p)| (*v, &p[..])).collect();
+        let (rays, colours) = batch_of(&parts, &device);
         let jitter: Option<&mut dyn rand::RngCore> = if self.physnerf.config.stratified {
             Some(&mut self.rng)
         } else {
@@ -451,7 +485,7 @@ impl Trainer for JointTrainer {
     /// The training view at the frame just predicted, rendered from the prediction, and the
     /// [`Diagnostics`].
     fn evaluate(&mut self, _done: u64) -> anyhow::Result<Option<Evaluation>> {
-        let target = &self.data.targets[self.last_target];
+        let target = self.data.target(self.last_target);
         let mut evaluation = render_beside_truth(&self.physnerf, target, &self.state.0)?;
         evaluation.scores = self.diagnostics()?.scores();
         Ok(Some(evaluation))
@@ -532,7 +566,7 @@ impl JointTrainer {
         let mut rng = Rng::stream(self.seed, "joint-diagnostics");
         let (mut mse, mut frames) = (0.0, 0);
         for t in (1..truth.len()).step_by(PSNR_TRUE_EVERY) {
-            let target = &self.data.targets[t];
+            let target = self.data.target(t);
             let (w, h) = (target.camera.width, target.camera.height);
             let pixels = rng.sample_pixels(self.cfg.rays, w, h, None)?;
             let (rays, colours) = target.batch(&pixels, &device);

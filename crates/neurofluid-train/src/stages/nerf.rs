@@ -8,13 +8,12 @@ use std::path::Path;
 
 use anyhow::Context;
 use burn::optim::{GradientsParams, ModuleOptimizer};
-use burn::prelude::*;
 use neurofluid_core::metrics::{RgbImage, psnr};
 use neurofluid_core::scene::{Role, Scene};
-use neurofluid_physnerf::{Nerf, NerfConfig, RayBatch};
+use neurofluid_physnerf::{Nerf, NerfConfig};
 
 use super::run_folder::Run;
-use super::views::{ViewFrame, scalar, side_by_side};
+use super::views::{ViewFrame, batch_of, ray_share, scalar, side_by_side};
 use crate::config::{NerfSection, StageKind};
 use crate::metrics_log::{MetricsLog, psnr_from_mse};
 use crate::sampler::Rng;
@@ -177,12 +176,11 @@ impl Trainer for NerfTrainer {
         let n = self.data.images.len();
         let k = self.cfg.images_per_step.min(n);
         let picks = self.rng.sample_indices(k, n)?;
-        let mut rays = RayBatch::default();
         let mut times = Vec::new();
-        let mut targets = Vec::with_capacity(k);
+        let mut parts = Vec::with_capacity(k);
         for (i, &pick) in picks.iter().enumerate() {
             let image = &self.data.images[pick];
-            let count = self.cfg.rays / k + usize::from(i < self.cfg.rays % k);
+            let count = ray_share(self.cfg.rays, k, i);
             let (w, h) = (image.view.camera.width, image.view.camera.height);
             let pixels = self.rng.sample_pixels(
                 count.min((w * h) as usize),
@@ -190,13 +188,16 @@ impl Trainer for NerfTrainer {
                 h,
                 self.cfg.precrop_at(step),
             )?;
-            let (r, target) = image.view.batch(&pixels, &device);
-            times.extend(image.time.map(|t| vec![t; r.len()]).unwrap_or_default());
-            rays.origins.extend(r.origins);
-            rays.dirs.extend(r.dirs);
-            targets.push(target);
+            times.extend(
+                image
+                    .time
+                    .map(|t| vec![t; pixels.len()])
+                    .unwrap_or_default(),
+            );
+            parts.push((&image.view, pixels));
         }
-        let target = Tensor::cat(targets, 0);
+        let parts: Vec<(&ViewFrame, &[u32])> = parts.iter().map(|(v, p)| (*v, &p[..])).collect();
+        let (rays, target) = batch_of(&parts, &device);
         let times = self.nerf.config.time.then_some(times);
         let jitter: Option<&mut dyn rand::RngCore> = if self.nerf.config.stratified {
             Some(&mut self.rng)

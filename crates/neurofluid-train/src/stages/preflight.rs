@@ -177,6 +177,24 @@ pub fn check(run: &Run, stages: &[Stage], start: Start) -> anyhow::Result<()> {
             Some(v) => images(&mut p, scene, Role::Train, &[v], &frames),
             None => p.0.push("the scene has no training view".into()),
         }
+        let extra = &exp.joint.extra_views;
+        let warm = scene.frames(Role::Warmup);
+        let covered = frames
+            .first()
+            .zip(frames.last())
+            .is_some_and(|(&a, &b)| warm.contains(&a) && warm.contains(&b));
+        if !extra.is_empty() && !covered {
+            p.0.push(format!(
+                "joint.extra_views ({}) trains on warm-up views at every training frame, but the \
+                 scene has them only at frames {}..{}; for a built-in scene, set \
+                 `scene.generate.warmup_every_frame = true` and the generator renders them",
+                extra.join(", "),
+                warm.start,
+                warm.end
+            ));
+        } else {
+            images(&mut p, scene, Role::Warmup, extra, &frames);
+        }
         if let Some(&t) = frames.first() {
             let what = format!("first training frame's particles (frame {t})");
             p.error(load_particles(scene, Role::Train, t, &what));

@@ -31,15 +31,32 @@ impl ViewFrame {
 
     /// Rays and target colours `[R, 3]` of the given pixels.
     pub fn batch(&self, pixels: &[u32], device: &Device) -> (RayBatch, Tensor<2>) {
-        let rays = RayBatch::from(&self.camera.rays(pixels));
-        let mut target = Vec::with_capacity(pixels.len() * 3);
-        for &p in pixels {
-            let i = p as usize * 3;
-            target.extend_from_slice(&self.image.rgb[i..i + 3]);
-        }
-        let target = Tensor::from_data(TensorData::new(target, [pixels.len(), 3]), device);
-        (rays, target)
+        batch_of(&[(self, pixels)], device)
     }
+}
+
+/// Rays and target colours `[R, 3]` of several views' pixels in one batch, view after view.
+pub fn batch_of(parts: &[(&ViewFrame, &[u32])], device: &Device) -> (RayBatch, Tensor<2>) {
+    let mut rays = RayBatch::default();
+    let mut target = Vec::new();
+    for (view, pixels) in parts {
+        let r = RayBatch::from(&view.camera.rays(pixels));
+        rays.origins.extend(r.origins);
+        rays.dirs.extend(r.dirs);
+        for &p in *pixels {
+            let i = p as usize * 3;
+            target.extend_from_slice(&view.image.rgb[i..i + 3]);
+        }
+    }
+    let n = target.len() / 3;
+    let target = Tensor::from_data(TensorData::new(target, [n, 3]), device);
+    (rays, target)
+}
+
+/// The rays of part `i` when `rays` are shared among `parts` parts: `rays / parts`, and one
+/// more for each of the first `rays % parts`.
+pub fn ray_share(rays: usize, parts: usize, i: usize) -> usize {
+    rays / parts + usize::from(i < rays % parts)
 }
 
 pub use neurofluid_core::tensors::{points_tensor, tensor_points};
