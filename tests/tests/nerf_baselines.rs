@@ -9,9 +9,11 @@ use neurofluid_core::scene::{Particles, Role};
 use neurofluid_tests::{params, seeded_turn, tiny_experiment};
 use neurofluid_train::config::Experiment;
 use neurofluid_train::metrics_log::MetricsLog;
+use neurofluid_train::stages::joint::{JointData, JointTrainer};
 use neurofluid_train::stages::nerf::{self, NerfKind};
 use neurofluid_train::stages::preflight::Stage;
-use neurofluid_train::stages::{Run, Start, baseline, eval, initial, run_all};
+use neurofluid_train::stages::{Run, Start, baseline, eval, initial, run_all, warmup};
+use neurofluid_train::trainer::Trainer;
 
 /// The tiny experiment with a tiny NeRF; `every_frame` renders the warm-up views at every frame.
 fn experiment(tmp: &Path, name: &str, every_frame: bool, iters: u64) -> Experiment {
@@ -158,7 +160,24 @@ fn particles_from_images_feed_every_stage() {
     let start = initial::starting_particles(&run, Role::Test, 0, "start").unwrap();
     assert_eq!(start.pos, moved);
     let mut log = run.open_log().unwrap();
-    neurofluid_train::stages::warmup::run(&run, &mut log).unwrap();
+    warmup::run(&run, &mut log).unwrap();
+    let data = JointData::load(&run.scene, &run.exp.joint).unwrap();
+    let mut trainer = JointTrainer::new(
+        &run.exp.joint,
+        warmup::load_trained(&run).unwrap(),
+        run.load_dlf(&run.exp.dlf.weights).unwrap(),
+        JointData {
+            initial: start.clone(),
+            ..data
+        },
+        run.exp.seed,
+    );
+    // the recovered particles are not the true ones: no alignment (it matches particles by
+    // index), but a rollout d against the truth
+    trainer.step(0).unwrap();
+    let d = trainer.diagnostics().unwrap();
+    assert_eq!(d.grad_alignment, None);
+    assert!(d.rollout_d.unwrap() > 20.0, "{d:?}");
     let grounded = neurofluid_train::stages::joint::run(&run, &mut log).unwrap();
     let report = eval::run(&run, &grounded).unwrap();
     assert!(report.initial_from_images);

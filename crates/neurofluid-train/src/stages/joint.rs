@@ -384,7 +384,14 @@ impl Trainer for JointTrainer {
         let psnr = split.psnr;
         let dx = split.dx;
         let surrogate = dlf_surrogate(&pred.pos, dx.as_deref()) + boundary;
-        if let (Some(g), Some(truth)) = (&dx, &self.data.truth) {
+        // the alignment needs the truth's particles, matched by index
+        let n = pred.pos.dims()[0];
+        let truth = self
+            .data
+            .truth
+            .as_ref()
+            .filter(|truth| truth[t + 1].len() == n);
+        if let (Some(g), Some(truth)) = (&dx, truth) {
             let predicted = tensor_points(&pred.pos);
             let descent: Vec<[f32; 3]> = g.iter().map(|v| v.map(|c| -c)).collect();
             let error: Vec<[f32; 3]> = truth[t + 1]
