@@ -348,27 +348,7 @@ impl Trainer for JointTrainer {
             .dlf
             .step(self.state.0.clone(), self.state.1.clone(), &self.boundary);
         self.last_target = t + 1;
-        // the step's rays, shared among the views (one view: the reference)
-        let predicted = (self.cfg.foreground_rays > 0.0).then(|| tensor_points(&pred.pos));
-        let n_views = self.data.views.len();
-        let mut parts = Vec::with_capacity(n_views);
-        for (v, frames) in self.data.views.iter().enumerate() {
-            let target = &frames[t + 1];
-            let (w, h) = (target.camera.width, target.camera.height);
-            let count = ray_share(self.cfg.rays, n_views, v);
-            let pixels = match (self.cfg.precrop_at(step), &predicted) {
-                (None, Some(predicted)) => {
-                    let mut mask = self.data.foreground[v][t + 1].clone();
-                    mark_particles(&mut mask, &target.camera, predicted, self.data.radius);
-                    let share = self.cfg.foreground_rays;
-                    sample_focused(&mut self.rng, count, w, h, &mask, share)?
-                }
-                (precrop, _) => self.rng.sample_pixels(count, w, h, precrop)?,
-            };
-            parts.push((target, pixels));
-        }
-        let parts: Vec<(&ViewFrame, &[u32])> = parts.iter().map(|(v, p)| (*v, &p[..])).collect();
-        let (rays, colours) = batch_of(&parts, &device);
+        let (rays, colours) = self.rays_at(step, t + 1, &pred.pos)?;
         let jitter: Option<&mut dyn rand::RngCore> = if self.physnerf.config.stratified {
             Some(&mut self.rng)
         } else {
@@ -384,25 +364,8 @@ impl Trainer for JointTrainer {
         let psnr = split.psnr;
         let dx = split.dx;
         let surrogate = dlf_surrogate(&pred.pos, dx.as_deref()) + boundary;
-        // the alignment needs the truth's particles, matched by index
-        let n = pred.pos.dims()[0];
-        let truth = self
-            .data
-            .truth
-            .as_ref()
-            .filter(|truth| truth[t + 1].len() == n);
-        if let (Some(g), Some(truth)) = (&dx, truth) {
-            let predicted = tensor_points(&pred.pos);
-            let descent: Vec<[f32; 3]> = g.iter().map(|v| v.map(|c| -c)).collect();
-            let error: Vec<[f32; 3]> = truth[t + 1]
-                .iter()
-                .zip(&predicted)
-                .map(|(a, b)| [a[0] - b[0], a[1] - b[1], a[2] - b[2]])
-                .collect();
-            if let Some(c) = cosine(&descent, &error) {
-                self.alignment.0 += c;
-                self.alignment.1 += 1;
-            }
+        if let Some(g) = &dx {
+            self.record_alignment(t + 1, &pred.pos, g);
         }
         self.pending = Some(match self.pending.take() {
             None => surrogate,
@@ -540,6 +503,59 @@ impl Trainer for JointTrainer {
 }
 
 impl JointTrainer {
+    /// The rays and target colours of a step predicting training frame `t` (its positions
+    /// `pred`): `joint.rays` shared among the views, each view's drawn uniformly (the
+    /// reference) or partly from where the fluid is (`joint.foreground_rays`).
+    fn rays_at(
+        &mut self,
+        step: u64,
+        t: usize,
+        pred: &Tensor<2>,
+    ) -> anyhow::Result<(RayBatch, Tensor<2>)> {
+        let predicted = (self.cfg.foreground_rays > 0.0).then(|| tensor_points(pred));
+        let n_views = self.data.views.len();
+        let mut parts = Vec::with_capacity(n_views);
+        for (v, frames) in self.data.views.iter().enumerate() {
+            let target = &frames[t];
+            let (w, h) = (target.camera.width, target.camera.height);
+            let count = ray_share(self.cfg.rays, n_views, v);
+            let pixels = match (self.cfg.precrop_at(step), &predicted) {
+                (None, Some(predicted)) => {
+                    let mut mask = self.data.foreground[v][t].clone();
+                    mark_particles(&mut mask, &target.camera, predicted, self.data.radius);
+                    let share = self.cfg.foreground_rays;
+                    sample_focused(&mut self.rng, count, w, h, &mask, share)?
+                }
+                (precrop, _) => self.rng.sample_pixels(count, w, h, precrop)?,
+            };
+            parts.push((target, pixels));
+        }
+        let parts: Vec<(&ViewFrame, &[u32])> = parts.iter().map(|(v, p)| (*v, &p[..])).collect();
+        Ok(batch_of(&parts, &pred.device()))
+    }
+
+    /// Adds the cosine between −`dx` and the true error at training frame `t` to the alignment,
+    /// where the truth is known and has the prediction's particles (matched by index).
+    fn record_alignment(&mut self, t: usize, pred: &Tensor<2>, dx: &[[f32; 3]]) {
+        let Some(truth) = self.data.truth.as_ref().map(|truth| &truth[t]) else {
+            return;
+        };
+        if truth.len() != pred.dims()[0] {
+            return;
+        }
+        let predicted = tensor_points(pred);
+        let descent: Vec<[f32; 3]> = dx.iter().map(|v| v.map(|c| -c)).collect();
+        let error: Vec<[f32; 3]> = truth
+            .iter()
+            .zip(&predicted)
+            .map(|(a, b)| [a[0] - b[0], a[1] - b[1], a[2] - b[2]])
+            .collect();
+        if let Some(c) = cosine(&descent, &error) {
+            self.alignment.0 += c;
+            self.alignment.1 += 1;
+        }
+    }
+
     /// The [`Diagnostics`] now (the gradient alignment since the last call).
     pub fn diagnostics(&mut self) -> anyhow::Result<Diagnostics> {
         let (sum, n) = std::mem::take(&mut self.alignment);
