@@ -12,7 +12,8 @@ use neurofluid_core::metrics::gt_to_pred_distance;
 use neurofluid_core::scene::Role;
 use neurofluid_core::tensors::points_tensor;
 use neurofluid_physnerf::PhysNerf;
-use neurofluid_tests::{seeded_turn, tiny_experiment};
+use neurofluid_tests::{params, seeded_turn, tiny_experiment};
+use neurofluid_train::config::Experiment;
 use neurofluid_train::metrics_log::{MetricsLog, MetricsRow, read_jsonl};
 use neurofluid_train::sampler::Rng;
 use neurofluid_train::stages::joint::{self, JointData, dlf_surrogate, split_image_loss};
@@ -54,6 +55,32 @@ fn relative_difference(a: &[Vec<f32>], b: &[Vec<f32>]) -> f64 {
         }
     }
     worst / scale
+}
+
+/// What a warm-up and joint stage of an experiment left.
+struct Grounding {
+    run: Run,
+    /// The run's `metrics.jsonl`.
+    jsonl: std::path::PathBuf,
+    /// DLF's weights before the joint stage.
+    before: Vec<Vec<f32>>,
+    /// The grounded models.
+    grounded: joint::Grounded,
+}
+
+/// Runs the warm-up and the joint stage of `e`.
+fn ground(e: Experiment) -> Grounding {
+    let run = Run::prepare(e, Start::Resume, &[Stage::Warmup, Stage::Joint]).unwrap();
+    let mut log = MetricsLog::open(&run.dir).unwrap();
+    warmup::run(&run, &mut log).unwrap();
+    let before = params(&run.load_dlf(&run.exp.dlf.weights).unwrap());
+    let grounded = joint::run(&run, &mut log).unwrap();
+    Grounding {
+        jsonl: log.jsonl_path().to_path_buf(),
+        run,
+        before,
+        grounded,
+    }
 }
 
 /// The metrics rows of `stage`.
@@ -130,24 +157,26 @@ fn diagnostics_reach_the_metrics_and_match_an_independent_rollout() {
     // an evaluation after every epoch, two epochs
     e.apply_overrides(&["joint.epochs=2", "joint.preview_every=3", "joint.rays=512"])
         .unwrap();
-    let run = Run::prepare(e, Start::Resume, &[Stage::Warmup, Stage::Joint]).unwrap();
+    let Grounding {
+        run,
+        jsonl,
+        grounded,
+        ..
+    } = ground(e);
     assert_eq!(
         run.scene.frames(Role::Train).len(),
         4,
         "3 transitions an epoch"
     );
-    let mut log = MetricsLog::open(&run.dir).unwrap();
-    warmup::run(&run, &mut log).unwrap();
-    let grounded = joint::run(&run, &mut log).unwrap();
-
-    let rows = rows_of(log.jsonl_path(), "joint-preview");
+    let rows = rows_of(&jsonl, "joint-preview");
     assert_eq!(rows.iter().map(|r| r.step).collect::<Vec<_>>(), [3, 6]);
     for r in &rows {
         let a = r.grad_alignment.expect("alignment");
         assert!((-1.0..=1.0).contains(&a), "{a}");
         assert!(r.psnr_true.expect("PSNR on the true particles").is_finite());
     }
-    let csv = std::fs::read_to_string(log.csv_path()).unwrap();
+    let csv =
+        std::fs::read_to_string(run.dir.join(neurofluid_train::metrics_log::CSV_FILE)).unwrap();
     assert!(
         csv.lines()
             .next()
@@ -186,30 +215,22 @@ fn foreground_rays_train_and_see_more_fluid() {
     let mut e = tiny_experiment(tmp.path(), "foreground");
     e.apply_overrides(&["joint.foreground_rays=0.75", "joint.rays=256"])
         .unwrap();
-    let run = Run::prepare(e, Start::Resume, &[Stage::Warmup, Stage::Joint]).unwrap();
-    let mut log = MetricsLog::open(&run.dir).unwrap();
-    warmup::run(&run, &mut log).unwrap();
-    let before = neurofluid_tests::params(&run.load_dlf(&run.exp.dlf.weights).unwrap());
-    let grounded = joint::run(&run, &mut log).unwrap();
-    let after = neurofluid_tests::params(&grounded.dlf);
+    let focused = ground(e);
+    let after = params(&focused.grounded.dlf);
     assert!(after.iter().flatten().all(|v| v.is_finite()));
-    assert!(before != after, "DLF unchanged with foreground rays");
+    assert!(
+        focused.before != after,
+        "DLF unchanged with foreground rays"
+    );
     // most of the rays of a step now see fluid: the batch PSNR is lower than on the mostly
     // white uniform draw of the same models
     let psnr = |stage_rows: &[MetricsRow]| {
         stage_rows.iter().filter_map(|r| r.psnr).sum::<f64>() / stage_rows.len() as f64
     };
-    let rows = rows_of(log.jsonl_path(), "joint");
-    let focused = psnr(&rows);
-    drop((log, run));
+    let focused = psnr(&rows_of(&focused.jsonl, "joint"));
     let mut e = tiny_experiment(tmp.path(), "uniform");
     e.apply_overrides(&["joint.rays=256"]).unwrap();
-    let run = Run::prepare(e, Start::Resume, &[Stage::Warmup, Stage::Joint]).unwrap();
-    let mut log = MetricsLog::open(&run.dir).unwrap();
-    warmup::run(&run, &mut log).unwrap();
-    joint::run(&run, &mut log).unwrap();
-    let rows = rows_of(log.jsonl_path(), "joint");
-    let uniform = psnr(&rows);
+    let uniform = psnr(&rows_of(&ground(e).jsonl, "joint"));
     assert!(
         focused < uniform,
         "focused {focused:.2} dB vs uniform {uniform:.2} dB"
@@ -242,20 +263,10 @@ fn dlf_every_sums_transitions_into_one_step() {
             "joint.rays=256".into(),
         ])
         .unwrap();
-        let run = Run::prepare(e, Start::Resume, &[Stage::Warmup, Stage::Joint]).unwrap();
-        let mut log = MetricsLog::open(&run.dir).unwrap();
-        warmup::run(&run, &mut log).unwrap();
-        let before = neurofluid_tests::params(&run.load_dlf(&run.exp.dlf.weights).unwrap());
-        let grounded = joint::run(&run, &mut log).unwrap();
-        moved.push(largest_change(
-            &before,
-            &neurofluid_tests::params(&grounded.dlf),
-        ));
+        let g = ground(e);
+        moved.push(largest_change(&g.before, &params(&g.grounded.dlf)));
         // one metrics row per DLF step
-        let steps: Vec<u64> = rows_of(log.jsonl_path(), "joint")
-            .iter()
-            .map(|r| r.step)
-            .collect();
+        let steps: Vec<u64> = rows_of(&g.jsonl, "joint").iter().map(|r| r.step).collect();
         assert_eq!(steps, if every == 3 { vec![3] } else { vec![1, 2, 3] });
     }
     assert!(moved[0] > 0.0 && moved[0] <= lr * 1.001, "{moved:?}");
@@ -281,19 +292,15 @@ fn extra_views_join_the_loss_and_need_their_frames() {
     e.scene.dir = Some(tmp.path().join("scene_all"));
     e.apply_overrides(&["scene.generate.warmup_every_frame=true", "joint.rays=257"])
         .unwrap();
-    let run = Run::prepare(e, Start::Resume, &[Stage::Warmup, Stage::Joint]).unwrap();
-    let data = JointData::load(&run.scene, &run.exp.joint).unwrap();
+    let g = ground(e);
+    let data = JointData::load(&g.run.scene, &g.run.exp.joint).unwrap();
     assert_eq!(data.views.len(), 3);
     assert!(data.views.iter().all(|v| v.len() == 4));
     // the three views see the same frame from their own cameras
     assert_ne!(data.views[1][3].image.rgb, data.views[2][3].image.rgb);
-    let mut log = MetricsLog::open(&run.dir).unwrap();
-    warmup::run(&run, &mut log).unwrap();
-    let before = neurofluid_tests::params(&run.load_dlf(&run.exp.dlf.weights).unwrap());
-    let grounded = joint::run(&run, &mut log).unwrap();
-    assert!(before != neurofluid_tests::params(&grounded.dlf));
+    assert!(g.before != params(&g.grounded.dlf));
     // the step's 257 rays, shared among the views
-    let rows = rows_of(log.jsonl_path(), "joint");
+    let rows = rows_of(&g.jsonl, "joint");
     assert!(!rows.is_empty() && rows.iter().all(|r| r.loss.is_finite()));
     assert_eq!(
         (0..3)
