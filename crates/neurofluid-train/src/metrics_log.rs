@@ -2,7 +2,7 @@
 //! and `metrics.jsonl`, flushed after every row so a crashed or running job can be plotted.
 
 use std::fs::{File, OpenOptions};
-use std::io::Write;
+use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
@@ -179,8 +179,11 @@ impl MetricsLog {
         std::fs::create_dir_all(dir).map_err(io(dir))?;
         let csv_path = dir.join(CSV_FILE);
         let jsonl_path = dir.join(JSONL_FILE);
-        if let Ok(text) = std::fs::read_to_string(&csv_path)
-            && text.lines().next().is_some_and(|h| h != CSV_HEADER)
+        let header = File::open(&csv_path).ok().and_then(|f| {
+            let mut line = String::new();
+            BufReader::new(f).read_line(&mut line).ok().map(|_| line)
+        });
+        if header.is_some_and(|h| !h.is_empty() && h.trim_end() != CSV_HEADER)
             && jsonl_path.is_file()
         {
             return Self::open_resumed(dir, |_| true);

@@ -408,6 +408,11 @@ impl JointSection {
             .or_else(|| scene.views(Role::Train).first().cloned())
     }
 
+    /// `joint.extra_views (view_2, view_3)`: how errors name the extra views.
+    pub fn extra_views_label(&self) -> String {
+        format!("joint.extra_views ({})", self.extra_views.join(", "))
+    }
+
     /// The precrop fraction for 0-based iteration `step` (`None` = the full image).
     pub fn precrop_at(&self, step: u64) -> Option<f64> {
         (step < self.precrop_iters).then_some(self.precrop_frac)

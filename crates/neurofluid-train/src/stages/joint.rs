@@ -32,7 +32,7 @@ use neurofluid_physnerf::{PhysNerf, RayBatch};
 use super::run_folder::Run;
 use super::views::{
     ViewFrame, batch_of, check_sequence, load_particles, points_tensor, ray_share,
-    render_beside_truth, scalar, tensor_points,
+    render_beside_truth, require_warmup_every_frame, scalar, tensor_points,
 };
 use super::warmup;
 use crate::config::{JointSection, StageKind};
@@ -80,7 +80,7 @@ pub struct JointData {
     pub interior: Aabb,
     /// The true positions at every training frame, when the scene has them (diagnostics only).
     pub truth: Option<Vec<Vec<[f32; 3]>>>,
-    /// Where each image of `views` shows fluid (`joint.foreground_rays`).
+    /// Where each image of `views` shows fluid (empty unless `joint.foreground_rays` > 0).
     pub foreground: Vec<Vec<Vec<bool>>>,
     /// The particle radius (the projected footprint of a particle).
     pub radius: f32,
@@ -96,17 +96,9 @@ impl JointData {
             frames.len()
         );
         let view = cfg.view(scene).context("the scene has no training view")?;
-        let warm = scene.frames(Role::Warmup);
-        anyhow::ensure!(
-            cfg.extra_views.is_empty() || (warm.start <= frames.start && warm.end >= frames.end),
-            "joint.extra_views trains on warm-up views at every training frame, but the scene has \
-             them only at frames {}..{} (training frames {}..{}); for a built-in scene, set \
-             `scene.generate.warmup_every_frame = true` and the generator renders them",
-            warm.start,
-            warm.end,
-            frames.start,
-            frames.end
-        );
+        if !cfg.extra_views.is_empty() {
+            require_warmup_every_frame(scene, &cfg.extra_views_label())?;
+        }
         let sources = std::iter::once((Role::Train, &view))
             .chain(cfg.extra_views.iter().map(|v| (Role::Warmup, v)));
         let views = sources
@@ -119,10 +111,15 @@ impl JointData {
             .collect::<anyhow::Result<Vec<_>>>()?;
         let initial = load_particles(scene, Role::Train, frames.start, "first training frame")?;
         let walls = scene.boundary()?;
-        let foreground = views
-            .iter()
-            .map(|frames| frames.iter().map(|v| image_foreground(&v.image)).collect())
-            .collect();
+        // only `joint.foreground_rays` draws from them
+        let foreground = if cfg.foreground_rays > 0.0 {
+            views
+                .iter()
+                .map(|frames| frames.iter().map(|v| image_foreground(&v.image)).collect())
+                .collect()
+        } else {
+            Vec::new()
+        };
         // the diagnostics' ground truth: every training frame's particles, if the scene has them
         let truth = scene
             .particle_sequence(Role::Train)
@@ -423,7 +420,7 @@ impl Trainer for JointTrainer {
         // DLF's steps, PhysNeRF's norm is still checked for divergence)
         stats.grad_norms = vec![("physnerf", norm_p)];
         if let Some(norm_d) = norm_d {
-            stats.grad_norms = vec![("physnerf", norm_p), ("dlf", norm_d)];
+            stats.grad_norms.push(("dlf", norm_d));
             stats.lr_physnerf = Some(lr_p);
             stats.lr_dlf = Some(lr_d);
             stats.updated = true;

@@ -13,7 +13,9 @@ use neurofluid_core::scene::{Role, Scene};
 use neurofluid_physnerf::{Nerf, NerfConfig};
 
 use super::run_folder::Run;
-use super::views::{ViewFrame, batch_of, ray_share, scalar, side_by_side};
+use super::views::{
+    ViewFrame, batch_of, ray_share, require_warmup_every_frame, scalar, side_by_side,
+};
 use crate::config::{NerfSection, StageKind};
 use crate::metrics_log::{MetricsLog, psnr_from_mse};
 use crate::sampler::Rng;
@@ -98,17 +100,7 @@ impl NerfData {
                 })
                 .collect::<anyhow::Result<Vec<_>>>()?,
             NerfKind::NerfT => {
-                anyhow::ensure!(
-                    warm.end >= train.end,
-                    "NeRF-T trains on one warm-up view per training frame, but the scene has its \
-                     warm-up views only at frames {}..{} (training frames {}..{}); for a built-in \
-                     scene, set `scene.generate.warmup_every_frame = true` and the generator \
-                     renders them",
-                    warm.start,
-                    warm.end,
-                    train.start,
-                    train.end
-                );
+                require_warmup_every_frame(scene, "NeRF-T (one warm-up view per frame)")?;
                 train
                     .clone()
                     .map(|t| {

@@ -7,7 +7,7 @@ use neurofluid_core::scene::{Role, Scene};
 
 use super::nerf::{NerfData, NerfKind};
 use super::run_folder::{Run, Start};
-use super::views::{check_sequence, load_particles};
+use super::views::{check_sequence, load_particles, require_warmup_every_frame};
 use super::{eval, initial, joint, warmup};
 use crate::config::InitialParticles;
 use crate::config::StageKind;
@@ -178,22 +178,11 @@ pub fn check(run: &Run, stages: &[Stage], start: Start) -> anyhow::Result<()> {
             None => p.0.push("the scene has no training view".into()),
         }
         let extra = &exp.joint.extra_views;
-        let warm = scene.frames(Role::Warmup);
-        let covered = frames
-            .first()
-            .zip(frames.last())
-            .is_some_and(|(&a, &b)| warm.contains(&a) && warm.contains(&b));
-        if !extra.is_empty() && !covered {
-            p.0.push(format!(
-                "joint.extra_views ({}) trains on warm-up views at every training frame, but the \
-                 scene has them only at frames {}..{}; for a built-in scene, set \
-                 `scene.generate.warmup_every_frame = true` and the generator renders them",
-                extra.join(", "),
-                warm.start,
-                warm.end
-            ));
-        } else {
-            images(&mut p, scene, Role::Warmup, extra, &frames);
+        if !extra.is_empty() {
+            match require_warmup_every_frame(scene, &exp.joint.extra_views_label()) {
+                Ok(()) => images(&mut p, scene, Role::Warmup, extra, &frames),
+                Err(e) => p.0.push(format!("{e}")),
+            }
         }
         if let Some(&t) = frames.first() {
             let what = format!("first training frame's particles (frame {t})");

@@ -61,6 +61,23 @@ pub fn ray_share(rays: usize, parts: usize, i: usize) -> usize {
 
 pub use neurofluid_core::tensors::{points_tensor, tensor_points};
 
+/// Checks that `scene` has its warm-up views at every training frame, which `what` trains on;
+/// the error says how a built-in scene gets them.
+pub fn require_warmup_every_frame(scene: &Scene, what: &str) -> anyhow::Result<()> {
+    let (warm, train) = (scene.frames(Role::Warmup), scene.frames(Role::Train));
+    anyhow::ensure!(
+        warm.start <= train.start && warm.end >= train.end,
+        "{what} trains on warm-up views at every training frame, but the scene has them only at \
+         frames {}..{} (training frames {}..{}); for a built-in scene, set \
+         `scene.generate.warmup_every_frame = true` and the generator renders them",
+        warm.start,
+        warm.end,
+        train.start,
+        train.end
+    );
+    Ok(())
+}
+
 /// Checks a particle state read from a scene: finite values, matching lengths.
 pub fn check_particles(p: &Particles, what: &str) -> anyhow::Result<()> {
     anyhow::ensure!(
