@@ -3,19 +3,21 @@
 //! Σ x·g) gives the gradients of the direct backward through DLF and the renderer; the rollout d,
 //! gradient alignment and PSNR on the true particles reach the metrics log, and the rollout d
 //! is the one an independent rollout of the grounded DLF gives; rays drawn mostly from the
-//! fluid's pixels train as the uniform ones do.
+//! fluid's pixels train as the uniform ones do; the silhouette term adds its value to the loss
+//! and its gradient to DLF's.
 
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::GradientsParams;
 use burn::prelude::*;
 use neurofluid_core::metrics::gt_to_pred_distance;
 use neurofluid_core::scene::Role;
-use neurofluid_core::tensors::points_tensor;
+use neurofluid_core::tensors::{points_tensor, tensor_points};
 use neurofluid_physnerf::PhysNerf;
 use neurofluid_tests::{params, seeded_turn, tiny_experiment};
 use neurofluid_train::config::Experiment;
 use neurofluid_train::metrics_log::{MetricsLog, MetricsRow, read_jsonl};
 use neurofluid_train::sampler::Rng;
+use neurofluid_train::silhouette::{projected_radius, silhouette_loss};
 use neurofluid_train::stages::joint::{self, JointData, dlf_surrogate, split_image_loss};
 use neurofluid_train::stages::preflight::Stage;
 use neurofluid_train::stages::{Run, Start, warmup};
@@ -308,4 +310,56 @@ fn extra_views_join_the_loss_and_need_their_frames() {
             .collect::<Vec<_>>(),
         [86, 86, 85]
     );
+}
+
+#[test]
+fn silhouette_term_joins_the_loss_and_moves_dlf() {
+    // the first step of two runs that differ only in the silhouette weight sees the same
+    // prediction and rays: the logged losses differ by w × the term of that prediction
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let w = 0.5;
+    let mut runs = Vec::new();
+    for weight in [0.0, w] {
+        let mut e = tiny_experiment(tmp.path(), &format!("silhouette{weight}"));
+        e.apply_overrides(&[
+            format!("joint.silhouette_weight={weight}"),
+            "joint.rays=256".into(),
+        ])
+        .unwrap();
+        runs.push(ground(e));
+    }
+    let first_loss = |g: &Grounding| rows_of(&g.jsonl, "joint")[0].loss;
+    let (plain, with) = (first_loss(&runs[0]), first_loss(&runs[1]));
+
+    // the first prediction, from the pretrained DLF and the true first frame
+    let run = &runs[1].run;
+    let data = JointData::load(&run.scene, &run.exp.joint).unwrap();
+    assert!(
+        !data.foreground.is_empty(),
+        "the term needs the fluid masks"
+    );
+    let net = run.load_dlf(&run.exp.dlf.weights).unwrap();
+    let device = net.device();
+    let boundary = net.boundary(&data.walls.0, &data.walls.1, &device);
+    let pred = net.step(
+        points_tensor(&data.initial.pos, &device),
+        points_tensor(&data.initial.vel, &device),
+        &boundary,
+    );
+    let pred = tensor_points(&pred.pos);
+    let camera = &data.views[0][1].camera;
+    let radius = projected_radius(camera, data.interior.centre(), data.radius).unwrap();
+    let term = silhouette_loss(camera, &data.foreground[0][1], &pred, radius).loss;
+    assert!(
+        term > 0.0,
+        "the pretrained prediction does not fill the silhouette exactly"
+    );
+    assert!(
+        ((with - plain) - w * term).abs() <= 1e-4 * with,
+        "logged {with} − {plain} vs w·L_sil = {}",
+        w * term
+    );
+    // and its gradient reaches DLF
+    assert!(params(&runs[0].grounded.dlf) != params(&runs[1].grounded.dlf));
 }

@@ -124,18 +124,33 @@ impl Camera {
     /// [`Camera::ray_dir`] (fractional) and a depth along the viewing axis (scaled like c2w, for
     /// ordering); `None` behind the camera.
     pub fn project(&self, p: [f32; 3]) -> Option<(f32, f32, f32)> {
-        let o = self.origin();
-        let r = &self.c2w;
-        let v = [p[0] - o[0], p[1] - o[1], p[2] - o[2]];
-        // camera coordinates: the transpose of c2w's rotation applied to p − origin
-        let c: [f32; 3] = std::array::from_fn(|k| v[0] * r[0][k] + v[1] * r[1][k] + v[2] * r[2][k]);
-        let depth = -c[2];
-        if depth.is_nan() || depth <= 0.0 {
-            return None;
-        }
+        let (c, depth) = self.camera_coords(p)?;
         let col = self.fx * c[0] / depth + self.cx;
         let row = -self.fy * c[1] / depth + self.cy;
         Some((col, row, depth))
+    }
+
+    /// The camera coordinates of `p` (the transpose of c2w's rotation applied to p − origin)
+    /// and its depth −c₂; `None` behind the camera.
+    fn camera_coords(&self, p: [f32; 3]) -> Option<([f32; 3], f32)> {
+        let o = self.origin();
+        let r = &self.c2w;
+        let v = [p[0] - o[0], p[1] - o[1], p[2] - o[2]];
+        let c: [f32; 3] = std::array::from_fn(|k| v[0] * r[0][k] + v[1] * r[1][k] + v[2] * r[2][k]);
+        let depth = -c[2];
+        (!depth.is_nan() && depth > 0.0).then_some((c, depth))
+    }
+
+    /// [`Camera::project`]'s `(col, row)` derivatives with respect to the world point `p`:
+    /// `[∂col/∂p, ∂row/∂p]`; `None` behind the camera.
+    pub fn project_jacobian(&self, p: [f32; 3]) -> Option<[[f32; 3]; 2]> {
+        let (c, depth) = self.camera_coords(p)?;
+        // camera coordinate k is Σ_j (p − o)_j r[j][k], so ∂c_k/∂p_j = r[j][k]
+        let r = &self.c2w;
+        // col = fx·c0/depth + cx, depth = −c2: ∂(c0/depth)/∂p_j = (r[j][0] + c0/depth·r[j][2])/depth
+        let d_col = std::array::from_fn(|j| self.fx * (r[j][0] + c[0] / depth * r[j][2]) / depth);
+        let d_row = std::array::from_fn(|j| -self.fy * (r[j][1] + c[1] / depth * r[j][2]) / depth);
+        Some([d_col, d_row])
     }
 
     /// Rays for the given pixels, each indexed row-major as `row·W + col`.
@@ -208,6 +223,45 @@ mod tests {
         assert!((f - 1225.9).abs() < 1.0, "{f}");
         // 90° field of view: f = W/2
         assert!((focal_from_angle_x(64, std::f32::consts::FRAC_PI_2) - 32.0).abs() < 1e-4);
+    }
+
+    /// The projection's Jacobian against central differences of the projection (in f64 steps
+    /// small enough for f32), for a scaled, rotated, off-centre camera.
+    #[test]
+    fn projection_jacobian_matches_finite_differences() {
+        let s = 0.8f32;
+        let (c, sn) = (0.6f32.cos(), 0.6f32.sin());
+        let c2w = [
+            [s * c, 0.0, s * sn, 1.5],
+            [0.0, s, 0.0, 0.7],
+            [-s * sn, 0.0, s * c, 4.0],
+            [0.0, 0.0, 0.0, 1.0],
+        ];
+        let mut cam = Camera::from_angle_x(120, 90, 0.7, c2w);
+        cam.fy *= 1.1;
+        cam.cx += 3.0;
+        for p in [[0.1f32, 0.2, 0.3], [-0.4, 0.5, -0.2], [0.9, -0.3, 0.6]] {
+            let jac = cam.project_jacobian(p).unwrap();
+            for j in 0..3 {
+                let h = 1e-3f32;
+                let (mut a, mut b) = (p, p);
+                a[j] += h;
+                b[j] -= h;
+                let (pa, pb) = (cam.project(a).unwrap(), cam.project(b).unwrap());
+                let fd = [(pa.0 - pb.0) / (2.0 * h), (pa.1 - pb.1) / (2.0 * h)];
+                for k in 0..2 {
+                    let tol = 1e-2 * (1.0 + fd[k].abs());
+                    assert!(
+                        (jac[k][j] - fd[k]).abs() < tol,
+                        "{p:?} {k} {j}: {jac:?} vs {fd:?}"
+                    );
+                }
+            }
+        }
+        assert!(
+            cam.project_jacobian([1.5, 0.7, 10.0]).is_none(),
+            "behind the camera"
+        );
     }
 
     /// Projecting a point on a pixel's ray lands on that pixel, for a scaled, rotated camera.

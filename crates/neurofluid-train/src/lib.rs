@@ -14,6 +14,7 @@ pub mod plot;
 pub mod ply;
 pub mod report;
 pub mod sampler;
+pub mod silhouette;
 pub mod stages;
 pub mod sweep;
 pub mod trainer;

@@ -94,6 +94,11 @@ impl Aabb {
     pub fn contains(&self, p: [f32; 3]) -> bool {
         (0..3).all(|a| p[a] >= self.min[a] && p[a] <= self.max[a])
     }
+
+    /// The centre point.
+    pub fn centre(&self) -> [f32; 3] {
+        std::array::from_fn(|a| 0.5 * (self.min[a] + self.max[a]))
+    }
 }
 
 /// The role a view plays.

@@ -279,6 +279,9 @@ impl Experiment {
         if !(0.0..=1.0).contains(&j.foreground_rays) {
             return bad("joint.foreground_rays", "expected a share in [0, 1]");
         }
+        if !(j.silhouette_weight.is_finite() && j.silhouette_weight >= 0.0) {
+            return bad("joint.silhouette_weight", "expected a finite weight ≥ 0");
+        }
         let n = &self.nerf;
         if let Some((field, msg)) = n.model.problem() {
             return bad(&format!("nerf.model.{field}"), &msg);
@@ -534,6 +537,10 @@ mod tests {
             (
                 "[scene]\nbuiltin = \"watercube\"\n[joint]\nforeground_rays = 1.5\n",
                 "joint.foreground_rays",
+            ),
+            (
+                "[scene]\nbuiltin = \"watercube\"\n[joint]\nsilhouette_weight = -1.0\n",
+                "joint.silhouette_weight",
             ),
             (
                 "[scene]\nbuiltin = \"watercube\"\n[joint.physnerf_optim.schedule]\nkind = \"multi_step\"\nmilestones = [5, 3]\ngamma = 0.5\n",

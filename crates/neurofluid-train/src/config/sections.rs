@@ -362,6 +362,11 @@ pub struct JointSection {
     /// projected prediction covers ([`crate::focus`]); the rest uniform over the image. 0 = the
     /// reference's uniform draw.
     pub foreground_rays: f64,
+    /// Weight of the silhouette term ([`crate::silhouette`]): the predicted particles projected
+    /// into every view of the loss against the pixels where its target shows fluid, pulling
+    /// particles into fluid the prediction misses and out of places the truth leaves empty.
+    /// 0 = the reference's image loss alone.
+    pub silhouette_weight: f64,
     /// Training view; unset = the scene manifest's (view_1).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub view: Option<String>,
@@ -390,6 +395,7 @@ impl Default for JointSection {
             precrop_iters: 500,
             precrop_frac: 0.5,
             foreground_rays: 0.0,
+            silhouette_weight: 0.0,
             view: None,
             extra_views: Vec::new(),
             log_every: 49,

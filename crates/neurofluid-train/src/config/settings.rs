@@ -38,6 +38,7 @@ const ADDED_KEYS: &[(&str, &str)] = &[
     ("joint.foreground_rays", "0.0"),
     ("joint.dlf_every", "1"),
     ("joint.extra_views", "[]"),
+    ("joint.silhouette_weight", "0.0"),
 ];
 
 /// The stages whose state the settings shape.

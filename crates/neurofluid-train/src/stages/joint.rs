@@ -16,6 +16,9 @@
 //! through the transitions of the window. The split exposes g, which the diagnostics compare with
 //! the true error (x_true − x_pred): [`Diagnostics`], at every evaluation, with the rollout d over
 //! the training frames and the renderer's PSNR on the true particles, where the scene has them.
+//!
+//! With `silhouette_weight` > 0 the [`crate::silhouette`] term of every view joins the loss at
+//! the same leaf: its gradient is added to g, so DLF sees it through the same surrogate.
 
 use std::path::Path;
 
@@ -39,6 +42,7 @@ use crate::config::{JointSection, StageKind};
 use crate::focus::{image_foreground, mark_particles, sample_focused};
 use crate::metrics_log::{MetricsLog, psnr_from_mse};
 use crate::sampler::Rng;
+use crate::silhouette::{projected_radius, silhouette_loss};
 use crate::trainer::checkpoint::{self, first_existing};
 use crate::trainer::{Cadence, Evaluation, StageState, StepStats, Trainer, guard};
 
@@ -80,7 +84,8 @@ pub struct JointData {
     pub interior: Aabb,
     /// The true positions at every training frame, when the scene has them (diagnostics only).
     pub truth: Option<Vec<Vec<[f32; 3]>>>,
-    /// Where each image of `views` shows fluid (empty unless `joint.foreground_rays` > 0).
+    /// Where each image of `views` shows fluid (empty unless `joint.foreground_rays` or
+    /// `joint.silhouette_weight` uses it).
     pub foreground: Vec<Vec<Vec<bool>>>,
     /// The particle radius (the projected footprint of a particle).
     pub radius: f32,
@@ -111,8 +116,8 @@ impl JointData {
             .collect::<anyhow::Result<Vec<_>>>()?;
         let initial = load_particles(scene, Role::Train, frames.start, "first training frame")?;
         let walls = scene.boundary()?;
-        // only `joint.foreground_rays` draws from them
-        let foreground = if cfg.foreground_rays > 0.0 {
+        // only `joint.foreground_rays` and `joint.silhouette_weight` use them
+        let foreground = if cfg.foreground_rays > 0.0 || cfg.silhouette_weight > 0.0 {
             views
                 .iter()
                 .map(|frames| frames.iter().map(|v| image_foreground(&v.image)).collect())
@@ -359,7 +364,19 @@ impl Trainer for JointTrainer {
             self.physnerf_grads.accumulate(&self.physnerf, g);
         }
         let psnr = split.psnr;
-        let dx = split.dx;
+        let mut dx = split.dx;
+        if self.cfg.silhouette_weight > 0.0 {
+            let (loss, g) = self.silhouette_at(t + 1, &pred.pos);
+            self.pending_loss += loss;
+            dx = Some(match dx {
+                Some(d) => d
+                    .iter()
+                    .zip(&g)
+                    .map(|(a, b)| std::array::from_fn(|k| a[k] + b[k]))
+                    .collect(),
+                None => g,
+            });
+        }
         let surrogate = dlf_surrogate(&pred.pos, dx.as_deref()) + boundary;
         if let Some(g) = &dx {
             self.record_alignment(t + 1, &pred.pos, g);
@@ -529,6 +546,30 @@ impl JointTrainer {
         }
         let parts: Vec<(&ViewFrame, &[u32])> = parts.iter().map(|(v, p)| (*v, &p[..])).collect();
         Ok(batch_of(&parts, &pred.device()))
+    }
+
+    /// The weighted silhouette term of training frame `t` over every view, and its gradient
+    /// with respect to the predicted positions `pred`.
+    fn silhouette_at(&self, t: usize, pred: &Tensor<2>) -> (f64, Vec<[f32; 3]>) {
+        let points = tensor_points(pred);
+        let weight = self.cfg.silhouette_weight;
+        let mut loss = 0.0;
+        let mut grad = vec![[0.0f32; 3]; points.len()];
+        for (v, frames) in self.data.views.iter().enumerate() {
+            let camera = &frames[t].camera;
+            let centre = self.data.interior.centre();
+            let Some(radius) = projected_radius(camera, centre, self.data.radius) else {
+                continue;
+            };
+            let s = silhouette_loss(camera, &self.data.foreground[v][t], &points, radius);
+            loss += weight * s.loss;
+            for (g, d) in grad.iter_mut().zip(&s.grad) {
+                for k in 0..3 {
+                    g[k] += (weight * d[k] as f64) as f32;
+                }
+            }
+        }
+        (loss, grad)
     }
 
     /// Adds the cosine between −`dx` and the true error at training frame `t` to the alignment,
