@@ -24,6 +24,7 @@
 
 mod errors;
 mod legacy;
+pub mod preset;
 mod sections;
 pub mod settings;
 
@@ -34,6 +35,7 @@ use serde::{Deserialize, Serialize};
 
 pub use errors::{ConfigError, from_toml_str, line_col};
 pub(crate) use errors::{from_table, read_text};
+pub use preset::Preset;
 pub use sections::{
     BuiltinScene, DlfSection, EvalSection, InitialParticles, InitialSection, JointSection,
     NerfSection, PlyEncoding, SceneScale, SceneSection, SurfaceThreshold, WarmupSection,
@@ -61,6 +63,10 @@ pub struct Experiment {
     /// Output folder; default `runs/<name>` (see [`Experiment::out_dir`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub out_dir: Option<PathBuf>,
+    /// Training rules laid over the file's values: `"paper"` = the reference's (see
+    /// [`preset`]); unset = the file's values.
+    #[serde(default, skip_serializing_if = "Preset::is_none")]
+    pub preset: Preset,
     /// Which scene: an existing folder or a built-in one to generate.
     pub scene: SceneSection,
     /// DLF, the transition model.
@@ -123,8 +129,20 @@ impl Experiment {
             Some(table) => from_table(table, origin)?,
             None => from_toml_str(text, origin)?,
         };
+        let exp = exp.with_preset(origin);
         exp.validate(origin)?;
         Ok(exp)
+    }
+
+    /// This experiment with its [`Preset`] laid over it; each value the preset changes is logged.
+    fn with_preset(mut self, origin: &Path) -> Self {
+        for (key, file, preset) in preset::apply(&mut self) {
+            tracing::info!(
+                "{}: preset = \"paper\" sets {key} = {preset} (written: {file})",
+                origin.display()
+            );
+        }
+        self
     }
 
     /// The output folder: `out_dir`, or `runs/<name>`.
@@ -173,7 +191,7 @@ impl Experiment {
             toml::Table::try_from(&*self).expect("experiment serialises to a TOML table");
         set_dotted(&mut table, &key, value, &origin)?;
         migrate_legacy(&mut table, &origin);
-        let exp: Experiment = from_table(table, &origin)?;
+        let exp = from_table::<Experiment>(table, &origin)?.with_preset(&origin);
         exp.validate(&origin)?;
         *self = exp;
         Ok(())
@@ -465,6 +483,57 @@ mod tests {
         assert_eq!(j.physnerf_optim.lr_at(10_001), 1.5e-4);
         assert_eq!(w.precrop_at(499), Some(0.5));
         assert_eq!(w.precrop_at(500), None);
+    }
+
+    /// `preset = "paper"` on a quick experiment that departs from the reference: every rule
+    /// is back to the defaults (the paper's, above), every budget stays the file's, and a rule
+    /// set after the preset is still the paper's.
+    #[test]
+    fn paper_preset_restores_the_reference_rules_and_keeps_the_budgets() {
+        let file =
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../../experiments/quick-honeycone.toml");
+        let quick = Experiment::load(&file).unwrap();
+        assert_eq!(
+            quick.joint.bptt_steps, 4,
+            "the quick experiment departs from the paper"
+        );
+        let mut paper = quick.clone();
+        paper.apply_overrides(&["preset=\"paper\""]).unwrap();
+        let reference = parse(MINIMAL).unwrap();
+        assert_eq!(paper.preset, Preset::Paper);
+        assert_eq!(paper.dlf.geometry, reference.dlf.geometry);
+        let (p, r) = (&paper.physnerf, &reference.physnerf);
+        assert_eq!((p.selection, p.density), (r.selection, r.density));
+        assert_eq!(p.frequencies, r.frequencies);
+        assert_eq!(paper.warmup.optim, reference.warmup.optim);
+        let (j, r) = (&paper.joint, &reference.joint);
+        assert_eq!((j.bptt_steps, j.dlf_every), (r.bptt_steps, r.dlf_every));
+        assert_eq!(j.physnerf_optim, r.physnerf_optim);
+        assert_eq!(j.dlf_optim, r.dlf_optim);
+        assert_eq!(
+            (j.boundary_weight, j.foreground_rays, j.silhouette_weight),
+            (1.0, 0.0, 0.0)
+        );
+        assert!(j.extra_views.is_empty());
+        // the budgets are the file's
+        assert_eq!(
+            (paper.warmup.iters, paper.joint.epochs, paper.joint.rays),
+            (quick.warmup.iters, quick.joint.epochs, quick.joint.rays)
+        );
+        assert_eq!(
+            (p.width, p.n_samples, p.n_importance),
+            (
+                quick.physnerf.width,
+                quick.physnerf.n_samples,
+                quick.physnerf.n_importance
+            )
+        );
+        // the preset wins over a rule set after it, and survives a round trip of the file
+        paper.apply_overrides(&["joint.bptt_steps=4"]).unwrap();
+        assert_eq!(paper.joint.bptt_steps, 1);
+        let again = parse(&paper.to_toml_string()).unwrap();
+        assert_eq!(again.preset, Preset::Paper);
+        assert_eq!(again.joint, paper.joint);
     }
 
     #[test]
