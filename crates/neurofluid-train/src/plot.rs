@@ -470,6 +470,7 @@ mod tests {
                 neurofluid: t as f64,
                 dlf: Some(2.0 * t as f64),
                 supervised_dlf: None,
+                reverse: Default::default(),
             })
             .collect();
         let dir = tempfile::tempdir().unwrap();

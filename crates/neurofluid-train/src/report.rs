@@ -82,6 +82,32 @@ pub struct FrameDistance {
     /// the paper's supervised reference, if evaluated.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub supervised_dlf: Option<f64>,
+    /// d the other way (d′: from each predicted particle to the nearest true one, × 1000) for
+    /// NeuroFluid, DLF and DLF†, where evaluated: large where a prediction puts particles where
+    /// the truth has none (spray, floaters), which d does not see.
+    #[serde(default, skip_serializing_if = "Reverse::is_empty")]
+    pub reverse: Reverse,
+}
+
+/// d′ (prediction → truth) of each model at one rollout step.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct Reverse {
+    /// NeuroFluid's d′.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub neurofluid: Option<f64>,
+    /// The pretrained DLF's d′.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dlf: Option<f64>,
+    /// DLF†'s d′.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub supervised_dlf: Option<f64>,
+}
+
+impl Reverse {
+    /// True when no model's d′ was evaluated (reports written before d′ existed).
+    pub fn is_empty(&self) -> bool {
+        *self == Reverse::default()
+    }
 }
 
 /// The models whose rollouts are scored by d, in table order.
@@ -105,6 +131,15 @@ impl Rollout {
             Rollout::Dlf => f.dlf,
             Rollout::SupervisedDlf => f.supervised_dlf,
             Rollout::NeuroFluid => Some(f.neurofluid),
+        }
+    }
+
+    /// The rollout's d′ (prediction → truth) in `f`, if it was evaluated.
+    pub fn reverse_of(self, f: &FrameDistance) -> Option<f64> {
+        match self {
+            Rollout::Dlf => f.reverse.dlf,
+            Rollout::SupervisedDlf => f.reverse.supervised_dlf,
+            Rollout::NeuroFluid => f.reverse.neurofluid,
         }
     }
 
@@ -277,18 +312,23 @@ impl EvalReport {
 
     /// The paper's Table 2 row of `model`: `None` where the model was not evaluated.
     pub fn distance_row(&self, model: Rollout) -> Option<DistanceRow> {
-        let d = |t: usize| {
-            self.frames
-                .iter()
-                .find(|f| f.t == t)
-                .and_then(|f| model.of(f))
-        };
+        self.row_of(|f| model.of(f))
+    }
+
+    /// The Table 2 row of `model` in d′ (prediction → truth): `None` where it was not evaluated.
+    pub fn reverse_row(&self, model: Rollout) -> Option<DistanceRow> {
+        self.row_of(|f| model.reverse_of(f))
+    }
+
+    /// Window means and last frames of the per-frame values `of`.
+    fn row_of(&self, of: impl Fn(&FrameDistance) -> Option<f64>) -> Option<DistanceRow> {
+        let d = |t: usize| self.frames.iter().find(|f| f.t == t).and_then(&of);
         let window = |(a, b): (usize, usize)| {
             mean(
                 self.frames
                     .iter()
                     .filter(|f| (a..=b).contains(&f.t))
-                    .filter_map(|f| model.of(f)),
+                    .filter_map(&of),
             )
         };
         let (g, p) = (self.windows.grounding, self.windows.prediction);
@@ -298,10 +338,7 @@ impl EvalReport {
             prediction_mean: window(p),
             prediction_last: d(p.1),
         };
-        self.frames
-            .iter()
-            .any(|f| model.of(f).is_some())
-            .then_some(row)
+        self.frames.iter().any(|f| of(f).is_some()).then_some(row)
     }
 
     /// The summary: window means and per-view image means (views in first-seen order).
@@ -384,6 +421,7 @@ impl EvalReport {
              (25 = one particle radius); PSNR/SSIM/LPIPS (AlexNet, v0.1) over the test views' \
              renders."
         );
+        md.push_str(&self.reverse_markdown());
         if !self.nvs_baselines.is_empty() {
             md.push_str(&self.nvs_markdown());
         }
@@ -404,6 +442,39 @@ impl EvalReport {
                 );
             }
         }
+        md
+    }
+
+    /// The d′ table (prediction → truth), empty when no d′ was evaluated.
+    pub fn reverse_markdown(&self) -> String {
+        let rows: Vec<(Rollout, DistanceRow)> = Rollout::ALL
+            .into_iter()
+            .filter_map(|m| self.reverse_row(m).map(|r| (m, r)))
+            .collect();
+        if rows.is_empty() {
+            return String::new();
+        }
+        let (g, p) = (self.windows.grounding, self.windows.prediction);
+        let mut md = format!(
+            "\n| model | d′_avg (t = {}–{}) | d′ (t = {}) | d′_avg (t = {}–{}) | d′ (t = {}) |\n|---|---:|---:|---:|---:|\n",
+            g.0, g.1, g.1, p.0, p.1, p.1
+        );
+        for (model, row) in rows {
+            let _ = writeln!(
+                md,
+                "| {} | {} | {} | {} | {} |",
+                model.label(),
+                fmt_opt(row.grounding_mean, 2),
+                fmt_opt(row.grounding_last, 2),
+                fmt_opt(row.prediction_mean, 2),
+                fmt_opt(row.prediction_last, 2),
+            );
+        }
+        md.push_str(
+            "\nd′ = the other way: mean distance from each predicted particle to the nearest true \
+             one, × 1000 (a diagnostic, not the paper's metric): large where a prediction puts \
+             particles where the truth has none, which d does not see.\n",
+        );
         md
     }
 
@@ -456,6 +527,9 @@ impl EvalReport {
             "neurofluid_d".into(),
             "dlf_d".into(),
             "supervised_dlf_d".into(),
+            "neurofluid_d_rev".into(),
+            "dlf_d_rev".into(),
+            "supervised_dlf_d_rev".into(),
         ];
         for v in &views {
             header.extend([
@@ -471,6 +545,9 @@ impl EvalReport {
                 cell(f.map(|f| f.neurofluid)),
                 cell(f.and_then(|f| f.dlf)),
                 cell(f.and_then(|f| f.supervised_dlf)),
+                cell(f.and_then(|f| f.reverse.neurofluid)),
+                cell(f.and_then(|f| f.reverse.dlf)),
+                cell(f.and_then(|f| f.reverse.supervised_dlf)),
             ];
             for v in &views {
                 let i = self.images.iter().find(|i| i.t == t && &i.view == v);
@@ -546,11 +623,17 @@ mod tests {
         for t in 1..=59 {
             let nf = gt_to_pred_distance(&gt, &shifted(0.001 * t as f32)).mean;
             let dlf = gt_to_pred_distance(&gt, &shifted(0.002 * t as f32)).mean;
+            // d′ of NeuroFluid: from the shifted set back to the GT
+            let nf_rev = gt_to_pred_distance(&shifted(0.001 * t as f32), &gt).mean;
             r.frames.push(FrameDistance {
                 t,
                 neurofluid: nf,
                 dlf: Some(dlf),
                 supervised_dlf: None,
+                reverse: Reverse {
+                    neurofluid: Some(nf_rev),
+                    ..Reverse::default()
+                },
             });
             for view in ["view_5", "view_6"] {
                 let bonus = if view == "view_6" { 1.0 } else { 0.0 };
@@ -640,6 +723,60 @@ mod tests {
         );
     }
 
+    /// Particles where the truth has none (spray above the fluid) leave d at zero and show in d′.
+    #[test]
+    fn reverse_d_sees_what_d_misses() {
+        let gt: Vec<[f32; 3]> = (0..20).map(|i| [i as f32, 0.0, 0.0]).collect();
+        let mut pred = gt.clone();
+        pred.extend(gt.iter().map(|p| [p[0], 1.0, 0.0]));
+        let mut r = EvalReport::new("spray", "s", "c", Windows::from_lengths(4, 6));
+        for t in 1..=5 {
+            r.frames.push(FrameDistance {
+                t,
+                neurofluid: gt_to_pred_distance(&gt, &pred).mean,
+                dlf: Some(gt_to_pred_distance(&gt, &gt).mean),
+                supervised_dlf: None,
+                reverse: Reverse {
+                    neurofluid: Some(gt_to_pred_distance(&pred, &gt).mean),
+                    dlf: Some(gt_to_pred_distance(&gt, &gt).mean),
+                    supervised_dlf: None,
+                },
+            });
+        }
+        let d = r.distance_row(Rollout::NeuroFluid).unwrap();
+        let rev = r.reverse_row(Rollout::NeuroFluid).unwrap();
+        assert_eq!(d.grounding_mean, Some(0.0));
+        assert!(
+            (rev.grounding_mean.unwrap() - 500.0).abs() < 1e-3,
+            "{rev:?}"
+        );
+        assert!(
+            (rev.prediction_last.unwrap() - 500.0).abs() < 1e-3,
+            "{rev:?}"
+        );
+        assert_eq!(r.reverse_row(Rollout::SupervisedDlf), None);
+        let md = r.markdown();
+        assert!(
+            md.contains("| NeuroFluid | 500.00 | 500.00 | 500.00 | 500.00 |"),
+            "{md}"
+        );
+        assert!(md.contains("| DLF | 0.00 | 0.00 | 0.00 | 0.00 |"), "{md}");
+        // a report written before d′ existed has no d′ table
+        assert!(
+            !sample_report_without_reverse()
+                .markdown()
+                .contains("d′_avg")
+        );
+    }
+
+    fn sample_report_without_reverse() -> EvalReport {
+        let mut r = sample_report();
+        for f in &mut r.frames {
+            f.reverse = Reverse::default();
+        }
+        r
+    }
+
     #[test]
     fn writers_produce_json_csv_and_markdown() {
         let dir = tempfile::tempdir().unwrap();
@@ -662,8 +799,8 @@ mod tests {
         let lines: Vec<&str> = csv.lines().collect();
         assert_eq!(
             lines[0],
-            "t,neurofluid_d,dlf_d,supervised_dlf_d,view_5_psnr,view_5_ssim,view_5_lpips,view_6_psnr,view_6_ssim,\
-             view_6_lpips"
+            "t,neurofluid_d,dlf_d,supervised_dlf_d,neurofluid_d_rev,dlf_d_rev,supervised_dlf_d_rev,\
+             view_5_psnr,view_5_ssim,view_5_lpips,view_6_psnr,view_6_ssim,view_6_lpips"
         );
         assert_eq!(lines.len(), 60);
         let cells: Vec<&str> = lines[1].split(',').collect();

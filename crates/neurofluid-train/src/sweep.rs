@@ -382,6 +382,7 @@ mod tests {
                 let nf = if t < 50 { d } else { 2.0 * d };
                 r.frames.push(FrameDistance {
                     supervised_dlf: None,
+                    reverse: Default::default(),
                     t,
                     neurofluid: nf,
                     dlf: None,

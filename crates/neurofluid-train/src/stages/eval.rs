@@ -23,7 +23,7 @@ use crate::config::PlyEncoding;
 use crate::metrics_log::{MetricsLog, MetricsRow};
 use crate::pictures::{TRUTH_COLOUR, column_of, particle_view, row_of, viridis, write_apng};
 use crate::ply::{PlyFormat, write_ply};
-use crate::report::{EvalReport, FrameDistance, ImageScore, Rollout, Windows};
+use crate::report::{EvalReport, FrameDistance, ImageScore, Reverse, Rollout, Windows};
 use crate::trainer::Picture;
 use crate::viewer::{Recording, TrackInput};
 
@@ -228,15 +228,21 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
         run.exp.scene.initial == crate::config::InitialParticles::FromImages;
     report.nvs_baselines = super::baseline::read_all(run)?;
     report.frames = (1..=steps)
-        .map(|t| FrameDistance {
-            t,
-            neurofluid: gt_to_pred_distance(&gt[t].pos, &grounded[t]).mean,
-            dlf: baseline
-                .as_ref()
-                .map(|b| gt_to_pred_distance(&gt[t].pos, &b[t]).mean),
-            supervised_dlf: supervised
-                .as_ref()
-                .map(|b| gt_to_pred_distance(&gt[t].pos, &b[t]).mean),
+        .map(|t| {
+            let truth = &gt[t].pos;
+            let d = |pred: &[[f32; 3]]| gt_to_pred_distance(truth, pred).mean;
+            let d_rev = |pred: &[[f32; 3]]| gt_to_pred_distance(pred, truth).mean;
+            FrameDistance {
+                t,
+                neurofluid: d(&grounded[t]),
+                dlf: baseline.as_ref().map(|b| d(&b[t])),
+                supervised_dlf: supervised.as_ref().map(|b| d(&b[t])),
+                reverse: Reverse {
+                    neurofluid: Some(d_rev(&grounded[t])),
+                    dlf: baseline.as_ref().map(|b| d_rev(&b[t])),
+                    supervised_dlf: supervised.as_ref().map(|b| d_rev(&b[t])),
+                },
+            }
         })
         .collect();
 
