@@ -70,7 +70,8 @@ pub fn silhouette_loss(
         if on_fluid {
             continue; // within √½ px of a fluid pixel
         }
-        let (f, dist) = nearest(u, fluid.iter().copied());
+        let (k_f, dist) = nearest_index(u, fluid.iter().copied());
+        let f = fluid[k_f];
         let excess = dist - INSIDE_PX;
         if excess > 0.0 {
             outside += excess * excess / n;
@@ -104,18 +105,6 @@ pub fn silhouette_loss(
         loss: scale * (outside + uncovered),
         grad,
     }
-}
-
-/// The point of `candidates` nearest to `q` and its distance.
-fn nearest(q: &[f64; 2], candidates: impl Iterator<Item = [f64; 2]>) -> ([f64; 2], f64) {
-    let mut best = ([f64::NAN; 2], f64::INFINITY);
-    for c in candidates {
-        let d2 = (c[0] - q[0]).powi(2) + (c[1] - q[1]).powi(2);
-        if d2 < best.1 {
-            best = (c, d2);
-        }
-    }
-    (best.0, best.1.sqrt())
 }
 
 /// The index of the point of `candidates` nearest to `q` and its distance.

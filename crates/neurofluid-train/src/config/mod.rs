@@ -136,11 +136,8 @@ impl Experiment {
 
     /// This experiment with its [`Preset`] laid over it; each value the preset changes is logged.
     fn with_preset(mut self, origin: &Path) -> Self {
-        for (key, file, preset) in preset::apply(&mut self) {
-            tracing::info!(
-                "{}: preset = \"paper\" sets {key} = {preset} (written: {file})",
-                origin.display()
-            );
+        for change in preset::apply(&mut self) {
+            tracing::info!("{}: preset = \"paper\" sets {change}", origin.display());
         }
         self
     }

@@ -12,6 +12,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::settings::Change;
 use super::{DlfSection, Experiment, JointSection, Settings, WarmupSection};
 use neurofluid_physnerf::PhysNerfConfig;
 
@@ -33,8 +34,8 @@ impl Preset {
     }
 }
 
-/// Lays `exp.preset` over `exp`; returns the dotted keys it changed with their old and new values.
-pub fn apply(exp: &mut Experiment) -> Vec<(String, String, String)> {
+/// Lays `exp.preset` over `exp`; returns the settings it changed.
+pub fn apply(exp: &mut Experiment) -> Vec<Change> {
     if exp.preset == Preset::None {
         return Vec::new();
     }
@@ -56,15 +57,5 @@ pub fn apply(exp: &mut Experiment) -> Vec<(String, String, String)> {
     j.foreground_rays = paper.foreground_rays;
     j.silhouette_weight = paper.silhouette_weight;
     j.extra_views = paper.extra_views;
-    let after = Settings::all(exp);
-    let keys: std::collections::BTreeSet<&String> = before.0.keys().chain(after.0.keys()).collect();
-    keys.into_iter()
-        .filter_map(|k| {
-            let (b, a) = (before.0.get(k), after.0.get(k));
-            (b != a).then(|| {
-                let show = |v: Option<&String>| v.cloned().unwrap_or_else(|| "(unset)".into());
-                (k.clone(), show(b), show(a))
-            })
-        })
-        .collect()
+    Settings::all(exp).changes_since(&before)
 }

@@ -555,9 +555,9 @@ impl JointTrainer {
         let weight = self.cfg.silhouette_weight;
         let mut loss = 0.0;
         let mut grad = vec![[0.0f32; 3]; points.len()];
+        let centre = self.data.interior.centre();
         for (v, frames) in self.data.views.iter().enumerate() {
             let camera = &frames[t].camera;
-            let centre = self.data.interior.centre();
             let Some(radius) = projected_radius(camera, centre, self.data.radius) else {
                 continue;
             };
