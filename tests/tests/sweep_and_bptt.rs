@@ -1,5 +1,7 @@
 //! The `sweep` command on a two-variant sweep of the tiny experiment writes the Table-5-shaped
-//! table with a row per variant; multi-step BPTT with differentiable conv geometry trains.
+//! table with a row per variant, and `--table-only` rebuilds it from the variants' folders
+//! (refusing a folder trained under other settings); multi-step BPTT with differentiable conv
+//! geometry trains.
 
 use neurofluid_tests::{params, seeded_turn, tiny_experiment, workspace_root};
 use neurofluid_train::commands::sweep;
@@ -34,17 +36,47 @@ set = ["physnerf.encoding.vd=false"]
             .join("assets/dlf_pretrained/pretrained_model_weights.pt")
             .display(),
     );
-    std::fs::write(&file, text).unwrap();
-    sweep::run(sweep::Args {
-        sweep: file,
+    std::fs::write(&file, &text).unwrap();
+    let args = |table_only| sweep::Args {
+        sweep: file.clone(),
         device: None,
         keep_going: false,
-    })
-    .unwrap();
-    let md = std::fs::read_to_string(tmp.path().join("out/table5.md")).unwrap();
+        table_only,
+    };
+    sweep::run(args(false)).unwrap();
+    let md_path = tmp.path().join("out/table5.md");
+    let md = std::fs::read_to_string(&md_path).unwrap();
     assert!(md.contains("Full model") && md.contains("w/o v_D"), "{md}");
-    let csv = std::fs::read_to_string(tmp.path().join("out/table5.csv")).unwrap();
+    let csv_path = tmp.path().join("out/table5.csv");
+    let csv = std::fs::read_to_string(&csv_path).unwrap();
     assert_eq!(csv.lines().count(), 3, "{csv}");
+
+    // the same table from the folders alone
+    std::fs::remove_file(&md_path).unwrap();
+    std::fs::remove_file(&csv_path).unwrap();
+    sweep::run(args(true)).unwrap();
+    assert_eq!(std::fs::read_to_string(&md_path).unwrap(), md);
+    assert_eq!(std::fs::read_to_string(&csv_path).unwrap(), csv);
+
+    // a variant whose settings changed since its folder was trained gets an empty row
+    let changed = text.replace(
+        "set = [\"physnerf.encoding.vd=false\"]",
+        "set = [\"physnerf.encoding.vd=false\", \"joint.dlf_optim.lr=0.5\"]",
+    );
+    assert_ne!(changed, text);
+    std::fs::write(&file, changed).unwrap();
+    sweep::run(args(true)).unwrap();
+    let rows: Vec<String> = std::fs::read_to_string(&csv_path)
+        .unwrap()
+        .lines()
+        .map(String::from)
+        .collect();
+    assert_eq!(
+        rows[1],
+        csv.lines().nth(1).unwrap(),
+        "the unchanged variant keeps its row"
+    );
+    assert_eq!(rows[2], "w/o v_D,,,,,", "{rows:?}");
 }
 
 #[test]

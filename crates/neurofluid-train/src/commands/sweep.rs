@@ -5,9 +5,12 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 
+use crate::config::{Experiment, StageKind};
+use crate::report::{EvalReport, JSON_FILE};
 use crate::stages::preflight::Stage;
 use crate::stages::{Run, Start, run_all};
 use crate::sweep::{Sweep, table_rows, write_table};
+use crate::trainer::checkpoint;
 
 /// Arguments of `sweep`.
 #[derive(Debug, clap::Args)]
@@ -20,6 +23,10 @@ pub struct Args {
     /// Keep going when a variant fails (its row stays empty); by default the sweep stops.
     #[arg(long)]
     pub keep_going: bool,
+    /// Run nothing: tabulate the reports the variants' folders already hold (a variant whose
+    /// joint checkpoint was made with other settings, or that has no report, gets an empty row)
+    #[arg(long)]
+    pub table_only: bool,
 }
 
 /// Runs the variants one after another (each resumes from its own checkpoints).
@@ -34,6 +41,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let _lock = crate::trainer::lock::FolderLock::acquire(&sweep.out_dir)?;
     let mut results = Vec::new();
     for variant in &sweep.variants {
+        if args.table_only {
+            let report = saved_report(&variant.experiment);
+            if let Err(e) = &report {
+                tracing::warn!("variant {}: no row: {e:#}", variant.name);
+            }
+            results.push((variant.label.clone(), report.ok()));
+            continue;
+        }
         let mut exp = variant.experiment.clone();
         if let Some(d) = &args.device {
             exp.device = d.clone();
@@ -57,4 +72,21 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     println!("{table}");
     println!("table written to {}", sweep.out_dir.display());
     Ok(())
+}
+
+/// The evaluation report in `exp`'s run folder, provided its joint checkpoint was made with
+/// `exp`'s settings (so the row is the variant's, not that of an earlier run in its folder).
+pub fn saved_report(exp: &Experiment) -> anyhow::Result<EvalReport> {
+    let run = Run::open_existing(exp.clone())?;
+    let joint = run.stage_dir(crate::stages::joint::STAGE);
+    let ckpt = checkpoint::latest(&joint)
+        .with_context(|| format!("{}: no joint checkpoint", joint.display()))?;
+    checkpoint::load_matching(
+        &ckpt,
+        crate::stages::joint::STAGE,
+        &run.settings(StageKind::Joint),
+    )?;
+    Ok(EvalReport::read_json(
+        &run.stage_dir(crate::stages::eval::STAGE).join(JSON_FILE),
+    )?)
 }
