@@ -58,25 +58,28 @@ set = ["physnerf.encoding.vd=false"]
     assert_eq!(std::fs::read_to_string(&md_path).unwrap(), md);
     assert_eq!(std::fs::read_to_string(&csv_path).unwrap(), csv);
 
-    // a variant whose settings changed since its folder was trained gets an empty row
-    let changed = text.replace(
-        "set = [\"physnerf.encoding.vd=false\"]",
-        "set = [\"physnerf.encoding.vd=false\", \"joint.dlf_optim.lr=0.5\"]",
-    );
-    assert_ne!(changed, text);
-    std::fs::write(&file, changed).unwrap();
-    sweep::run(args(true)).unwrap();
-    let rows: Vec<String> = std::fs::read_to_string(&csv_path)
-        .unwrap()
-        .lines()
-        .map(String::from)
-        .collect();
-    assert_eq!(
-        rows[1],
-        csv.lines().nth(1).unwrap(),
-        "the unchanged variant keeps its row"
-    );
-    assert_eq!(rows[2], "w/o v_D,,,,,", "{rows:?}");
+    // a variant whose settings changed since its folder was trained, or whose joint stage would
+    // now be longer than the folder's, gets an empty row
+    for extra in ["joint.dlf_optim.lr=0.5", "joint.epochs=1000"] {
+        let changed = text.replace(
+            "set = [\"physnerf.encoding.vd=false\"]",
+            &format!("set = [\"physnerf.encoding.vd=false\", \"{extra}\"]"),
+        );
+        assert_ne!(changed, text);
+        std::fs::write(&file, changed).unwrap();
+        sweep::run(args(true)).unwrap();
+        let rows: Vec<String> = std::fs::read_to_string(&csv_path)
+            .unwrap()
+            .lines()
+            .map(String::from)
+            .collect();
+        assert_eq!(
+            rows[1],
+            csv.lines().nth(1).unwrap(),
+            "{extra}: the other row stays"
+        );
+        assert_eq!(rows[2], "w/o v_D,,,,,", "{extra}: {rows:?}");
+    }
 }
 
 #[test]

@@ -5,12 +5,11 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 
-use crate::config::{Experiment, StageKind};
+use crate::config::Experiment;
 use crate::report::{EvalReport, JSON_FILE};
 use crate::stages::preflight::Stage;
 use crate::stages::{Run, Start, run_all};
 use crate::sweep::{Sweep, table_rows, write_table};
-use crate::trainer::checkpoint;
 
 /// Arguments of `sweep`.
 #[derive(Debug, clap::Args)]
@@ -74,19 +73,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The evaluation report in `exp`'s run folder, provided its joint checkpoint was made with
-/// `exp`'s settings (so the row is the variant's, not that of an earlier run in its folder).
+/// The evaluation report in `exp`'s run folder, provided the folder holds `exp`'s finished joint
+/// stage (every step, made with `exp`'s settings: the row is the variant's, not that of an
+/// earlier or unfinished run in its folder).
 pub fn saved_report(exp: &Experiment) -> anyhow::Result<EvalReport> {
     let run = Run::open_existing(exp.clone())?;
-    let joint = run.stage_dir(crate::stages::joint::STAGE);
-    let ckpt = checkpoint::latest(&joint)
-        .with_context(|| format!("{}: no joint checkpoint", joint.display()))?;
-    checkpoint::load_matching(
-        &ckpt,
-        crate::stages::joint::STAGE,
-        &run.settings(StageKind::Joint),
-    )?;
+    crate::stages::preflight::check(&run, &[Stage::Eval], Start::Resume)?;
     Ok(EvalReport::read_json(
-        &run.stage_dir(crate::stages::eval::STAGE).join(JSON_FILE),
+        &run.stage_dir(Stage::Eval.folder()).join(JSON_FILE),
     )?)
 }
