@@ -47,3 +47,45 @@ fn every_experiment_and_sweep_file_loads() {
         "{experiments} experiments, {sweeps} sweeps"
     );
 }
+
+/// The quick configs are copies of the main job's that differ only in the scene (the sweeps in
+/// `experiments/grounding/constant-lr-*.toml` rely on it), and the from-images one only in where
+/// the initial particles come from: a setting changed in one copy and not the others fails here.
+#[test]
+fn quick_configs_differ_from_the_main_job_only_in_the_scene() {
+    use neurofluid_train::config::Settings;
+    let root = workspace_root();
+    let load = |name: &str| {
+        let path = root.join("experiments").join(format!("{name}.toml"));
+        Settings::all(&Experiment::load(&path).unwrap_or_else(|e| panic!("{name}: {e}")))
+    };
+    let main = load("quick-watercube");
+    let scene_keys = [
+        "name",
+        "out_dir",
+        "scene.builtin",
+        "scene.generate.warmup_every_frame",
+    ];
+    for (name, allowed) in [
+        ("quick-honeycone", &scene_keys[..]),
+        ("quick-waterbunny", &scene_keys[..]),
+        ("quick-watersphere", &scene_keys[..]),
+        (
+            "quick-watercube-from-images",
+            &["name", "out_dir", "scene.initial"][..],
+        ),
+    ] {
+        let changed: Vec<String> = load(name)
+            .changes_since(&main)
+            .iter()
+            .map(|c| c.to_string())
+            .collect();
+        assert!(
+            changed
+                .iter()
+                .all(|c| allowed.iter().any(|k| c.starts_with(&format!("{k}: ")))),
+            "{name} differs from quick-watercube beyond {allowed:?}: {changed:#?}"
+        );
+        assert!(changed.iter().any(|c| c.starts_with("name: ")), "{name}");
+    }
+}

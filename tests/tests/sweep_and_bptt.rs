@@ -1,7 +1,7 @@
 //! The `sweep` command on a two-variant sweep of the tiny experiment writes the Table-5-shaped
 //! table with a row per variant, and `--table-only` rebuilds it from the variants' folders
-//! (refusing a folder trained under other settings); multi-step BPTT with differentiable conv
-//! geometry trains.
+//! (refusing a folder trained under other settings or holding an unfinished joint stage);
+//! multi-step BPTT with differentiable conv geometry trains.
 
 use neurofluid_tests::{params, seeded_turn, tiny_experiment, workspace_root};
 use neurofluid_train::commands::sweep;

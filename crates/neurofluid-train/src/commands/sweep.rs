@@ -23,7 +23,8 @@ pub struct Args {
     #[arg(long)]
     pub keep_going: bool,
     /// Run nothing: tabulate the reports the variants' folders already hold (a variant whose
-    /// joint checkpoint was made with other settings, or that has no report, gets an empty row)
+    /// joint stage is unfinished or was trained under other settings, or that has no report,
+    /// gets an empty row)
     #[arg(long)]
     pub table_only: bool,
 }
@@ -76,7 +77,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 /// The evaluation report in `exp`'s run folder, provided the folder holds `exp`'s finished joint
 /// stage (every step, made with `exp`'s settings: the row is the variant's, not that of an
 /// earlier or unfinished run in its folder).
-pub fn saved_report(exp: &Experiment) -> anyhow::Result<EvalReport> {
+fn saved_report(exp: &Experiment) -> anyhow::Result<EvalReport> {
     let run = Run::open_existing(exp.clone())?;
     crate::stages::preflight::check(&run, &[Stage::Eval], Start::Resume)?;
     Ok(EvalReport::read_json(
