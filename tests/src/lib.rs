@@ -41,7 +41,8 @@ pub fn params<M: Module>(m: &M) -> Vec<Vec<f32>> {
 }
 
 /// `experiments/tiny-ci.toml` with its run folder `<tmp>/<name>`, its scene in `<tmp>/scene`
-/// and absolute paths, so tests run from any working directory.
+/// and absolute paths, so tests run from any working directory; on the device
+/// `$NEUROFLUID_TEST_DEVICE` names (the CPU when unset).
 pub fn tiny_experiment(tmp: &Path, name: &str) -> Experiment {
     let root = workspace_root();
     let mut e =
@@ -50,5 +51,6 @@ pub fn tiny_experiment(tmp: &Path, name: &str) -> Experiment {
     e.out_dir = Some(tmp.join(name));
     e.scene.dir = Some(tmp.join("scene"));
     e.dlf.weights = root.join("assets/dlf_pretrained/pretrained_model_weights.pt");
+    e.device = neurofluid_core::device::test_device_name();
     e
 }

@@ -28,14 +28,14 @@ fn fine_tunes_on_a_generated_scene() {
             no_rotation: false,
             seed: 1,
         },
-        device: "cpu".into(),
+        device: neurofluid_core::device::test_device_name(),
         fresh: false,
     })
     .unwrap();
     load_dlf(
         &output,
         DlfConfig::default(),
-        &neurofluid_core::device::cpu(),
+        &neurofluid_core::device::test_device(),
     )
     .unwrap();
 }

@@ -68,6 +68,32 @@ pub fn cpu() -> Device {
         .expect("no CPU backend compiled in: enable the `flex` or `ndarray` feature")
 }
 
+/// The environment variable that points the backend-generic tests at a device (`cpu` when unset).
+pub const TEST_DEVICE_VAR: &str = "NEUROFLUID_TEST_DEVICE";
+
+/// The device name the backend-generic tests run on: `$NEUROFLUID_TEST_DEVICE`, else `cpu`.
+pub fn test_device_name() -> String {
+    device_name_or_cpu(std::env::var(TEST_DEVICE_VAR).ok().as_deref())
+}
+
+/// A device name as given, trimmed; `cpu` when absent or blank.
+fn device_name_or_cpu(name: Option<&str>) -> String {
+    match name.map(str::trim) {
+        Some(n) if !n.is_empty() => n.to_string(),
+        _ => "cpu".into(),
+    }
+}
+
+/// The device the backend-generic tests run on (see [`test_device_name`]).
+///
+/// # Panics
+/// When the variable names a device this build cannot make: the message names the variable and
+/// the cargo feature to enable (a test-setup error, not user input).
+pub fn test_device() -> Device {
+    let name = test_device_name();
+    parse_device(&name).unwrap_or_else(|e| panic!("{TEST_DEVICE_VAR}={name}: {e}"))
+}
+
 /// Turns a device name into a device: `cpu` (flex, else ndarray), `flex`, `ndarray`, `wgpu`,
 /// `cuda` or `cuda:N`. Names are case-insensitive.
 pub fn parse_device(name: &str) -> Result<Device, DeviceError> {
@@ -160,6 +186,13 @@ mod tests {
                 "{err}"
             );
         }
+    }
+
+    #[test]
+    fn the_test_device_defaults_to_the_cpu() {
+        assert_eq!(device_name_or_cpu(None), "cpu");
+        assert_eq!(device_name_or_cpu(Some("  ")), "cpu");
+        assert_eq!(device_name_or_cpu(Some(" wgpu\n")), "wgpu");
     }
 
     #[test]

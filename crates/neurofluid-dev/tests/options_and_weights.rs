@@ -25,7 +25,7 @@ fn centre_rays(inputs: &neurofluid_dev::physnerf_case::CaseInputs) -> RayBatch {
 #[test]
 fn gated_only_evaluation_gives_the_same_colours_and_gradients() {
     let (inputs, _) = case();
-    let device = Device::flex().autodiff();
+    let device = neurofluid_core::device::test_device().autodiff();
     let rays = centre_rays(&inputs);
     let target = Tensor::<2>::full([rays.len(), 3], 0.3, &device);
     let mut results = Vec::new();
@@ -58,7 +58,7 @@ fn gated_only_evaluation_gives_the_same_colours_and_gradients() {
 #[test]
 fn stratified_jitter_needs_an_rng_and_stays_in_its_intervals() {
     let (inputs, _) = case();
-    let device = Device::flex();
+    let device = neurofluid_core::device::test_device();
     let rays = centre_rays(&inputs);
     let cfg = PhysNerfConfig {
         stratified: true,
@@ -106,7 +106,7 @@ fn stratified_jitter_needs_an_rng_and_stays_in_its_intervals() {
 #[test]
 fn ablations_change_the_input_widths_and_nearest_k_changes_the_picture() {
     let (inputs, _) = case();
-    let device = Device::flex();
+    let device = neurofluid_core::device::test_device();
     let rays = centre_rays(&inputs);
     let p = inputs.particles_tensor(&device, DType::F32);
     for flags in [
@@ -183,7 +183,7 @@ fn ablations_change_the_input_widths_and_nearest_k_changes_the_picture() {
 #[test]
 fn weights_roundtrip_and_bad_files_are_reported() {
     let (inputs, _) = case();
-    let device = Device::flex();
+    let device = neurofluid_core::device::test_device();
     let dir = std::env::temp_dir().join(format!("nf_weights_{}", std::process::id()));
     let model = PhysNerf::from_nerf_pl(
         inputs.weights_path(),

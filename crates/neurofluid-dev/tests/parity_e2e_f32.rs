@@ -2,7 +2,6 @@
 
 mod common;
 
-use burn::prelude::*;
 use burn::tensor::DType;
 use common::*;
 use neurofluid_dev::physnerf_case::run_case;
@@ -22,7 +21,7 @@ fn frac_within(errs: &[f64], tol: f64) -> f64 {
 #[test]
 fn float32_case_matches_reference_statistically() {
     let (inputs, file) = case();
-    let device = Device::flex().autodiff();
+    let device = neurofluid_core::device::test_device().autodiff();
     let model = model(&inputs, &device, DType::F32);
     let out = run_case(&inputs, &model).expect("run");
 
@@ -93,7 +92,7 @@ fn case_file_runner_writes_the_reference_keys() {
         &case_path(),
         None,
         &out_path,
-        &Device::flex(),
+        &neurofluid_core::device::test_device(),
         DType::F32,
     )
     .expect("run");

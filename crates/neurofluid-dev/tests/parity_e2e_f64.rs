@@ -3,14 +3,13 @@
 
 mod common;
 
-use burn::prelude::*;
 use burn::tensor::DType;
 use common::*;
 use neurofluid_dev::physnerf_case::run_case;
 
 #[test]
 fn float64_case_matches_reference_precisely() {
-    let device = Device::flex();
+    let device = neurofluid_core::device::test_device();
     if !device.supports_dtype(DType::F64) {
         eprintln!("skipped: the device has no F64");
         return;

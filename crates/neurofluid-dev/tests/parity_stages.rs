@@ -28,7 +28,7 @@ fn f32s(v: &[f64]) -> Vec<f32> {
 }
 
 fn device() -> Device {
-    Device::flex()
+    neurofluid_core::device::test_device()
 }
 
 #[test]

@@ -4,7 +4,6 @@
 
 mod common;
 
-use burn::prelude::*;
 use burn::tensor::DType;
 use common::*;
 use neurofluid_physnerf::{render_image, save_png};
@@ -12,7 +11,7 @@ use neurofluid_physnerf::{render_image, save_png};
 #[test]
 fn chunked_view_matches_reference_and_chunk_size() {
     let (inputs, file) = case();
-    let device = Device::flex();
+    let device = neurofluid_core::device::test_device();
     let model = model(&inputs, &device, DType::F32);
     let p = inputs.particles_tensor(&device, DType::F32);
     let cam = inputs.camera(None);
@@ -56,7 +55,7 @@ fn chunked_view_matches_reference_and_chunk_size() {
 #[test]
 fn blob_is_opaque_on_white_and_png_roundtrips() {
     let (inputs, _) = case();
-    let device = Device::flex();
+    let device = neurofluid_core::device::test_device();
     let model = model(&inputs, &device, DType::F32);
     let p = inputs.particles_tensor(&device, DType::F32);
     let cam = inputs.camera(Some([24, 24]));
@@ -105,7 +104,7 @@ fn blob_is_opaque_on_white_and_png_roundtrips() {
 #[test]
 fn renders_from_an_autodiff_model() {
     let (inputs, _) = case();
-    let device = Device::flex().autodiff();
+    let device = neurofluid_core::device::test_device().autodiff();
     let model = model(&inputs, &device, DType::F32);
     let p = inputs.particles_tensor(&device, DType::F32).require_grad();
     let cam = inputs.camera(Some([8, 8]));

@@ -65,7 +65,7 @@ fn brute_force(
 }
 
 fn check_conv(cin: usize, cout: usize, same_cloud: bool) {
-    let device = cpu();
+    let device = device();
     let outputs = cloud(300, 0.35, 1);
     let inputs = if same_cloud {
         outputs.clone()
@@ -139,7 +139,7 @@ fn conv_matches_brute_force_kernel_first() {
 /// central finite differences (float64 where the backend has it).
 #[test]
 fn differentiable_geometry_matches_finite_differences() {
-    let base = cpu();
+    let base = device();
     let dtype = if base.supports_dtype(DType::F64) {
         DType::F64
     } else {
@@ -233,7 +233,7 @@ fn differentiable_geometry_matches_finite_differences() {
 /// With the differentiable geometry the step's values are unchanged and positions get gradients.
 #[test]
 fn differentiable_geometry_mode_keeps_values_and_gives_position_gradients() {
-    let ad = cpu().autodiff();
+    let ad = device().autodiff();
     let scene = Scene::load("cubedrop2197_dlfwall");
     let net = pretrained(&ad);
     let net_diff = pretrained(&ad).with_config(DlfConfig {
@@ -261,7 +261,7 @@ fn differentiable_geometry_mode_keeps_values_and_gives_position_gradients() {
 /// Running a y-up scene rotated into a z-up frame with `Frame::ZUp` gives the rotated result.
 #[test]
 fn z_up_frame_reproduces_the_y_up_result() {
-    let device = cpu();
+    let device = device();
     let scene = Scene::load("cubedrop2197_dlfwall");
     let net = pretrained(&device);
     let zup = pretrained(&device).with_config(DlfConfig::z_up());

@@ -11,7 +11,7 @@ use neurofluid_dlf::{dlf_step_loss, two_step_loss};
 
 #[test]
 fn two_step_loss_and_gradients_match_open3d() {
-    let device = cpu().autodiff();
+    let device = device().autodiff();
     let net = pretrained(&device);
     let scene = Scene::load("cubedrop2197_dlfwall");
     let boundary = scene.boundary(&net, &device);

@@ -9,7 +9,7 @@ use neurofluid_dlf::rollout::rollout;
 
 #[test]
 fn five_step_forward_matches_open3d() {
-    let device = cpu();
+    let device = device();
     let net = pretrained(&device);
     let scene = Scene::load("cubedrop2197_dlfwall");
     let boundary = scene.boundary(&net, &device);

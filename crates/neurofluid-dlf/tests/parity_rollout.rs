@@ -13,7 +13,7 @@ use neurofluid_dlf::rollout::{count_outside, mean_coordinate, rollout};
 /// Runs `steps` steps of `case` and compares mean y (absolute tolerance `tol_y` in metres) and
 /// the outside-box count (`tol_out` particles) with the reference at every step.
 fn check_rollout(case_name: &str, steps: usize, tol_y: f32, tol_out: i64) {
-    let device = cpu();
+    let device = device();
     let net = pretrained(&device);
     let scene = Scene::load(case_name);
     let boundary = scene.boundary(&net, &device);

@@ -36,7 +36,7 @@ fn flat_params(net: &DlfNet) -> Vec<f32> {
 
 #[test]
 fn pt_and_safetensors_hold_the_same_model() {
-    let device = cpu();
+    let device = device();
     let a = load_dlf(
         &weights("pretrained_model_weights.pt"),
         DlfConfig::default(),
@@ -65,7 +65,7 @@ fn apply(map: std::collections::BTreeMap<String, NamedTensor>) -> Result<DlfNet,
         map,
         Path::new("w.safetensors"),
         DlfConfig::default(),
-        &cpu(),
+        &device(),
     )
 }
 
@@ -113,15 +113,19 @@ fn missing_unexpected_misshaped_and_bad_tensors_are_named() {
     let e = apply(m).unwrap_err().to_string();
     assert!(e.contains("`conv3.bias`") && e.contains("NaN"), "{e}");
 
-    let e = load_dlf(Path::new("nope/missing.pt"), DlfConfig::default(), &cpu())
-        .unwrap_err()
-        .to_string();
+    let e = load_dlf(
+        Path::new("nope/missing.pt"),
+        DlfConfig::default(),
+        &device(),
+    )
+    .unwrap_err()
+    .to_string();
     assert!(e.contains("nope/missing.pt"), "{e}");
 }
 
 #[test]
 fn checkpoints_roundtrip_atomically() {
-    let device = cpu();
+    let device = device();
     let net = pretrained(&device);
     let dir = std::env::temp_dir().join(format!("nf_dlf_ckpt_{}", std::process::id()));
     let path = dir.join("sub").join("model.bpk");

@@ -76,7 +76,7 @@ fn train(config: NerfConfig, images: &[(RayBatch, Vec<f32>, Option<f64>)], iters
     // the backend's seed is global: one training at a time keeps the initialisation reproducible
     static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
-    let device = Device::flex().autodiff();
+    let device = neurofluid_core::device::test_device().autodiff();
     device.seed(3);
     let mut model = Nerf::new(config, &device).unwrap();
     let mut opt = AdamConfig::new().init();

@@ -14,7 +14,7 @@ use neurofluid_train::stages::supervised_dlf::{SupervisedConfig, SupervisedDlfTr
 use neurofluid_train::trainer::{Cadence, Driver, Event, EventSink};
 
 fn generated_sequence(frames: usize, seed: u64) -> TrainingSequence {
-    let device = neurofluid_core::device::cpu();
+    let device = neurofluid_core::device::test_device();
     let weights = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../../assets/dlf_pretrained/pretrained_model_weights.pt");
     let net = load_dlf(&weights, DlfConfig::default(), &device).unwrap();
@@ -76,7 +76,7 @@ fn config(iterations: u64) -> SupervisedConfig {
 }
 
 fn fresh_net() -> DlfNet {
-    let device = neurofluid_core::device::cpu().autodiff();
+    let device = neurofluid_core::device::test_device().autodiff();
     device.seed(7);
     DlfNet::new(DlfConfig::default(), &device)
 }

@@ -22,9 +22,9 @@ pub fn weights(name: &str) -> PathBuf {
         .join(name)
 }
 
-/// The CPU device.
-pub fn cpu() -> Device {
-    neurofluid_core::device::cpu()
+/// The device the tests run on: `$NEUROFLUID_TEST_DEVICE`, else the CPU.
+pub fn device() -> Device {
+    neurofluid_core::device::test_device()
 }
 
 /// The pretrained network on `device`.
