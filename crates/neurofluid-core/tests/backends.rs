@@ -82,3 +82,27 @@ fn every_cpu_backend_computes_the_same_model() {
         }
     }
 }
+
+/// The gather every particle feature goes through: `select` with repeated indices, and its
+/// gradient, which must sum the rows that picked the same input (on `$NEUROFLUID_TEST_DEVICE`).
+#[test]
+fn select_gradient_sums_repeated_rows() {
+    let device = neurofluid_core::device::test_device().autodiff();
+    let x = Tensor::<2>::from_data([[1.0f32, 2.0], [3.0, 4.0], [5.0, 6.0]], &device).require_grad();
+    let idx = Tensor::<1, Int>::from_data([0i64, 2, 0, 0, 1], &device);
+    let w = Tensor::<2>::from_data(
+        [
+            [1.0f32, 10.0],
+            [2.0, 20.0],
+            [3.0, 30.0],
+            [4.0, 40.0],
+            [5.0, 50.0],
+        ],
+        &device,
+    );
+    let loss = (x.clone().select(0, idx) * w).sum();
+    let grads = loss.backward();
+    let g = x.grad(&grads).unwrap().try_into_vec_as::<f32>().unwrap();
+    // row 0 is picked by rows 0, 2, 3 of w; row 1 by row 4; row 2 by row 1
+    assert_eq!(g, vec![8.0, 80.0, 5.0, 50.0, 2.0, 20.0]);
+}
