@@ -19,15 +19,22 @@ fn mask(v: Vec<bool>, device: &Device) -> Tensor<2, Bool> {
 
 /// Weights `[8P, 1]` of `host`'s pair corners as a function of the input and output positions
 /// (`[N_in, 3]`, `[M, 3]`, any float dtype, possibly tracked). Equal to `host.weights` in value.
+///
+/// `None` when `host` has no pairs: such a conv gives its bias whatever the weights, and empty
+/// tensors are left out of the graph (cubecl's `select` overflows on a zero-length index in debug
+/// builds).
 pub fn differentiable_weights(
     host: &HostGeometry,
     inputs: Tensor<2>,
     outputs: Tensor<2>,
     extent: f32,
-) -> Tensor<2> {
+) -> Option<Tensor<2>> {
+    let p = host.num_pairs();
+    if p == 0 {
+        return None;
+    }
     let device = inputs.device();
     let dtype = inputs.dtype();
-    let p = host.num_pairs();
     let idx = |v: Vec<i64>| Tensor::<1, Int>::from_data(TensorData::new(v, [p]), &device);
     let cols = idx(host.pairs.indices.iter().map(|&i| i as i64).collect());
     let rows = idx(host.query_of_pair.iter().map(|&i| i as i64).collect());
@@ -113,5 +120,5 @@ pub fn differentiable_weights(
             }
         }
     }
-    (Tensor::cat(corners, 1) * window).reshape([p * CORNERS, 1])
+    Some((Tensor::cat(corners, 1) * window).reshape([p * CORNERS, 1]))
 }

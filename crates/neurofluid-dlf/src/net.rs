@@ -186,19 +186,13 @@ impl DlfNet {
                 ConvGeometry::new(solid, None, &device),
             ),
             GeometryMode::Differentiable => {
-                // no pairs, no weights: empty tensors are left out (cubecl's `select` overflows on
-                // a zero-length index in debug builds), and such a conv gives its bias anyway
-                let wf = (fluid.num_pairs() > 0).then(|| {
-                    differentiable_weights(&fluid, pos_pred.clone(), pos_pred.clone(), extent)
-                });
-                let ws = (solid.num_pairs() > 0).then(|| {
-                    differentiable_weights(
-                        &solid,
-                        boundary.points_tensor.clone(),
-                        pos_pred.clone(),
-                        extent,
-                    )
-                });
+                let wf = differentiable_weights(&fluid, pos_pred.clone(), pos_pred.clone(), extent);
+                let ws = differentiable_weights(
+                    &solid,
+                    boundary.points_tensor.clone(),
+                    pos_pred.clone(),
+                    extent,
+                );
                 (
                     ConvGeometry::new(fluid, wf, &device),
                     ConvGeometry::new(solid, ws, &device),

@@ -158,7 +158,8 @@ fn differentiable_geometry_matches_finite_differences() {
         to(&inputs, &base),
         to(&outputs, &base),
         FILTER_EXTENT,
-    );
+    )
+    .expect("the cloud has pairs");
     let e = rel_err(&host(&w), &host_geo.weights);
     assert!(e < 1e-5, "differentiable weights vs host weights: {e:.2e}");
     // gradient of Σ r ⊙ w with respect to both point sets
@@ -172,16 +173,18 @@ fn differentiable_geometry_matches_finite_differences() {
     let xin = to(&inputs, &ad).require_grad();
     let xout = to(&outputs, &ad).require_grad();
     let loss = (differentiable_weights(&host_geo, xin.clone(), xout.clone(), FILTER_EXTENT)
+        .expect("the cloud has pairs")
         * r(&ad))
     .sum();
     let grads = loss.backward();
     let g_in: Vec<f64> = f64s(xin.grad(&grads).unwrap());
     let g_out: Vec<f64> = f64s(xout.grad(&grads).unwrap());
     let eval = |xi: Tensor<2>, xo: Tensor<2>| -> f64 {
-        (differentiable_weights(&host_geo, xi, xo, FILTER_EXTENT) * r(&base))
-            .sum()
-            .cast(DType::F64)
-            .into_scalar::<f64>()
+        (differentiable_weights(&host_geo, xi, xo, FILTER_EXTENT).expect("the cloud has pairs")
+            * r(&base))
+        .sum()
+        .cast(DType::F64)
+        .into_scalar::<f64>()
     };
     let h = if dtype == DType::F64 { 1e-6 } else { 1e-3 };
     let base_in: Vec<f64> = f64s(to(&inputs, &base));
