@@ -4,9 +4,8 @@ use burn::module::Param;
 use burn::prelude::*;
 use burn::tensor::{Distribution, IndexingUpdateOp};
 
-use rayon::prelude::*;
-
-use crate::geometry::{CORNERS, ConvGeometry, HostGeometry};
+use crate::fused;
+use crate::geometry::ConvGeometry;
 use crate::mapping::{KERNEL_CELLS, KERNEL_SIZE};
 
 /// A continuous convolution: kernel `[4, 4, 4, Cin, Cout]` indexed `[z, y, x, ..]`, bias `[Cout]`.
@@ -49,12 +48,13 @@ impl ContinuousConv {
     /// Applies the conv: `features` `[N_in, Cin]` at the geometry's input points → `[M, Cout]`.
     ///
     /// Paths, all computing the same sum:
-    /// - features need no gradient (inference, or constant features such as the box normals):
-    ///   `G[M, 64·Cin] = S·F` is accumulated on the host, then one matmul `G·K` on the device
-    ///   (tracked in K when the kernel is trained);
-    /// - features need a gradient: gather/scatter with Burn ops over chunks of output points,
-    ///   gather first (`G = S·F`, then `G·K`) or, for narrow outputs (64 → 3), kernel first
-    ///   (`H[N, 64·Cout] = F·K`, then gather rows of H).
+    /// - flex with autodiff: one fused operation with its own backward pass
+    ///   ([`crate::fused::try_fused_conv`]);
+    /// - elsewhere, features and weights without gradient (inference, or constant features such
+    ///   as the box normals): the sparse part on the host, the dense part as device matmuls
+    ///   (tracked in K when the kernel is trained) ([`crate::fused::conv_forward`]);
+    /// - elsewhere, features or weights with gradient: gather/scatter with Burn ops over chunks of
+    ///   output points ([`Self::forward_composed`]).
     pub fn forward(&self, features: Tensor<2>, geometry: &ConvGeometry) -> Tensor<2> {
         let [n_in, cin] = features.dims();
         let cout = self.out_channels();
@@ -69,11 +69,31 @@ impl ContinuousConv {
             let zero_kernel = self.kernel.val().sum().reshape([1, 1]) * 0.0;
             return Tensor::<2>::zeros([m, cout], &device) + bias + zero_kernel;
         }
-        if !features.is_tracked() && !geometry.weights_tracked() {
-            return self.forward_host(features, geometry) + bias;
+        let kernel = self.kernel.val().reshape([KERNEL_CELLS * cin, cout]);
+        let weights = geometry.weights_tensor(features.dtype());
+        if let Some(out) = fused::try_fused_conv(&geometry.host, &features, &weights, &kernel) {
+            return out + bias;
         }
+        if !features.is_tracked() && !geometry.weights_tracked() {
+            // the kernel-first order would cut K's gradient at the host
+            let gather_first = fused::gather_first(cin, cout) || kernel.is_tracked();
+            let out = fused::conv_forward(&geometry.host, features, weights, kernel, gather_first);
+            return out + bias;
+        }
+        self.forward_composed(features, geometry) + bias
+    }
+
+    /// The conv (without bias) built from Burn's gather and scatter-add over chunks of output
+    /// points: gather first (`G = S·F`, then `G·K`) or, for narrow outputs (64 → 3), kernel first
+    /// (`H[N, 64·Cout] = F·K`, then gather rows of H). Any backend, any tracking.
+    pub fn forward_composed(&self, features: Tensor<2>, geometry: &ConvGeometry) -> Tensor<2> {
+        let [_, cin] = features.dims();
+        let cout = self.out_channels();
+        let n_in = geometry.num_in();
+        let device = features.device();
+        let dtype = features.dtype();
         let chunks = geometry.chunks();
-        let outs: Vec<Tensor<2>> = if gather_first(cin, cout) {
+        let outs: Vec<Tensor<2>> = if fused::gather_first(cin, cout) {
             // gather first: G = S·F per chunk, then G·K
             let k = self.kernel.val().reshape([KERNEL_CELLS * cin, cout]);
             chunks
@@ -81,7 +101,8 @@ impl ContinuousConv {
                 .map(|ch| {
                     // one gather per pair, shared by its 8 corners
                     let fp = features.clone().select(0, ch.pair_in_rows.clone());
-                    let mut g = Tensor::<2>::zeros([ch.out_len * KERNEL_CELLS, cin], &device);
+                    let mut g =
+                        Tensor::<2>::zeros([ch.out_len * KERNEL_CELLS, cin], (&device, dtype));
                     for (rows, w) in ch.corner_out_cell_rows.iter().zip(&ch.corner_weights) {
                         g = g.select_assign(
                             0,
@@ -107,7 +128,7 @@ impl ContinuousConv {
                 .iter()
                 .map(|ch| {
                     let vals = h.clone().select(0, ch.in_cell_rows.clone()) * ch.weights.clone();
-                    Tensor::<2>::zeros([ch.out_len, cout], &device).select_assign(
+                    Tensor::<2>::zeros([ch.out_len, cout], (&device, dtype)).select_assign(
                         0,
                         ch.out_rows.clone(),
                         vals,
@@ -116,126 +137,10 @@ impl ContinuousConv {
                 })
                 .collect()
         };
-        let out = if outs.len() == 1 {
+        if outs.len() == 1 {
             outs.into_iter().next().expect("one chunk")
         } else {
             Tensor::cat(outs, 0)
-        };
-        out + bias
-    }
-
-    /// Path for features without gradient, by chunks of output points: `G = S·F` accumulated on
-    /// the host (rayon, one output row per task), then one matmul `G[M, 64·Cin] · K[64·Cin, Cout]`
-    /// on the device; for narrow outputs (64 → 3) `H = F·K` on the device, then the host sums
-    /// the weighted rows of H.
-    fn forward_host(&self, features: Tensor<2>, geometry: &ConvGeometry) -> Tensor<2> {
-        let [n_in, cin] = features.dims();
-        let cout = self.out_channels();
-        let device = features.device();
-        let kernel = self.kernel.val();
-        let kernel_dtype = kernel.dtype();
-        let host = &geometry.host;
-        let m = geometry.num_out();
-        let to_vec = |t: Tensor<2>| -> Vec<f32> {
-            t.into_data()
-                .convert::<f32>()
-                .try_into_vec::<f32>()
-                .expect("float tensor")
-        };
-        if !gather_first(cin, cout) && !kernel.is_tracked() {
-            let kt = kernel
-                .reshape([KERNEL_CELLS, cin, cout])
-                .swap_dims(0, 1)
-                .reshape([cin, KERNEL_CELLS * cout]);
-            let h = to_vec(features.matmul(kt));
-            debug_assert_eq!(h.len(), n_in * KERNEL_CELLS * cout);
-            let out = scatter_rows_host(host, &h, cout);
-            return Tensor::<2>::from_data(TensorData::new(out, [m, cout]), &device)
-                .cast(kernel_dtype);
-        }
-        let feats = to_vec(features);
-        let k = kernel.reshape([KERNEL_CELLS * cin, cout]);
-        // about 64 MB of G per chunk
-        let rows_per_chunk = ((16usize << 20) / (KERNEL_CELLS * cin)).max(1);
-        let mut outs = Vec::new();
-        let mut q0 = 0;
-        while q0 < m {
-            let q1 = (q0 + rows_per_chunk).min(m);
-            let g = gather_host(host, &feats, cin, q0..q1);
-            let g =
-                Tensor::<2>::from_data(TensorData::new(g, [q1 - q0, KERNEL_CELLS * cin]), &device)
-                    .cast(kernel_dtype);
-            outs.push(g.matmul(k.clone()));
-            q0 = q1;
-        }
-        if outs.len() == 1 {
-            outs.pop().expect("one chunk")
-        } else {
-            Tensor::cat(outs, 0)
         }
     }
-}
-
-/// `out[m, o] = Σ_{pairs (m, i)} Σ_corners weight · H[i, cell, o]` on the host, for `H = F·K`
-/// laid out `[N, 64, Cout]`.
-pub fn scatter_rows_host(host: &HostGeometry, h: &[f32], cout: usize) -> Vec<f32> {
-    let mut out = vec![0f32; host.num_out * cout];
-    let offsets = &host.pairs.offsets;
-    let indices = &host.pairs.indices;
-    out.par_chunks_mut(cout).enumerate().for_each(|(q, row)| {
-        let (p0, p1) = (offsets[q], offsets[q + 1]);
-        let corners = host.cells[p0 * CORNERS..p1 * CORNERS]
-            .chunks_exact(CORNERS)
-            .zip(host.weights[p0 * CORNERS..p1 * CORNERS].chunks_exact(CORNERS));
-        for (&i, (cells, weights)) in indices[p0..p1].iter().zip(corners) {
-            let base = i as usize * KERNEL_CELLS;
-            for (&cell, &w) in cells.iter().zip(weights) {
-                let src = &h[(base + cell as usize) * cout..(base + cell as usize + 1) * cout];
-                for (d, &x) in row.iter_mut().zip(src) {
-                    *d += w * x;
-                }
-            }
-        }
-    });
-    out
-}
-
-/// `G[m, cell·Cin + c] = Σ_{pairs (m, i)} Σ_corners weight · F[i, c]` on the host, for the
-/// output points `rows` (the result has `rows.len()` rows).
-pub fn gather_host(
-    host: &HostGeometry,
-    features: &[f32],
-    cin: usize,
-    rows: std::ops::Range<usize>,
-) -> Vec<f32> {
-    let row_len = KERNEL_CELLS * cin;
-    let mut g = vec![0f32; rows.len() * row_len];
-    let offsets = &host.pairs.offsets;
-    let indices = &host.pairs.indices;
-    let first = rows.start;
-    g.par_chunks_mut(row_len).enumerate().for_each(|(r, row)| {
-        let q = first + r;
-        let (p0, p1) = (offsets[q], offsets[q + 1]);
-        let corners = host.cells[p0 * CORNERS..p1 * CORNERS]
-            .chunks_exact(CORNERS)
-            .zip(host.weights[p0 * CORNERS..p1 * CORNERS].chunks_exact(CORNERS));
-        for (&i, (cells, weights)) in indices[p0..p1].iter().zip(corners) {
-            let i = i as usize;
-            let f = &features[i * cin..(i + 1) * cin];
-            for (&cell, &w) in cells.iter().zip(weights) {
-                let cell = cell as usize;
-                let dst = &mut row[cell * cin..(cell + 1) * cin];
-                for (d, &x) in dst.iter_mut().zip(f) {
-                    *d += w * x;
-                }
-            }
-        }
-    });
-    g
-}
-
-/// Evaluation order of the autodiff path: gather first (`G = S·F`, then `G·K`) unless the
-/// output is much narrower than the input (conv3, 64 → 3), where `F·K` first moves less data.
-fn gather_first(cin: usize, cout: usize) -> bool {
-    4 * cout >= cin
 }

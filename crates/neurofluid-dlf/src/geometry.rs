@@ -6,7 +6,10 @@
 //! `cell[p,c]` and the weight `window(p) · w_c(Λ(x_i − x_m))`; the convolution is then
 //! `out[m] = bias + Σ_p Σ_c weight[p,c] · f_i · K[cell[p,c]]` (spec/dlf.md §2.1).
 
+use std::sync::{Arc, OnceLock};
+
 use burn::prelude::*;
+use burn::tensor::DType;
 use neurofluid_core::neighbors::{NeighborGrid, PairList};
 use rayon::prelude::*;
 
@@ -148,23 +151,48 @@ pub struct GeometryChunk {
 /// autodiff path.
 #[derive(Debug, Clone)]
 pub struct ConvGeometry {
-    /// The host arrays it was built from.
-    pub host: HostGeometry,
+    /// The host arrays it was built from (shared with the backward passes that need them).
+    pub host: Arc<HostGeometry>,
     /// Differentiable weights `[8P, 1]` (the differentiable-geometry mode), else `None`.
     pub weights_override: Option<Tensor<2>>,
     device: Device,
-    chunks: std::sync::OnceLock<Vec<GeometryChunk>>,
+    chunks: OnceLock<Vec<GeometryChunk>>,
+    host_weights: OnceLock<Tensor<2>>,
 }
 
 impl ConvGeometry {
     /// Wraps a host geometry; `weights` overrides the host weights (the differentiable path).
-    pub fn new(host: HostGeometry, weights: Option<Tensor<2>>, device: &Device) -> Self {
+    pub fn new(
+        host: impl Into<Arc<HostGeometry>>,
+        weights: Option<Tensor<2>>,
+        device: &Device,
+    ) -> Self {
         Self {
-            host,
+            host: host.into(),
             weights_override: weights,
             device: device.clone(),
-            chunks: std::sync::OnceLock::new(),
+            chunks: OnceLock::new(),
+            host_weights: OnceLock::new(),
         }
+    }
+
+    /// The pair-corner weights `[8P, 1]` as a tensor of `dtype`: the override, or the host
+    /// weights (uploaded on first call).
+    pub fn weights_tensor(&self, dtype: DType) -> Tensor<2> {
+        let w = match &self.weights_override {
+            Some(w) => w.clone(),
+            None => self
+                .host_weights
+                .get_or_init(|| {
+                    let n = self.host.weights.len();
+                    Tensor::<2>::from_data(
+                        TensorData::new(self.host.weights.clone(), [n, 1]),
+                        &self.device,
+                    )
+                })
+                .clone(),
+        };
+        if w.dtype() == dtype { w } else { w.cast(dtype) }
     }
 
     /// Whether the weights carry gradients (differentiable geometry on tracked positions).

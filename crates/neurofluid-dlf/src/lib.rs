@@ -9,6 +9,7 @@
 pub mod config;
 pub mod conv;
 pub mod diff_geometry;
+pub mod fused;
 pub mod geometry;
 pub mod loss;
 pub mod mapping;
@@ -16,6 +17,7 @@ pub mod net;
 pub mod records;
 pub mod rollout;
 pub mod scene;
+pub mod sparse;
 pub mod train;
 pub mod weights;
 
