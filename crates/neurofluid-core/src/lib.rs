@@ -7,6 +7,7 @@
 pub mod atomic;
 pub mod camera;
 pub mod device;
+pub mod malloc;
 pub mod metrics;
 pub mod neighbors;
 pub mod npz;

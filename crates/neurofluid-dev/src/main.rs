@@ -4,6 +4,7 @@ use clap::Parser;
 use neurofluid_dev::{cli, commands};
 
 fn main() -> std::process::ExitCode {
+    neurofluid_core::malloc::keep_freed_memory();
     let cli = cli::Cli::parse();
     cli::init_logging(cli.verbose);
     match commands::dispatch(cli.command) {

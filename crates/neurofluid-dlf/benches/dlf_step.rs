@@ -69,6 +69,11 @@ fn sync(t: &Tensor<2>) {
 }
 
 fn main() {
+    neurofluid_core::malloc::keep_freed_memory();
+    println!(
+        "allocator: GLIBC_TUNABLES={}",
+        std::env::var("GLIBC_TUNABLES").unwrap_or_else(|_| "(glibc defaults)".into())
+    );
     let args: Vec<String> = std::env::args().skip(1).collect();
     let mut repeats = 5usize;
     let mut sizes = vec![2000usize, 8000, 32000];

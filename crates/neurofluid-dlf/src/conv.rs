@@ -77,7 +77,8 @@ impl ContinuousConv {
         if !features.is_tracked() && !geometry.weights_tracked() {
             // the kernel-first order would cut K's gradient at the host
             let gather_first = fused::gather_first(cin, cout) || kernel.is_tracked();
-            let out = fused::conv_forward(&geometry.host, features, weights, kernel, gather_first);
+            let weights = weights.into_data();
+            let out = fused::conv_forward(&geometry.host, features, &weights, kernel, gather_first);
             return out + bias;
         }
         self.forward_composed(features, geometry) + bias

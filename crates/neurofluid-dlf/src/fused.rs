@@ -32,11 +32,14 @@ fn rows_per_chunk(cin: usize) -> usize {
     (CHUNK_ELEMENTS / (KERNEL_CELLS * cin)).max(1)
 }
 
-fn host_vec<T: Real>(t: Tensor<2>) -> Vec<T> {
+/// A tensor's values on the host (no copy when it is contiguous and not shared).
+fn host_data(t: Tensor<2>) -> TensorData {
     t.into_data()
-        .convert::<T>()
-        .try_into_vec::<T>()
-        .expect("float tensor")
+}
+
+fn values<T: Real>(data: &TensorData) -> &[T] {
+    data.as_slice::<T>()
+        .expect("conv tensors share one float type")
 }
 
 /// A tensor of `T`'s dtype (`from_data` alone would convert f64 data to the default f32).
@@ -63,7 +66,7 @@ fn kernel_by_input(kernel: Tensor<2>, cin: usize) -> Tensor<2> {
 pub fn conv_forward(
     host: &HostGeometry,
     features: Tensor<2>,
-    weights: Tensor<2>,
+    weights: &TensorData,
     kernel: Tensor<2>,
     gather: bool,
 ) -> Tensor<2> {
@@ -76,31 +79,32 @@ pub fn conv_forward(
 fn conv_forward_in<T: Real>(
     host: &HostGeometry,
     features: Tensor<2>,
-    weights: Tensor<2>,
+    weights: &TensorData,
     kernel: Tensor<2>,
     gather: bool,
 ) -> Tensor<2> {
-    let weights = &host_vec::<T>(weights);
+    let weights = values::<T>(weights);
     let [_, cin] = features.dims();
     let cout = kernel.dims()[1];
     let device = features.device();
     let m = host.num_out;
     if !gather {
-        let h = host_vec::<T>(features.matmul(kernel_by_input(kernel, cin)));
+        let h = host_data(features.matmul(kernel_by_input(kernel, cin)));
         return device_tensor(
-            SparseOp::new(host, weights).contract(&h, cout),
+            SparseOp::new(host, weights).contract(values(&h), cout),
             [m, cout],
             &device,
         );
     }
-    let f = host_vec::<T>(features);
+    let f = host_data(features);
+    let f = values::<T>(&f);
     let step = rows_per_chunk(cin);
     let outs: Vec<Tensor<2>> = (0..m)
         .step_by(step)
         .map(|q0| {
             let rows = q0..(q0 + step).min(m);
             let len = rows.len();
-            let g = SparseOp::new(host, weights).gather(&f, cin, rows);
+            let g = SparseOp::new(host, weights).gather(f, cin, rows);
             device_tensor(g, [len, KERNEL_CELLS * cin], &device).matmul(kernel.clone())
         })
         .collect();
@@ -118,12 +122,12 @@ struct ConvGrads {
 fn conv_backward<T: Real>(
     host: &HostGeometry,
     features: Tensor<2>,
-    weights: Tensor<2>,
+    weights: &TensorData,
     kernel: Tensor<2>,
     d_out: Tensor<2>,
     need: [bool; 3],
 ) -> ConvGrads {
-    let weights = &host_vec::<T>(weights);
+    let weights = values::<T>(weights);
     let [need_f, need_w, need_k] = need;
     let [n, cin] = features.dims();
     let cout = kernel.dims()[1];
@@ -133,11 +137,11 @@ fn conv_backward<T: Real>(
     let mut d_weights = need_w.then(|| vec![T::default(); weights.len()]);
     if !gather_first(cin, cout) {
         let kt = kernel_by_input(kernel, cin);
-        let h = need_w.then(|| host_vec::<T>(features.clone().matmul(kt.clone())));
+        let h = need_w.then(|| host_data(features.clone().matmul(kt.clone())));
         let mut accs = sparse::accumulators::<T>(need_f || need_k, n * KERNEL_CELLS * cout);
         op.contract_transpose(
-            h.as_deref(),
-            &host_vec::<T>(d_out),
+            h.as_ref().map(values),
+            values(&host_data(d_out)),
             cout,
             &mut accs,
             d_weights.as_deref_mut(),
@@ -167,7 +171,8 @@ fn conv_backward<T: Real>(
             kernel: d_kernel,
         };
     }
-    let f = host_vec::<T>(features);
+    let f = host_data(features);
+    let f = values::<T>(&f);
     let kt = kernel.transpose();
     let mut accs = sparse::accumulators::<T>(need_f, n * cin);
     let mut d_kernel: Option<Tensor<2>> = None;
@@ -177,7 +182,7 @@ fn conv_backward<T: Real>(
         let len = rows.len();
         let d_out_c = d_out.clone().narrow(0, q0, len);
         if need_k {
-            let g = op.gather(&f, cin, rows.clone());
+            let g = op.gather(f, cin, rows.clone());
             let g = device_tensor(g, [len, KERNEL_CELLS * cin], &device);
             let dk = g.transpose().matmul(d_out_c.clone());
             d_kernel = Some(match d_kernel {
@@ -186,8 +191,15 @@ fn conv_backward<T: Real>(
             });
         }
         if need_f || need_w {
-            let d_g = host_vec::<T>(d_out_c.matmul(kt.clone()));
-            op.gather_transpose(&f, &d_g, cin, rows, &mut accs, d_weights.as_deref_mut());
+            let d_g = host_data(d_out_c.matmul(kt.clone()));
+            op.gather_transpose(
+                f,
+                values(&d_g),
+                cin,
+                rows,
+                &mut accs,
+                d_weights.as_deref_mut(),
+            );
         }
     }
     ConvGrads {
@@ -216,7 +228,8 @@ mod flex_autodiff {
     struct State {
         host: Arc<HostGeometry>,
         features: Primitive,
-        weights: Primitive,
+        /// The weights on the host, read once in the forward pass.
+        weights: Arc<TensorData>,
         kernel: Primitive,
     }
 
@@ -237,11 +250,11 @@ mod flex_autodiff {
             let need = [pf.is_some(), pw.is_some(), pk.is_some()];
             let s = ops.state;
             let features = plain(s.features);
-            let weights = plain(s.weights);
             let kernel = plain(s.kernel);
+            let w = &s.weights;
             let g = match features.dtype() {
-                DType::F64 => conv_backward::<f64>(&s.host, features, weights, kernel, d_out, need),
-                _ => conv_backward::<f32>(&s.host, features, weights, kernel, d_out, need),
+                DType::F64 => conv_backward::<f64>(&s.host, features, w, kernel, d_out, need),
+                _ => conv_backward::<f32>(&s.host, features, w, kernel, d_out, need),
             };
             for (parent, grad) in [(pf, g.features), (pw, g.weights), (pk, g.kernel)] {
                 if let (Some(node), Some(grad)) = (parent, grad) {
@@ -281,8 +294,8 @@ mod flex_autodiff {
         );
         let [_, cin] = features.dims();
         let order = gather_first(cin, kernel.dims()[1]);
-        let (pf, pw, pk) = (plain(fp.clone()), plain(wp.clone()), plain(kp.clone()));
-        let out = conv_forward(host, pf, pw, pk, order);
+        let w_data = Arc::new(host_data(plain(wp)));
+        let out = conv_forward(host, plain(fp.clone()), &w_data, plain(kp.clone()), order);
         let out = primitive(out);
         let prep = FusedConvBackward
             .prepare::<NoCheckpointing>([f.node(), w.node(), k.node()])
@@ -293,7 +306,7 @@ mod flex_autodiff {
                 State {
                     host: host.clone(),
                     features: fp,
-                    weights: wp,
+                    weights: w_data,
                     kernel: kp,
                 },
                 out,

@@ -27,6 +27,11 @@ fn secs(d: Duration) -> f64 {
 }
 
 fn main() {
+    neurofluid_core::malloc::keep_freed_memory();
+    println!(
+        "allocator: GLIBC_TUNABLES={}",
+        std::env::var("GLIBC_TUNABLES").unwrap_or_else(|_| "(glibc defaults)".into())
+    );
     let full = std::env::args().any(|a| a == "--bench");
     let n_rays: usize = if full { 1024 } else { 32 };
     let repeats = if full { 3 } else { 2 };
