@@ -6,6 +6,7 @@
 
 pub mod atomic;
 pub mod camera;
+pub mod cpu_time;
 pub mod device;
 pub mod malloc;
 pub mod metrics;

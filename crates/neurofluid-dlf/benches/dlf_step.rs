@@ -11,6 +11,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use burn::prelude::*;
+use neurofluid_core::cpu_time::process_cpu_seconds;
 use neurofluid_dlf::geometry::{ConvGeometry, build_host_geometry};
 use neurofluid_dlf::net::{points_tensor, tensor_points};
 use neurofluid_dlf::scene::{block_in_box, dlf_wall_spacing};
@@ -27,32 +28,16 @@ fn time<T>(f: impl FnOnce() -> T) -> (T, f64) {
     (out, t.elapsed().as_secs_f64())
 }
 
-/// Process CPU time (user + system, all threads) in seconds, from /proc (Linux); NaN elsewhere.
-fn cpu_time() -> f64 {
-    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else {
-        return f64::NAN;
-    };
-    // fields after the ")" of the command name: state is field 3, utime 14, stime 15
-    let rest = stat.rsplit(')').next().unwrap_or("");
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let ticks = |i: usize| {
-        f.get(i)
-            .and_then(|v| v.parse::<f64>().ok())
-            .unwrap_or(f64::NAN)
-    };
-    (ticks(11) + ticks(12)) / 100.0
-}
-
 /// Median wall and CPU seconds of `repeats` calls.
 fn measure(repeats: usize, mut f: impl FnMut()) -> (f64, f64) {
     let mut wall = Vec::new();
     let mut cpu = Vec::new();
     for _ in 0..repeats {
-        let c0 = cpu_time();
+        let c0 = process_cpu_seconds();
         let t = Instant::now();
         f();
         wall.push(t.elapsed().as_secs_f64());
-        cpu.push(cpu_time() - c0);
+        cpu.push(process_cpu_seconds() - c0);
     }
     (median(wall), median(cpu))
 }
