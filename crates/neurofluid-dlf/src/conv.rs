@@ -70,14 +70,20 @@ impl ContinuousConv {
             return Tensor::<2>::zeros([m, cout], &device) + bias + zero_kernel;
         }
         let kernel = self.kernel.val().reshape([KERNEL_CELLS * cin, cout]);
-        let weights = geometry.weights_tensor(features.dtype());
-        if let Some(out) = fused::try_fused_conv(&geometry.host, &features, &weights, &kernel) {
+        let dtype = features.dtype();
+        let weights = || geometry.weights_tensor(dtype);
+        if let Some(out) = fused::try_fused_conv(&geometry.host, &features, weights, &kernel) {
             return out + bias;
         }
         if !features.is_tracked() && !geometry.weights_tracked() {
             // the kernel-first order would cut K's gradient at the host
             let gather_first = fused::gather_first(cin, cout) || kernel.is_tracked();
-            let weights = weights.into_data();
+            // the host weights as they are (no device round trip) unless overridden
+            let weights = match &geometry.weights_override {
+                Some(w) => w.clone().into_data(),
+                None => TensorData::new(geometry.host.weights.clone(), [geometry.num_entries(), 1]),
+            }
+            .convert_dtype(dtype);
             let out = fused::conv_forward(&geometry.host, features, &weights, kernel, gather_first);
             return out + bias;
         }

@@ -264,29 +264,29 @@ mod flex_autodiff {
         }
     }
 
-    /// The fused conv when all three tensors live on flex with autodiff (no checkpointing) and
-    /// are f32 or f64; `None` otherwise (the caller takes the composed path).
+    /// The fused conv when the features, the weights (made by `weights` only then) and the
+    /// kernel all live on flex with autodiff (no checkpointing) and are f32 or f64; `None`
+    /// otherwise (the caller takes the composed path).
     pub fn try_fused_conv(
         host: &Arc<HostGeometry>,
         features: &Tensor<2>,
-        weights: &Tensor<2>,
+        weights: impl FnOnce() -> Tensor<2>,
         kernel: &Tensor<2>,
     ) -> Option<Tensor<2>> {
-        if !matches!(features.dtype(), DType::F32 | DType::F64)
-            || weights.dtype() != features.dtype()
-            || kernel.dtype() != features.dtype()
-        {
+        let dtype = features.dtype();
+        if !matches!(dtype, DType::F32 | DType::F64) || kernel.dtype() != dtype {
             return None;
         }
         let f = features
             .clone()
             .try_into_primitive::<Autodiff<Flex>>()
             .ok()?;
-        let w = weights
-            .clone()
-            .try_into_primitive::<Autodiff<Flex>>()
-            .ok()?;
         let k = kernel.clone().try_into_primitive::<Autodiff<Flex>>().ok()?;
+        let weights = weights();
+        if weights.dtype() != dtype {
+            return None;
+        }
+        let w = weights.try_into_primitive::<Autodiff<Flex>>().ok()?;
         let (fp, wp, kp) = (
             f.primitive().clone(),
             w.primitive().clone(),
@@ -326,7 +326,7 @@ pub use flex_autodiff::try_fused_conv;
 pub fn try_fused_conv(
     _host: &Arc<HostGeometry>,
     _features: &Tensor<2>,
-    _weights: &Tensor<2>,
+    _weights: impl FnOnce() -> Tensor<2>,
     _kernel: &Tensor<2>,
 ) -> Option<Tensor<2>> {
     None
