@@ -7,6 +7,10 @@ fn main() -> std::process::ExitCode {
     neurofluid_core::malloc::keep_freed_memory();
     let cli = cli::Cli::parse();
     cli::init_logging(cli.verbose);
+    tracing::debug!(
+        "allocator: GLIBC_TUNABLES={}",
+        std::env::var("GLIBC_TUNABLES").unwrap_or_else(|_| "(glibc defaults)".into())
+    );
     match commands::dispatch(cli.command) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(err) => {
