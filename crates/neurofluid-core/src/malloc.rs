@@ -17,6 +17,13 @@ pub const MALLOC_VAR: &str = "NEUROFLUID_MALLOC";
 pub const TUNABLES: &str = "glibc.malloc.mmap_max=0:glibc.malloc.mmap_threshold=33554432:\
 glibc.malloc.trim_threshold=17179869184:glibc.malloc.top_pad=268435456";
 
+/// The allocator setting in force, as the CLI logs it and the benches print it:
+/// `GLIBC_TUNABLES=<value>` or `GLIBC_TUNABLES=(glibc defaults)`.
+pub fn allocator_setting() -> String {
+    let value = std::env::var("GLIBC_TUNABLES").unwrap_or_else(|_| "(glibc defaults)".into());
+    format!("GLIBC_TUNABLES={value}")
+}
+
 /// Re-executes the current program with [`TUNABLES`] added to `GLIBC_TUNABLES` unless they are
 /// there already or [`MALLOC_VAR`] is `default`; call first thing in `main`, before any thread
 /// starts. Returns (doing nothing) on other platforms, and when the re-exec fails.

@@ -56,8 +56,8 @@ fn sync(t: &Tensor<2>) {
 fn main() {
     neurofluid_core::malloc::keep_freed_memory();
     println!(
-        "allocator: GLIBC_TUNABLES={}",
-        std::env::var("GLIBC_TUNABLES").unwrap_or_else(|_| "(glibc defaults)".into())
+        "allocator: {}",
+        neurofluid_core::malloc::allocator_setting()
     );
     let args: Vec<String> = std::env::args().skip(1).collect();
     let mut repeats = 5usize;

@@ -261,7 +261,7 @@ fn transpose_runs<T: Real>(
 }
 
 /// A run's slice of the `[8P]` weights gradient, indexed by global pair-corner index.
-pub struct WeightsWindow<'a, T> {
+struct WeightsWindow<'a, T> {
     base: usize,
     values: &'a mut [T],
 }

@@ -30,8 +30,8 @@ fn secs(d: Duration) -> f64 {
 fn main() {
     neurofluid_core::malloc::keep_freed_memory();
     println!(
-        "allocator: GLIBC_TUNABLES={}",
-        std::env::var("GLIBC_TUNABLES").unwrap_or_else(|_| "(glibc defaults)".into())
+        "allocator: {}",
+        neurofluid_core::malloc::allocator_setting()
     );
     let full = std::env::args().any(|a| a == "--bench");
     let n_rays: usize = if full { 1024 } else { 32 };

@@ -8,8 +8,8 @@ fn main() -> std::process::ExitCode {
     let cli = cli::Cli::parse();
     cli::init_logging(cli.verbose);
     tracing::debug!(
-        "allocator: GLIBC_TUNABLES={}",
-        std::env::var("GLIBC_TUNABLES").unwrap_or_else(|_| "(glibc defaults)".into())
+        "allocator: {}",
+        neurofluid_core::malloc::allocator_setting()
     );
     match commands::dispatch(cli.command) {
         Ok(()) => std::process::ExitCode::SUCCESS,
