@@ -7,11 +7,13 @@
 pub mod atomic;
 pub mod camera;
 pub mod cpu_time;
+pub mod dense;
 pub mod device;
 pub mod malloc;
 pub mod metrics;
 pub mod neighbors;
 pub mod npz;
 pub mod params;
+pub mod real;
 pub mod scene;
 pub mod tensors;

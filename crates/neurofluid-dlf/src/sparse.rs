@@ -7,28 +7,14 @@
 //! scattered into one accumulator per worker, and the weights' gradient, one dot product per
 //! pair corner.
 
-use std::ops::{Add, AddAssign, Mul, Range};
+use std::ops::Range;
 
 use rayon::prelude::*;
 
 use crate::geometry::{CORNERS, HostGeometry};
 use crate::mapping::KERNEL_CELLS;
 
-/// The float types the kernels run in (f32 for training, f64 for gradient checks).
-pub trait Real:
-    Copy
-    + Default
-    + Send
-    + Sync
-    + Add<Output = Self>
-    + AddAssign
-    + Mul<Output = Self>
-    + burn::tensor::Element
-{
-}
-
-impl Real for f32 {}
-impl Real for f64 {}
+pub use neurofluid_core::real::Real;
 
 fn axpy<T: Real>(dst: &mut [T], w: T, src: &[T]) {
     for (d, &x) in dst.iter_mut().zip(src) {

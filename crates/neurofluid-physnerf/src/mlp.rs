@@ -5,7 +5,8 @@
 
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
-use burn::tensor::activation::{relu, sigmoid};
+use burn::tensor::activation::sigmoid;
+use neurofluid_core::dense::{Activation, linear};
 
 /// The shape of a NeRF network: trunk depth and width, the skip layer and the input widths.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -166,18 +167,19 @@ impl NerfMlp {
             if i == self.skip {
                 h = Tensor::cat(vec![e_x.clone(), h], 1);
             }
-            h = relu(layer.forward(h));
+            h = linear(layer, h, Activation::Relu);
             if trace {
                 hidden.push(h.clone());
             }
         }
-        let sigma = self.sigma.forward(h.clone());
-        let feat = self.xyz_encoding_final.forward(h);
-        let hd = relu(
-            self.dir_encoding
-                .forward(Tensor::cat(vec![feat.clone(), e_d], 1)),
+        let sigma = linear(&self.sigma, h.clone(), Activation::Identity);
+        let feat = linear(&self.xyz_encoding_final, h, Activation::Identity);
+        let hd = linear(
+            &self.dir_encoding,
+            Tensor::cat(vec![feat.clone(), e_d], 1),
+            Activation::Relu,
         );
-        let rgb = sigmoid(self.rgb.forward(hd.clone()));
+        let rgb = sigmoid(linear(&self.rgb, hd.clone(), Activation::Identity));
         let t = trace.then(|| MlpTrace { hidden, feat, hd });
         (rgb, sigma, t)
     }

@@ -1,0 +1,202 @@
+//! The host dense layer (`neurofluid_core::dense::linear`: one operation with its own backward
+//! pass on flex) against Burn's own `Linear` + activation and Burn's gradients, in float64:
+//! outputs and the gradients of the input, the weight and the bias, for both activations,
+//! every subset of tracked inputs, and sizes that cross the kernels' row splits.
+
+use burn::module::Param;
+use burn::nn::Linear;
+use burn::prelude::*;
+use burn::tensor::{DType, TensorCreationOptions, TensorData};
+use neurofluid_core::dense::{Activation, linear, try_host_linear};
+use neurofluid_core::device::{test_device, test_device_name};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+fn dtype(device: &Device) -> DType {
+    if device.supports_dtype(DType::F64) {
+        DType::F64
+    } else {
+        DType::F32
+    }
+}
+
+fn tensor<const D: usize>(v: &[f64], shape: [usize; D], device: &Device) -> Tensor<D> {
+    Tensor::from_data(
+        TensorData::new(v.to_vec(), shape),
+        TensorCreationOptions::new(device.clone()).with_dtype(dtype(device)),
+    )
+}
+
+fn f64s<const D: usize>(t: Tensor<D>) -> Vec<f64> {
+    t.into_data()
+        .convert::<f64>()
+        .try_to_vec::<f64>()
+        .expect("f64 values")
+}
+
+fn random(n: usize, rng: &mut ChaCha8Rng) -> Vec<f64> {
+    (0..n).map(|_| rng.random_range(-1.0..1.0)).collect()
+}
+
+/// One layer's values: input `[m, k]`, weight `[k, n]`, bias `[n]`, loss coefficients `[m, n]`.
+struct Case {
+    m: usize,
+    k: usize,
+    n: usize,
+    x: Vec<f64>,
+    w: Vec<f64>,
+    b: Vec<f64>,
+    coeff: Vec<f64>,
+}
+
+/// Output, then the gradients of x, W and b (empty when untracked).
+type Run = (Vec<f64>, [Vec<f64>; 3]);
+
+impl Case {
+    fn new(m: usize, k: usize, n: usize, seed: u64) -> Self {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        Self {
+            m,
+            k,
+            n,
+            x: random(m * k, &mut rng),
+            w: random(k * n, &mut rng),
+            b: random(n, &mut rng),
+            coeff: random(m * n, &mut rng),
+        }
+    }
+
+    fn run(&self, host: bool, act: Activation, tracked: [bool; 3]) -> Run {
+        let ad = test_device().autodiff();
+        let track = |t: Tensor<2>, on: bool| if on { t.require_grad() } else { t };
+        let x = track(tensor(&self.x, [self.m, self.k], &ad), tracked[0]);
+        let weight = track(tensor(&self.w, [self.k, self.n], &ad), tracked[1]);
+        let bias = tensor(&self.b, [self.n], &ad);
+        let bias = if tracked[2] {
+            bias.require_grad()
+        } else {
+            bias
+        };
+        let layer = Linear {
+            weight: Param::from_tensor(weight.clone()),
+            bias: Some(Param::from_tensor(bias.clone())),
+        };
+        let y = if host {
+            linear(&layer, x.clone(), act)
+        } else {
+            act.apply(layer.forward(x.clone()))
+        };
+        let loss = (y.clone() * tensor(&self.coeff, [self.m, self.n], &ad)).sum();
+        let grads = loss.backward();
+        let g2 = |t: &Tensor<2>| t.grad(&grads).map(f64s).unwrap_or_default();
+        let gb = bias.grad(&grads).map(f64s).unwrap_or_default();
+        (f64s(y), [g2(&x), g2(&weight), gb])
+    }
+}
+
+fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max)
+}
+
+fn check(m: usize, k: usize, n: usize) {
+    let device = test_device();
+    let tol = if dtype(&device) == DType::F64 {
+        1e-10
+    } else {
+        1e-3
+    };
+    let case = Case::new(m, k, n, (m * 31 + k * 7 + n) as u64);
+    for act in [Activation::Relu, Activation::Identity] {
+        for tracked in [
+            [true, true, true],
+            [false, true, true],
+            [true, false, false],
+            [false, false, true],
+        ] {
+            let (y, g) = case.run(true, act, tracked);
+            let (y_ref, g_ref) = case.run(false, act, tracked);
+            let what = format!("{m}×{k}→{n} {act:?} tracked {tracked:?}");
+            assert_eq!(y.len(), m * n, "{what}: output size");
+            assert!(max_abs_diff(&y, &y_ref) < tol, "{what}: output");
+            if act == Activation::Relu && y.len() >= 8 {
+                let zeros = y.iter().filter(|v| **v == 0.0).count();
+                assert!(
+                    zeros > 0 && zeros < y.len(),
+                    "{what}: the ReLU is exercised"
+                );
+            }
+            for (i, name) in ["x", "weight", "bias"].iter().enumerate() {
+                assert_eq!(
+                    !g[i].is_empty(),
+                    tracked[i],
+                    "{what}: {name} gradient presence"
+                );
+                assert_eq!(g[i].len(), g_ref[i].len(), "{what}: {name} gradient size");
+                let e = max_abs_diff(&g[i], &g_ref[i]);
+                assert!(
+                    e < tol * (m as f64).sqrt(),
+                    "{what}: {name} gradient differs by {e:.2e}"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn host_dense_matches_burn_small() {
+    check(5, 3, 4);
+    check(1, 7, 1);
+}
+
+#[test]
+fn host_dense_matches_burn_across_row_splits() {
+    // 9,000 rows: several forward tasks (1,024 rows) and three partial sums (4,096 rows), for
+    // the matmul kernels and for the narrow heads' dot products.
+    check(9000, 19, 33);
+    check(9000, 21, 3);
+}
+
+/// Plain tensors (no autodiff) agree with Burn too; on the CPU both kinds take the host path.
+#[test]
+fn plain_tensors_give_burn_s_values() {
+    let device = test_device();
+    let case = Case::new(300, 17, 9, 4);
+    let x = tensor(&case.x, [case.m, case.k], &device);
+    let layer = Linear {
+        weight: Param::from_tensor(tensor(&case.w, [case.k, case.n], &device)),
+        bias: Some(Param::from_tensor(tensor(&case.b, [case.n], &device))),
+    };
+    for act in [Activation::Relu, Activation::Identity] {
+        let y = f64s(linear(&layer, x.clone(), act));
+        let y_ref = f64s(act.apply(layer.forward(x.clone())));
+        assert!(max_abs_diff(&y, &y_ref) < 1e-10, "{act:?}");
+    }
+    if test_device_name() == "cpu" {
+        let w = layer.weight.val();
+        let b = layer.bias.as_ref().expect("bias").val();
+        assert!(
+            try_host_linear(&x, &w, &b, Activation::Relu).is_some(),
+            "plain flex"
+        );
+        let ad = device.clone().autodiff();
+        let xa = tensor(&case.x, [case.m, case.k], &ad).require_grad();
+        let wa = tensor(&case.w, [case.k, case.n], &ad);
+        let ba = tensor(&case.b, [case.n], &ad);
+        assert!(
+            try_host_linear(&xa, &wa, &ba, Activation::Relu).is_some(),
+            "flex, autodiff"
+        );
+        // A NaN input stays NaN through the ReLU (a diverged run is caught downstream).
+        let mut v = case.x.clone();
+        v[0] = f64::NAN;
+        let y = f64s(linear(
+            &layer,
+            tensor(&v, [case.m, case.k], &device),
+            Activation::Relu,
+        ));
+        assert!(y[..case.n].iter().all(|v| v.is_nan()));
+    }
+}
