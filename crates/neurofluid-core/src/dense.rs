@@ -13,7 +13,6 @@ use burn::tensor::activation::relu;
 use ndarray::linalg::general_mat_mul;
 use ndarray::{ArrayView2, ArrayViewMut2};
 use rayon::prelude::*;
-use std::cmp::Ordering;
 
 use crate::real::Real;
 
@@ -131,10 +130,9 @@ fn view_mut<T>(v: &mut [T], rows: usize, cols: usize) -> ArrayViewMut2<'_, T> {
 
 /// Negative values to zero; NaN stays NaN (so a diverged run is still caught).
 fn clamp_negative<T: Real>(v: &mut [T]) {
+    // written without a branch so that it vectorises
     for x in v {
-        if *x < T::zero() {
-            *x = T::zero();
-        }
+        *x = if *x < T::zero() { T::zero() } else { *x };
     }
 }
 
@@ -194,9 +192,7 @@ pub fn backward<T: Real>(
             let r0 = i * ROWS_PER_PARTIAL;
             if act == Activation::Relu {
                 for (d, &y) in dzc.iter_mut().zip(&y[r0 * n..]) {
-                    if y.partial_cmp(&T::zero()) != Some(Ordering::Greater) {
-                        *d = T::zero();
-                    }
+                    *d = if y <= T::zero() { T::zero() } else { *d };
                 }
             }
             let mut db = Vec::new();
