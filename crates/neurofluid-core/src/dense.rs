@@ -62,15 +62,20 @@ pub fn forward<T: Real>(x: &[T], w: &[T], b: &[T], n: usize, act: Activation) ->
                         *o = bj + dot(xr, wj);
                     }
                 }
-            } else {
-                for row in yc.chunks_mut(n) {
-                    row.copy_from_slice(b);
+                if act == Activation::Relu {
+                    clamp_negative(yc);
                 }
+            } else {
                 let mut yv = view_mut(yc, rows, n);
-                general_mat_mul(T::one(), &view(xc, rows, k), &wv, T::one(), &mut yv);
-            }
-            if act == Activation::Relu {
-                clamp_negative(yc);
+                general_mat_mul(T::one(), &view(xc, rows, k), &wv, T::zero(), &mut yv);
+                // bias and activation in one pass, without branches (so that it vectorises)
+                let relu = act == Activation::Relu;
+                for row in yc.chunks_mut(n) {
+                    for (o, &bj) in row.iter_mut().zip(b) {
+                        let z = *o + bj;
+                        *o = if relu && z < T::zero() { T::zero() } else { z };
+                    }
+                }
             }
         });
     y

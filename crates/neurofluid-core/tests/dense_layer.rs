@@ -200,3 +200,78 @@ fn plain_tensors_give_burn_s_values() {
         assert!(y[..case.n].iter().all(|v| v.is_nan()));
     }
 }
+
+/// Two layers in a row (the second at a width that takes the narrow heads' path or not), the
+/// input given transposed (non-contiguous): outputs and every gradient against Burn's.
+#[test]
+fn stacked_layers_match_burn() {
+    let device = test_device();
+    let tol = if dtype(&device) == DType::F64 {
+        1e-9
+    } else {
+        1e-3
+    };
+    let (m, k, h) = (5000, 13, 24);
+    for out in [7, 40] {
+        let mut rng = ChaCha8Rng::seed_from_u64(out as u64);
+        let x = random(m * k, &mut rng);
+        let params = [
+            random(k * h, &mut rng),
+            random(h, &mut rng),
+            random(h * out, &mut rng),
+            random(out, &mut rng),
+        ];
+        let coeff = random(m * out, &mut rng);
+        let run = |host: bool| {
+            let ad = test_device().autodiff();
+            // the input stored as [k, m] and transposed: strides [1, m]
+            let xt = tensor(&transpose(&x, m, k), [k, m], &ad).require_grad();
+            let xin = xt.clone().transpose();
+            let p: Vec<Tensor<2>> = [(0, [k, h]), (2, [h, out])]
+                .iter()
+                .map(|&(i, s)| tensor(&params[i], s, &ad).require_grad())
+                .collect();
+            let b: Vec<Tensor<1>> = [(1, h), (3, out)]
+                .iter()
+                .map(|&(i, s)| tensor(&params[i], [s], &ad).require_grad())
+                .collect();
+            let layer = |i: usize| Linear {
+                weight: Param::from_tensor(p[i].clone()),
+                bias: Some(Param::from_tensor(b[i].clone())),
+            };
+            let apply = |i: usize, t: Tensor<2>, act: Activation| {
+                if host {
+                    linear(&layer(i), t, act)
+                } else {
+                    act.apply(layer(i).forward(t))
+                }
+            };
+            let y = apply(1, apply(0, xin, Activation::Relu), Activation::Identity);
+            let loss = (y.clone() * tensor(&coeff, [m, out], &ad)).sum();
+            let grads = loss.backward();
+            let g2 = |t: &Tensor<2>| t.grad(&grads).map(f64s).expect("a gradient");
+            let g1 = |t: &Tensor<1>| t.grad(&grads).map(f64s).expect("a gradient");
+            vec![f64s(y), g2(&xt), g2(&p[0]), g1(&b[0]), g2(&p[1]), g1(&b[1])]
+        };
+        let (got, want) = (run(true), run(false));
+        let names = ["output", "x", "W1", "b1", "W2", "b2"];
+        for ((name, a), b) in names.iter().zip(&got).zip(&want) {
+            assert_eq!(a.len(), b.len(), "{name}");
+            let e = max_abs_diff(a, b);
+            assert!(
+                e < tol * (m as f64).sqrt(),
+                "→{out}: {name} differs by {e:.2e}"
+            );
+        }
+    }
+}
+
+fn transpose(v: &[f64], rows: usize, cols: usize) -> Vec<f64> {
+    let mut t = vec![0.0; v.len()];
+    for i in 0..rows {
+        for j in 0..cols {
+            t[j * rows + i] = v[i * cols + j];
+        }
+    }
+    t
+}
