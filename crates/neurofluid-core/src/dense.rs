@@ -14,7 +14,7 @@ use ndarray::linalg::general_mat_mul;
 use ndarray::{ArrayView2, ArrayViewMut2};
 use rayon::prelude::*;
 
-use crate::real::Real;
+use crate::real::{Real, axpy, dot_in_lanes};
 
 /// Rows of `x` per task of the forward pass and of `dx` (the weights are packed once per task).
 const ROWS_PER_TASK: usize = 1024;
@@ -51,7 +51,7 @@ pub fn forward<T: Real>(x: &[T], w: &[T], b: &[T], n: usize, act: Activation) ->
         return y;
     }
     let wv = view(w, k, n);
-    let wt = transposed(w, k, n);
+    let wt = narrow_transposed(w, k, n);
     y.par_chunks_mut(ROWS_PER_TASK * n)
         .zip(x.par_chunks(ROWS_PER_TASK * k))
         .for_each(|(yc, xc)| {
@@ -59,7 +59,7 @@ pub fn forward<T: Real>(x: &[T], w: &[T], b: &[T], n: usize, act: Activation) ->
             if n < NARROW {
                 for (yr, xr) in yc.chunks_mut(n).zip(xc.chunks(k)) {
                     for ((o, wj), &bj) in yr.iter_mut().zip(wt.chunks(k)).zip(b) {
-                        *o = bj + dot(xr, wj);
+                        *o = bj + dot_in_lanes(xr, wj);
                     }
                 }
                 if act == Activation::Relu {
@@ -90,6 +90,15 @@ fn rows_of<T>(w: &[T], n: usize) -> usize {
     w.len().checked_div(n).unwrap_or(0)
 }
 
+/// `w [k, n]` as `[n, k]` when the output is narrow (the only path that reads it), else empty.
+fn narrow_transposed<T: Real>(w: &[T], k: usize, n: usize) -> Vec<T> {
+    if n < NARROW {
+        transposed(w, k, n)
+    } else {
+        Vec::new()
+    }
+}
+
 /// `w [k, n]` as `[n, k]` (row-major).
 fn transposed<T: Real>(w: &[T], k: usize, n: usize) -> Vec<T> {
     let mut t = vec![T::default(); w.len()];
@@ -99,30 +108,6 @@ fn transposed<T: Real>(w: &[T], k: usize, n: usize) -> Vec<T> {
         }
     }
     t
-}
-
-/// `Σ a·b` in eight lanes (so the compiler vectorises it without reassociating).
-fn dot<T: Real>(a: &[T], b: &[T]) -> T {
-    let mut lanes = [T::zero(); 8];
-    let (a8, a_rest) = a.split_at(a.len() / 8 * 8);
-    let (b8, b_rest) = b.split_at(a8.len());
-    for (ca, cb) in a8.chunks_exact(8).zip(b8.chunks_exact(8)) {
-        for l in 0..8 {
-            lanes[l] += ca[l] * cb[l];
-        }
-    }
-    let mut sum = lanes.iter().fold(T::zero(), |s, &v| s + v);
-    for (&x, &y) in a_rest.iter().zip(b_rest) {
-        sum += x * y;
-    }
-    sum
-}
-
-/// `dst += s·src`.
-fn axpy<T: Real>(dst: &mut [T], s: T, src: &[T]) {
-    for (d, &x) in dst.iter_mut().zip(src) {
-        *d += s * x;
-    }
 }
 
 fn view<T>(v: &[T], rows: usize, cols: usize) -> ArrayView2<'_, T> {
@@ -238,7 +223,7 @@ pub fn backward<T: Real>(
             return dx;
         }
         let wv = view(w, k, n);
-        let wt = transposed(w, k, n);
+        let wt = narrow_transposed(w, k, n);
         dx.par_chunks_mut(ROWS_PER_TASK * k)
             .zip(dz.par_chunks(ROWS_PER_TASK * n))
             .for_each(|(dxc, dzc)| {

@@ -1,4 +1,5 @@
-//! The float types the host kernels run in: f32 for training, f64 for gradient checks.
+//! The float types the host kernels run in (f32 for training, f64 for gradient checks) and the
+//! vector helpers they share.
 
 use std::ops::AddAssign;
 
@@ -18,3 +19,35 @@ pub trait Real:
 
 impl Real for f32 {}
 impl Real for f64 {}
+
+/// `dst += s·src`.
+pub fn axpy<T: Real>(dst: &mut [T], s: T, src: &[T]) {
+    for (d, &x) in dst.iter_mut().zip(src) {
+        *d += s * x;
+    }
+}
+
+/// `Σ a·b`, summed in index order.
+pub fn dot<T: Real>(a: &[T], b: &[T]) -> T {
+    a.iter()
+        .zip(b)
+        .fold(T::default(), |acc, (&x, &y)| acc + x * y)
+}
+
+/// `Σ a·b` in eight lanes, added at the end (another order than [`dot`]; the compiler
+/// vectorises it without reassociating).
+pub fn dot_in_lanes<T: Real>(a: &[T], b: &[T]) -> T {
+    let mut lanes = [T::zero(); 8];
+    let (a8, a_rest) = a.split_at(a.len() / 8 * 8);
+    let (b8, b_rest) = b.split_at(a8.len());
+    for (ca, cb) in a8.chunks_exact(8).zip(b8.chunks_exact(8)) {
+        for l in 0..8 {
+            lanes[l] += ca[l] * cb[l];
+        }
+    }
+    let mut sum = lanes.iter().fold(T::zero(), |s, &v| s + v);
+    for (&x, &y) in a_rest.iter().zip(b_rest) {
+        sum += x * y;
+    }
+    sum
+}

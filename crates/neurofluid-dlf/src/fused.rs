@@ -12,10 +12,11 @@ use std::sync::Arc;
 
 use burn::prelude::*;
 use burn::tensor::{DType, TensorCreationOptions};
+use neurofluid_core::real::Real;
 
 use crate::geometry::HostGeometry;
 use crate::mapping::KERNEL_CELLS;
-use crate::sparse::{self, Real, SparseOp};
+use crate::sparse::{self, SparseOp};
 
 /// Elements of `G` per chunk of output points (16 MB in f32: reused heap memory, not fresh
 /// pages, under glibc's largest mmap threshold).

@@ -14,19 +14,7 @@ use rayon::prelude::*;
 use crate::geometry::{CORNERS, HostGeometry};
 use crate::mapping::KERNEL_CELLS;
 
-pub use neurofluid_core::real::Real;
-
-fn axpy<T: Real>(dst: &mut [T], w: T, src: &[T]) {
-    for (d, &x) in dst.iter_mut().zip(src) {
-        *d += w * x;
-    }
-}
-
-fn dot<T: Real>(a: &[T], b: &[T]) -> T {
-    a.iter()
-        .zip(b)
-        .fold(T::default(), |acc, (&x, &y)| acc + x * y)
-}
+use neurofluid_core::real::{Real, axpy, dot};
 
 /// The sparse operator `T`: a geometry's pairs and cells with pair-corner weights `[8P]`.
 #[derive(Clone, Copy)]
