@@ -191,7 +191,7 @@ fn seeds() -> &'static Seeds {
             box_normals: Some(vec![[0.0, 1.0, 0.0]; 2]),
             ..Default::default()
         };
-        neurofluid_dlf::records::write_record(&p("rec.msgpack.zst"), &[frame.clone(), frame], 3)
+        neurofluid_dlf::records::write_record(&p("rec.msgpack.zst"), &[frame.clone(), frame])
             .unwrap();
 
         Seeds {

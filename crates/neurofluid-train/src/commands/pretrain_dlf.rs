@@ -197,7 +197,7 @@ mod tests {
             })
             .collect();
         let dir = tempfile::tempdir().unwrap();
-        write_record(&dir.path().join("sim_0001_00.msgpack.zst"), &frames, 3).unwrap();
+        write_record(&dir.path().join("sim_0001_00.msgpack.zst"), &frames).unwrap();
         let output = dir.path().join("ft.bpk");
         let args = |init: Option<PathBuf>, output: &Path, iterations, batch_size, lr| Args {
             data: dir.path().to_path_buf(),
