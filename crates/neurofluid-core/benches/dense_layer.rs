@@ -1,6 +1,6 @@
 //! One dense layer `relu(x·W + b)` forward and backward on the renderer's shapes: Burn's flex ops
 //! (`Linear` + ReLU, Burn's autodiff; its matmul is the `gemm` crate) against the host dense
-//! layer (`neurofluid_core::dense::linear`, matrixmultiply's kernels), f32, with GFLOP/s.
+//! layer (`neurofluid_core::dense::linear`, the host matmul), f32, with GFLOP/s.
 //!
 //! Shapes: the paper's fine network (≈152k gated samples of 1,024 rays, width 256), its coarse
 //! one (≈35k), the quick configs' width 128 (16k samples of 256 rays), and the σ head (256 → 1).

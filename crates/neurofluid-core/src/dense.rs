@@ -1,23 +1,25 @@
 //! Dense layers `act(x·W + b)` (Burn's `Linear`, weight `[in, out]`) evaluated on the host,
-//! forward and backward, with matrixmultiply's kernels (through ndarray) split over rayon by
-//! rows. On the flex backend [`linear`] is one operation (with autodiff: one autodiff
-//! operation with its own backward pass); on other backends it is Burn's own ops.
+//! forward and backward, with the host matmul ([`crate::matmul`]) split over rayon by rows. On
+//! the flex backend [`linear`] is one operation (with autodiff: one autodiff operation with its
+//! own backward pass); on other backends it is Burn's own ops.
 //!
 //! Why: with Burn's CPU matmul (the `gemm` crate) a 256-wide layer's forward and backward pass
-//! runs at about two thirds of this rate on the test machine (BENCHMARKS.md), and the bias and
-//! the ReLU fold into one pass over the output.
+//! runs at about 60 % of this rate on the test machine (BENCHMARKS.md), and the bias and the
+//! ReLU are applied as the matmul writes its output.
 
 use burn::nn::Linear;
 use burn::prelude::*;
 use burn::tensor::activation::relu;
-use ndarray::linalg::general_mat_mul;
-use ndarray::{ArrayView2, ArrayViewMut2};
 use rayon::prelude::*;
 
-use crate::real::{Real, axpy, dot_in_lanes};
+use crate::matmul::{Epilogue, Lanes, LayoutA, PackedB, matmul};
+use crate::real::{axpy, dot_in_lanes};
 
-/// Rows of `x` per task of the forward pass and of `dx` (the weights are packed once per task).
+/// Rows of `x` per task of the forward pass and of `dx`.
 const ROWS_PER_TASK: usize = 1024;
+
+/// Rows of `x` and `dz` per packed slice of `dz` in the weight gradient (the reduction's block).
+const ROWS_PER_PACK: usize = 256;
 
 /// Rows per partial sum of `dW` and `db`: a fixed split, so the sums do not depend on the
 /// number of threads.
@@ -43,38 +45,31 @@ impl Activation {
 }
 
 /// `act(x·W + b)` for `x [m, k]` (row-major, `k ≥ 1`), `w [k, n]`, `b [n]` → `[m, n]`.
-pub fn forward<T: Real>(x: &[T], w: &[T], b: &[T], n: usize, act: Activation) -> Vec<T> {
+pub fn forward<T: Lanes>(x: &[T], w: &[T], b: &[T], n: usize, act: Activation) -> Vec<T> {
     let k = rows_of(w, n);
     let m = x.len().checked_div(k).unwrap_or(0);
     let mut y = vec![T::default(); m * n];
     if m == 0 || n == 0 {
         return y;
     }
-    let wv = view(w, k, n);
+    let relu = act == Activation::Relu;
     let wt = narrow_transposed(w, k, n);
+    let packed = (n >= NARROW).then(|| PackedB::new(w, n, 1, k, n));
     y.par_chunks_mut(ROWS_PER_TASK * n)
         .zip(x.par_chunks(ROWS_PER_TASK * k))
         .for_each(|(yc, xc)| {
             let rows = yc.len() / n;
-            if n < NARROW {
+            if let Some(packed) = &packed {
+                let bias = Epilogue::Bias { bias: b, relu };
+                matmul(xc, LayoutA::Rows { stride: k }, rows, packed, yc, n, bias);
+            } else {
                 for (yr, xr) in yc.chunks_mut(n).zip(xc.chunks(k)) {
                     for ((o, wj), &bj) in yr.iter_mut().zip(wt.chunks(k)).zip(b) {
                         *o = bj + dot_in_lanes(xr, wj);
                     }
                 }
-                if act == Activation::Relu {
+                if relu {
                     clamp_negative(yc);
-                }
-            } else {
-                let mut yv = view_mut(yc, rows, n);
-                general_mat_mul(T::one(), &view(xc, rows, k), &wv, T::zero(), &mut yv);
-                // bias and activation in one pass, without branches (so that it vectorises)
-                let relu = act == Activation::Relu;
-                for row in yc.chunks_mut(n) {
-                    for (o, &bj) in row.iter_mut().zip(b) {
-                        let z = *o + bj;
-                        *o = if relu && z < T::zero() { T::zero() } else { z };
-                    }
                 }
             }
         });
@@ -82,7 +77,7 @@ pub fn forward<T: Real>(x: &[T], w: &[T], b: &[T], n: usize, act: Activation) ->
 }
 
 /// Outputs narrower than this (the σ and colour heads) take dot products and row updates
-/// instead of the packed matmul kernels, which pack all of `x` for one column.
+/// instead of the matmul, whose register tiles are two vectors wide.
 const NARROW: usize = 8;
 
 /// Rows of `w [k, n]`.
@@ -91,7 +86,7 @@ fn rows_of<T>(w: &[T], n: usize) -> usize {
 }
 
 /// `w [k, n]` as `[n, k]` when the output is narrow (the only path that reads it), else empty.
-fn narrow_transposed<T: Real>(w: &[T], k: usize, n: usize) -> Vec<T> {
+fn narrow_transposed<T: Lanes>(w: &[T], k: usize, n: usize) -> Vec<T> {
     if n < NARROW {
         transposed(w, k, n)
     } else {
@@ -100,7 +95,7 @@ fn narrow_transposed<T: Real>(w: &[T], k: usize, n: usize) -> Vec<T> {
 }
 
 /// `w [k, n]` as `[n, k]` (row-major).
-fn transposed<T: Real>(w: &[T], k: usize, n: usize) -> Vec<T> {
+fn transposed<T: Lanes>(w: &[T], k: usize, n: usize) -> Vec<T> {
     let mut t = vec![T::default(); w.len()];
     for i in 0..k {
         for j in 0..n {
@@ -110,16 +105,8 @@ fn transposed<T: Real>(w: &[T], k: usize, n: usize) -> Vec<T> {
     t
 }
 
-fn view<T>(v: &[T], rows: usize, cols: usize) -> ArrayView2<'_, T> {
-    ArrayView2::from_shape((rows, cols), v).expect("a dense row-major block")
-}
-
-fn view_mut<T>(v: &mut [T], rows: usize, cols: usize) -> ArrayViewMut2<'_, T> {
-    ArrayViewMut2::from_shape((rows, cols), v).expect("a dense row-major block")
-}
-
 /// Negative values to zero; NaN stays NaN (so a diverged run is still caught).
-fn clamp_negative<T: Real>(v: &mut [T]) {
+fn clamp_negative<T: Lanes>(v: &mut [T]) {
     // written without a branch so that it vectorises
     for x in v {
         *x = if *x < T::zero() { T::zero() } else { *x };
@@ -127,7 +114,7 @@ fn clamp_negative<T: Real>(v: &mut [T]) {
 }
 
 /// The element-wise sum of `parts` in their order.
-fn sum_in_order<T: Real>(parts: &[Vec<T>], len: usize) -> Vec<T> {
+fn sum_in_order<T: Lanes>(parts: &[Vec<T>], len: usize) -> Vec<T> {
     let mut total = vec![T::zero(); len];
     for p in parts {
         for (t, &v) in total.iter_mut().zip(p) {
@@ -154,7 +141,7 @@ pub struct DenseGrads<T> {
 /// One parallel pass over fixed blocks of rows masks `dy` and sums the blocks' `dW` and `db`
 /// (summed in block order, so the result does not depend on the number of threads); a second
 /// computes `dx`.
-pub fn backward<T: Real>(
+pub fn backward<T: Lanes>(
     x: &[T],
     w: &[T],
     y: &[T],
@@ -207,9 +194,27 @@ pub fn backward<T: Real>(
                     }
                     dw = transposed(&dw, n, k);
                 } else if k > 0 {
-                    let xt = view(xc, rows, k).reversed_axes();
-                    let mut out = view_mut(&mut dw, k, n);
-                    general_mat_mul(T::one(), &xt, &view(dzc, rows, n), T::zero(), &mut out);
+                    // dW = xᵀ·dz, `dz` packed a slice of rows at a time, summed in row order
+                    let slices = dzc
+                        .chunks(ROWS_PER_PACK * n)
+                        .zip(xc.chunks(ROWS_PER_PACK * k));
+                    for (s, (dzs, xs)) in slices.enumerate() {
+                        let packed = PackedB::new(dzs, n, 1, dzs.len() / n, n);
+                        let epilogue = if s == 0 {
+                            Epilogue::Store
+                        } else {
+                            Epilogue::Add
+                        };
+                        matmul(
+                            xs,
+                            LayoutA::Cols { stride: k },
+                            k,
+                            &packed,
+                            &mut dw,
+                            n,
+                            epilogue,
+                        );
+                    }
                 }
             }
             (dw, db)
@@ -222,22 +227,23 @@ pub fn backward<T: Real>(
         if k == 0 {
             return dx;
         }
-        let wv = view(w, k, n);
         let wt = narrow_transposed(w, k, n);
+        // Wᵀ [n, k] packed
+        let packed = (n >= NARROW).then(|| PackedB::new(w, 1, n, n, k));
         dx.par_chunks_mut(ROWS_PER_TASK * k)
             .zip(dz.par_chunks(ROWS_PER_TASK * n))
             .for_each(|(dxc, dzc)| {
-                if n < NARROW {
+                if let Some(packed) = &packed {
+                    let rows = dzc.len() / n;
+                    let layout = LayoutA::Rows { stride: n };
+                    matmul(dzc, layout, rows, packed, dxc, k, Epilogue::Store);
+                } else {
                     // dx[r] = Σ_j dz[r, j] · W[:, j]
                     for (dxr, dzr) in dxc.chunks_mut(k).zip(dzc.chunks(n)) {
                         for (&g, wj) in dzr.iter().zip(wt.chunks(k)) {
                             axpy(dxr, g, wj);
                         }
                     }
-                } else {
-                    let rows = dzc.len() / n;
-                    let mut out = view_mut(dxc, rows, k);
-                    general_mat_mul(T::one(), &view(dzc, rows, n), &wv.t(), T::zero(), &mut out);
                 }
             });
         dx
@@ -309,16 +315,16 @@ mod flex_op {
         }
     }
 
-    fn slice<T: Real>(t: &FlexTensor) -> &[T] {
+    fn slice<T: Lanes>(t: &FlexTensor) -> &[T] {
         t.as_slice::<T>()
             .expect("a contiguous tensor of the layer's float type")
     }
 
-    fn tensor<T: Real>(v: Vec<T>, shape: Vec<usize>) -> FlexTensor {
+    fn tensor<T: Lanes>(v: Vec<T>, shape: Vec<usize>) -> FlexTensor {
         FlexTensor::from_data(TensorData::new(v, shape))
     }
 
-    fn forward_in<T: Real>(
+    fn forward_in<T: Lanes>(
         x: &FlexTensor,
         w: &FlexTensor,
         b: &FlexTensor,
@@ -357,7 +363,7 @@ mod flex_op {
     }
 
     /// The gradients of `[x, w, b]` as flex tensors of the given shapes.
-    fn grads_in<T: Real>(
+    fn grads_in<T: Lanes>(
         s: &State,
         dy: FlexTensor,
         n: usize,

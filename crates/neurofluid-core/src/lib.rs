@@ -10,6 +10,7 @@ pub mod cpu_time;
 pub mod dense;
 pub mod device;
 pub mod malloc;
+pub mod matmul;
 pub mod metrics;
 pub mod neighbors;
 pub mod npz;

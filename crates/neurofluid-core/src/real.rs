@@ -11,7 +11,7 @@ pub trait Real:
     + Sync
     + PartialOrd
     + AddAssign
-    + ndarray::LinalgScalar
+    + num_traits::Num
     + bytemuck::Pod
     + burn::tensor::Element
 {
