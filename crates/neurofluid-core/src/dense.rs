@@ -21,9 +21,14 @@ const ROWS_PER_TASK: usize = 1024;
 /// Rows of `x` and `dz` per packed slice of `dz` in the weight gradient (the reduction's block).
 const ROWS_PER_PACK: usize = 256;
 
-/// Rows per partial sum of `dW` and `db`: a fixed split, so the sums do not depend on the
-/// number of threads.
-const ROWS_PER_PARTIAL: usize = 4096;
+/// Rows per partial sum of `dW` and `db`: an eighth of the batch in whole packed slices, at
+/// most 4,096. A split by the batch size alone, so the sums do not depend on the number of
+/// threads, and a small batch still has blocks for every thread.
+fn rows_per_partial(m: usize) -> usize {
+    m.div_ceil(8)
+        .next_multiple_of(ROWS_PER_PACK)
+        .min(16 * ROWS_PER_PACK)
+}
 
 /// The activation applied after `x·W + b`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -138,9 +143,9 @@ pub struct DenseGrads<T> {
 /// The backward pass of [`forward`] for `dy [m, n]`; `y` is the forward output (read for the
 /// ReLU's mask, may be empty for the identity). `need` = which of `[x, w, b]` to compute.
 ///
-/// One parallel pass over fixed blocks of rows masks `dy` and sums the blocks' `dW` and `db`
-/// (summed in block order, so the result does not depend on the number of threads); a second
-/// computes `dx`.
+/// One parallel pass over blocks of rows ([`rows_per_partial`]: sized by the batch, not by the
+/// threads) masks `dy` and sums the blocks' `dW` and `db` (added in block order, so the result
+/// does not depend on the number of threads); a second computes `dx`.
 pub fn backward<T: Lanes>(
     x: &[T],
     w: &[T],
@@ -160,13 +165,14 @@ pub fn backward<T: Lanes>(
             b: need_b.then(|| vec![T::default(); n]),
         };
     }
-    let block = ROWS_PER_PARTIAL * n;
+    let partial = rows_per_partial(m);
+    let block = partial * n;
     let (dws, dbs): (Vec<Vec<T>>, Vec<Vec<T>>) = dz
         .par_chunks_mut(block)
         .enumerate()
         .map(|(i, dzc)| {
             let rows = dzc.len() / n;
-            let r0 = i * ROWS_PER_PARTIAL;
+            let r0 = i * partial;
             if act == Activation::Relu {
                 for (d, &y) in dzc.iter_mut().zip(&y[r0 * n..]) {
                     *d = if y <= T::zero() { T::zero() } else { *d };

@@ -153,10 +153,41 @@ fn host_dense_matches_burn_small() {
 
 #[test]
 fn host_dense_matches_burn_across_row_splits() {
-    // 9,000 rows: several forward tasks (1,024 rows) and three partial sums (4,096 rows), for
+    // 9,000 rows: several forward tasks (1,024 rows) and eight partial sums (1,280 rows), for
     // the matmul kernels and for the narrow heads' dot products.
     check(9000, 19, 33);
     check(9000, 21, 3);
+}
+
+/// The host kernels give the same bits with 1, 2 or 3 threads: every split of the work is fixed
+/// by the sizes alone and partial sums are added in order.
+#[test]
+fn results_do_not_depend_on_the_thread_count() {
+    use neurofluid_core::dense::{backward, forward};
+    let fill = |len: usize, seed: usize| -> Vec<f32> {
+        (0..len)
+            .map(|i| ((i * 7919 + seed * 104_729) % 2003) as f32 / 1001.5 - 1.0)
+            .collect()
+    };
+    // wide and narrow outputs, batches below and above the largest partial sum (4,096 rows)
+    for (m, k, n) in [(5000, 40, 48), (700, 33, 3), (20_000, 16, 20)] {
+        let (x, w, b, dy) = (fill(m * k, 1), fill(k * n, 2), fill(n, 3), fill(m * n, 4));
+        let run = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("a thread pool");
+            pool.install(|| {
+                let y = forward(&x, &w, &b, n, Activation::Relu);
+                let g = backward(&x, &w, &y, dy.clone(), n, Activation::Relu, [true; 3]);
+                (y, g.x, g.w, g.b)
+            })
+        };
+        let one = run(1);
+        for threads in [2, 3] {
+            assert!(run(threads) == one, "{m}×{k}→{n} with {threads} threads");
+        }
+    }
 }
 
 /// Plain tensors (no autodiff) agree with Burn too; on the CPU both kinds take the host path.
