@@ -13,7 +13,7 @@ use burn::tensor::activation::relu;
 use rayon::prelude::*;
 
 use crate::matmul::{Epilogue, Lanes, LayoutA, PackedB, matmul};
-use crate::real::{axpy, dot_in_lanes};
+use crate::real::{Real, axpy, dot_in_lanes};
 
 /// Rows of `x` per task of the forward pass and of `dx`.
 const ROWS_PER_TASK: usize = 1024;
@@ -91,7 +91,7 @@ fn rows_of<T>(w: &[T], n: usize) -> usize {
 }
 
 /// `w [k, n]` as `[n, k]` when the output is narrow (the only path that reads it), else empty.
-fn narrow_transposed<T: Lanes>(w: &[T], k: usize, n: usize) -> Vec<T> {
+fn narrow_transposed<T: Real>(w: &[T], k: usize, n: usize) -> Vec<T> {
     if n < NARROW {
         transposed(w, k, n)
     } else {
@@ -100,7 +100,7 @@ fn narrow_transposed<T: Lanes>(w: &[T], k: usize, n: usize) -> Vec<T> {
 }
 
 /// `w [k, n]` as `[n, k]` (row-major).
-fn transposed<T: Lanes>(w: &[T], k: usize, n: usize) -> Vec<T> {
+fn transposed<T: Real>(w: &[T], k: usize, n: usize) -> Vec<T> {
     let mut t = vec![T::default(); w.len()];
     for i in 0..k {
         for j in 0..n {
@@ -111,7 +111,7 @@ fn transposed<T: Lanes>(w: &[T], k: usize, n: usize) -> Vec<T> {
 }
 
 /// Negative values to zero; NaN stays NaN (so a diverged run is still caught).
-fn clamp_negative<T: Lanes>(v: &mut [T]) {
+fn clamp_negative<T: Real>(v: &mut [T]) {
     // written without a branch so that it vectorises
     for x in v {
         *x = if *x < T::zero() { T::zero() } else { *x };
@@ -119,7 +119,7 @@ fn clamp_negative<T: Lanes>(v: &mut [T]) {
 }
 
 /// The element-wise sum of `parts` in their order.
-fn sum_in_order<T: Lanes>(parts: &[Vec<T>], len: usize) -> Vec<T> {
+fn sum_in_order<T: Real>(parts: &[Vec<T>], len: usize) -> Vec<T> {
     let mut total = vec![T::zero(); len];
     for p in parts {
         for (t, &v) in total.iter_mut().zip(p) {
@@ -321,12 +321,12 @@ mod flex_op {
         }
     }
 
-    fn slice<T: Lanes>(t: &FlexTensor) -> &[T] {
+    fn slice<T: Real>(t: &FlexTensor) -> &[T] {
         t.as_slice::<T>()
             .expect("a contiguous tensor of the layer's float type")
     }
 
-    fn tensor<T: Lanes>(v: Vec<T>, shape: Vec<usize>) -> FlexTensor {
+    fn tensor<T: Real>(v: Vec<T>, shape: Vec<usize>) -> FlexTensor {
         FlexTensor::from_data(TensorData::new(v, shape))
     }
 

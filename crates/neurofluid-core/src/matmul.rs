@@ -158,7 +158,11 @@ pub struct PackedB<T> {
 impl<T: Lanes> PackedB<T> {
     /// Packs `B[p, j] = b[p·rs + j·cs]` for `p < k`, `j < n`.
     pub fn new(b: &[T], rs: usize, cs: usize, k: usize, n: usize) -> Self {
-        let width = panel_width::<T>();
+        Self::with_width(b, rs, cs, k, n, panel_width::<T>())
+    }
+
+    /// [`PackedB::new`] in panels of `width` columns.
+    fn with_width(b: &[T], rs: usize, cs: usize, k: usize, n: usize, width: usize) -> Self {
         let panels = n.div_ceil(width);
         let mut data = vec![T::zero(); panels * k * width];
         for (jp, panel) in data.chunks_mut((k * width).max(1)).enumerate() {
@@ -547,6 +551,56 @@ mod tests {
     #[test]
     fn matches_the_written_out_sum_f32() {
         check::<f32>(1e-5);
+    }
+
+    /// The scalar code path (CPUs without AVX2 + FMA) against the written-out sum, NaN kept by
+    /// its ReLU.
+    #[test]
+    fn the_scalar_fallback_matches_the_written_out_sum() {
+        let s = pulp::Scalar::new();
+        let (rows, k, n) = (13, 9, 7);
+        let (a, b, bias): (Vec<f64>, Vec<f64>, Vec<f64>) =
+            (fill(rows * k, 1), fill(k * n, 2), fill(n, 3));
+        let packed = PackedB::with_width(&b, n, 1, k, n, 2);
+        let mut c = vec![0.0; rows * n];
+        let epilogue = Epilogue::Bias {
+            bias: &bias,
+            relu: true,
+        };
+        Matmul {
+            a: &a,
+            layout: LayoutA::Rows { stride: k },
+            rows,
+            b: &packed,
+            c: &mut c,
+            c_stride: n,
+            epilogue,
+        }
+        .with_simd(s);
+        for i in 0..rows {
+            for j in 0..n {
+                let z: f64 = (0..k).map(|p| a[i * k + p] * b[p * n + j]).sum::<f64>() + bias[j];
+                assert!((c[i * n + j] - z.max(0.0)).abs() < 1e-12, "({i}, {j})");
+            }
+        }
+        let packed = PackedB::with_width(&[1.0f32; 3], 3, 1, 1, 3, 2);
+        let mut c = vec![0.0f32; 3];
+        let bias = [-1.0f32; 3];
+        let epilogue = Epilogue::Bias {
+            bias: &bias,
+            relu: true,
+        };
+        Matmul {
+            a: &[f32::NAN],
+            layout: LayoutA::Rows { stride: 1 },
+            rows: 1,
+            b: &packed,
+            c: &mut c,
+            c_stride: 3,
+            epilogue,
+        }
+        .with_simd(s);
+        assert!(c.iter().all(|v| v.is_nan()), "{c:?}");
     }
 
     /// `B` read through its strides: packing the transpose of a row-major matrix.
