@@ -38,8 +38,6 @@ pub trait Lanes: Real {
     fn store<S: Simd>(s: S, dst: &mut [Self], v: Self::V<S>);
     /// `v` as whole vectors (and the rest).
     fn as_vectors<S: Simd>(v: &[Self]) -> (&[Self::V<S>], &[Self]);
-    /// `v` as whole vectors (and the rest), to write.
-    fn as_vectors_mut<S: Simd>(v: &mut [Self]) -> (&mut [Self::V<S>], &mut [Self]);
 }
 
 macro_rules! impl_lanes {
@@ -93,10 +91,6 @@ macro_rules! impl_lanes {
             #[inline(always)]
             fn as_vectors<S: Simd>(v: &[Self]) -> (&[S::$v], &[Self]) {
                 S::$split(v)
-            }
-            #[inline(always)]
-            fn as_vectors_mut<S: Simd>(v: &mut [Self]) -> (&mut [S::$v], &mut [Self]) {
-                S::$split_mut(v)
             }
         }
     };
@@ -179,16 +173,6 @@ impl<T: Lanes> PackedB<T> {
             }
         }
         Self { data, k, n, width }
-    }
-
-    /// Rows of `B` (the length of the reduction).
-    pub fn k(&self) -> usize {
-        self.k
-    }
-
-    /// Columns of `B`.
-    pub fn n(&self) -> usize {
-        self.n
     }
 }
 
