@@ -291,13 +291,14 @@ pub fn try_host_linear(
 #[cfg(feature = "flex")]
 mod flex_op {
     use super::*;
+    use crate::flex_host::{contiguous, slice, tensor};
     use burn::backend::autodiff::checkpoint::base::Checkpointer;
     use burn::backend::autodiff::checkpoint::strategy::NoCheckpointing;
     use burn::backend::autodiff::grads::Gradients;
     use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
     use burn::backend::flex::FlexTensor;
     use burn::backend::{Autodiff, Flex};
-    use burn::tensor::{DType, TensorData};
+    use burn::tensor::DType;
 
     /// The backward step: inputs (x, weight, bias).
     #[derive(Debug)]
@@ -310,24 +311,6 @@ mod flex_op {
         /// The output, kept for the ReLU's mask.
         y: Option<FlexTensor>,
         act: Activation,
-    }
-
-    /// A contiguous copy only when the tensor is not contiguous already.
-    fn contiguous(t: FlexTensor) -> FlexTensor {
-        if t.layout().is_contiguous() && t.layout().start_offset() == 0 {
-            t
-        } else {
-            t.to_contiguous()
-        }
-    }
-
-    fn slice<T: Real>(t: &FlexTensor) -> &[T] {
-        t.as_slice::<T>()
-            .expect("a contiguous tensor of the layer's float type")
-    }
-
-    fn tensor<T: Real>(v: Vec<T>, shape: Vec<usize>) -> FlexTensor {
-        FlexTensor::from_data(TensorData::new(v, shape))
     }
 
     fn forward_in<T: Lanes>(

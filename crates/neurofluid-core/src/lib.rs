@@ -9,6 +9,8 @@ pub mod camera;
 pub mod cpu_time;
 pub mod dense;
 pub mod device;
+#[cfg(feature = "flex")]
+pub mod flex_host;
 pub mod malloc;
 pub mod matmul;
 pub mod metrics;

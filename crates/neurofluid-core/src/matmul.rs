@@ -9,6 +9,7 @@
 //! runs in index order and the result does not depend on how rows are split between threads.
 
 use pulp::{Arch, Simd, WithSimd};
+use rayon::prelude::*;
 
 use crate::real::Real;
 
@@ -226,6 +227,40 @@ pub fn matmul<T: Lanes>(
         c_stride,
         epilogue,
     });
+}
+
+/// [`matmul`] with the rows of `C` split between rayon's threads: the same bits as one call
+/// (each element is summed by one register tile, whatever the split).
+pub fn par_matmul<T: Lanes>(
+    a: &[T],
+    layout: LayoutA,
+    rows: usize,
+    b: &PackedB<T>,
+    c: &mut [T],
+    c_stride: usize,
+    epilogue: Epilogue<'_, T>,
+) {
+    if rows == 0 || b.n == 0 {
+        return;
+    }
+    // about four blocks per thread, whole tiles, at most a cache block
+    let threads = rayon::current_num_threads().max(1);
+    let block = rows
+        .div_ceil(4 * threads)
+        .next_multiple_of(MR)
+        .clamp(MR, MC);
+    let len = c.len().min(rows * c_stride);
+    c[..len]
+        .par_chunks_mut(block * c_stride)
+        .enumerate()
+        .for_each(|(t, c)| {
+            let i0 = t * block;
+            let a = match layout {
+                LayoutA::Rows { stride } => &a[i0 * stride..],
+                LayoutA::Cols { .. } => &a[i0..],
+            };
+            matmul(a, layout, block.min(rows - i0), b, c, c_stride, epilogue);
+        });
 }
 
 struct Matmul<'a, 'e, T> {

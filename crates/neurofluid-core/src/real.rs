@@ -27,15 +27,8 @@ pub fn axpy<T: Real>(dst: &mut [T], s: T, src: &[T]) {
     }
 }
 
-/// `Σ a·b`, summed in index order.
-pub fn dot<T: Real>(a: &[T], b: &[T]) -> T {
-    a.iter()
-        .zip(b)
-        .fold(T::default(), |acc, (&x, &y)| acc + x * y)
-}
-
-/// `Σ a·b` in eight lanes, added at the end (another order than [`dot`]; the compiler
-/// vectorises it without reassociating).
+/// `Σ a·b` in eight lanes, added at the end (an order the compiler vectorises without
+/// reassociating; fixed by the length alone).
 pub fn dot_in_lanes<T: Real>(a: &[T], b: &[T]) -> T {
     let mut lanes = [T::zero(); 8];
     let (a8, a_rest) = a.split_at(a.len() / 8 * 8);

@@ -14,7 +14,7 @@ use rayon::prelude::*;
 use crate::geometry::{CORNERS, HostGeometry};
 use crate::mapping::KERNEL_CELLS;
 
-use neurofluid_core::real::{Real, axpy, dot};
+use neurofluid_core::real::{Real, axpy, dot_in_lanes};
 
 /// The sparse operator `T`: a geometry's pairs and cells with pair-corner weights `[8P]`.
 #[derive(Clone, Copy)]
@@ -104,7 +104,7 @@ impl<'a, T: Real> SparseOp<'a, T> {
                         axpy(&mut acc[i * cin..(i + 1) * cin], w, dg_cell);
                     }
                     if let Some(dw) = dw.as_mut() {
-                        dw[c] = dot(dg_cell, &features[i * cin..(i + 1) * cin]);
+                        dw[c] = dot_in_lanes(dg_cell, &features[i * cin..(i + 1) * cin]);
                     }
                 });
             });
@@ -136,7 +136,7 @@ impl<'a, T: Real> SparseOp<'a, T> {
                         axpy(&mut acc[at * cout..(at + 1) * cout], w, d);
                     }
                     if let (Some(dw), Some(h)) = (dw.as_mut(), h) {
-                        dw[c] = dot(d, &h[at * cout..(at + 1) * cout]);
+                        dw[c] = dot_in_lanes(d, &h[at * cout..(at + 1) * cout]);
                     }
                 });
             });

@@ -217,6 +217,8 @@ fn fused_matches_composed_gather_first() {
     check(4, 32, true);
     check(96, 64, true);
     check(3, 32, false);
+    // more than one chunk of output points (65,536 / 288 = 227 of the 250 per chunk)
+    check(288, 72, true);
 }
 
 #[test]
