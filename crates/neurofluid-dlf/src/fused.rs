@@ -180,8 +180,8 @@ pub struct HostConvGrads<T> {
 }
 
 /// The backward pass of [`host_forward`] for `d_out [M, Cout]`; `need` = which of
-/// `[features, weights, kernel]` to compute. Sums run in an order fixed by the sizes alone, so
-/// the result does not depend on the number of threads.
+/// `[features, weights, kernel]` to compute. The kernel's and the weights' gradients are summed
+/// in an order fixed by the sizes; the features' in one buffer per worker thread.
 pub fn host_backward<T: Lanes>(
     op: SparseOp<'_, T>,
     features: &[T],
