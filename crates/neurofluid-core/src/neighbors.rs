@@ -11,6 +11,10 @@
 //!   bit-identical to the query is skipped when asked (`radius_search_ignore_query_points`).
 //! - [`NeighborGrid::ball_query`]: at most K points with `d² < r²` (strict), the K lowest-index
 //!   ones (pytorch3d `ball_query`, PhysNeRF's default) or the K nearest; empty slots are flagged.
+//!   The nearest K are searched on a finer dense grid built for the call (cells a quarter of the
+//!   radius, one slice of points per column of cells), which stops near the query when it can
+//!   prove that nothing farther is nearer; it falls back to the hashed grid when the points are
+//!   spread too far for a dense one.
 //!
 //! Why not a crate (kiddo, rstar): parity needs exactly these two semantics — Open3D's inclusive
 //! float32 test and pytorch3d's strict, index-ordered cap of K — which a k-d tree's nearest-K or
@@ -309,6 +313,10 @@ impl<'a> NeighborGrid<'a> {
                 count,
             };
         }
+        let columns = match selection {
+            NeighborSelection::Nearest => ColumnGrid::new(self.points, radius),
+            NeighborSelection::LowestIndex => None,
+        };
         idx.par_chunks_mut(CHUNK * k)
             .zip(d2.par_chunks_mut(CHUNK * k))
             .zip(count.par_chunks_mut(CHUNK))
@@ -317,13 +325,19 @@ impl<'a> NeighborGrid<'a> {
                 let mut buckets = Vec::with_capacity(27);
                 let mut best: Vec<(u32, f32)> = Vec::with_capacity(4 * k);
                 for (qi, &q) in chunk.iter().enumerate() {
-                    self.buckets_around(q, radius, &mut buckets);
                     best.clear();
-                    match selection {
-                        NeighborSelection::LowestIndex => {
+                    match (selection, &columns) {
+                        (NeighborSelection::Nearest, Some(columns)) => {
+                            columns.nearest_k(q, radius, k, &mut best)
+                        }
+                        (NeighborSelection::Nearest, None) => {
+                            self.buckets_around(q, radius, &mut buckets);
+                            self.nearest_k(q, r2, k, &buckets, &mut best)
+                        }
+                        (NeighborSelection::LowestIndex, _) => {
+                            self.buckets_around(q, radius, &mut buckets);
                             self.lowest_k(q, r2, k, &buckets, &mut best)
                         }
-                        NeighborSelection::Nearest => self.nearest_k(q, r2, k, &buckets, &mut best),
                     }
                     count[qi] = best.len() as u32;
                     for (s, &(i, d)) in best.iter().enumerate() {
@@ -385,12 +399,213 @@ impl<'a> NeighborGrid<'a> {
                 }
             }
         }
-        let key = |a: &(u32, f32), b: &(u32, f32)| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0));
-        if best.len() > k {
-            best.select_nth_unstable_by(k - 1, key);
-            best.truncate(k);
+        keep_nearest(best, k);
+    }
+}
+
+/// Orders `best` by (distance, index) and keeps its first `k`.
+fn keep_nearest(best: &mut Vec<(u32, f32)>, k: usize) {
+    let key = |a: &(u32, f32), b: &(u32, f32)| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0));
+    if best.len() > k {
+        best.select_nth_unstable_by(k - 1, key);
+        best.truncate(k);
+    }
+    best.sort_unstable_by(key);
+}
+
+/// Cells per search radius of [`ColumnGrid`].
+const CELLS_PER_RADIUS: f32 = 4.0;
+
+/// Half-width in cells of the cube a nearest-K query scans first.
+const FIRST_REACH: i64 = 2;
+
+/// A dense grid over the points' bounding box for the nearest-K query, its cells a quarter of
+/// the radius wide and its points sorted by cell with `z` fastest, so that a box of cells is
+/// one contiguous slice per `(x, y)` column. A query scans the cube of cells 2 around its own
+/// first and stops there when its K-th nearest is closer than anything outside that cube (in
+/// PhysNeRF's fluids the K-th nearest is about a fifth of the radius away); otherwise it scans
+/// every cell that touches the ball.
+struct ColumnGrid {
+    origin: [f32; 3],
+    inv_cell: f32,
+    dims: [i64; 3],
+    /// `cells + 1` offsets into `order` and `pos`.
+    starts: Vec<u32>,
+    /// Point indices by cell (ascending within a cell).
+    order: Vec<u32>,
+    /// The points' positions in `order`'s order.
+    pos: Vec<[f32; 3]>,
+}
+
+/// A box of cells `lo..=hi` (inclusive on every axis).
+type CellBox = ([i64; 3], [i64; 3]);
+
+impl ColumnGrid {
+    /// The grid for ball queries of `radius`, or None when it would have more than 8 cells per
+    /// point (particles spread far apart) or there are no finite points.
+    fn new(points: &[[f32; 3]], radius: f32) -> Option<Self> {
+        let finite = |p: &&[f32; 3]| p.iter().all(|c| c.is_finite());
+        let mut lo = [f32::INFINITY; 3];
+        let mut hi = [f32::NEG_INFINITY; 3];
+        for p in points.iter().filter(finite) {
+            for a in 0..3 {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
+            }
         }
-        best.sort_unstable_by(key);
+        let inv_cell = CELLS_PER_RADIUS / radius;
+        if lo[0] > hi[0] || !inv_cell.is_finite() {
+            return None;
+        }
+        let mut dims = [0i64; 3];
+        for a in 0..3 {
+            let span = (f64::from(hi[a]) - f64::from(lo[a])) * f64::from(inv_cell);
+            if span > 1e6 {
+                return None;
+            }
+            dims[a] = span.floor() as i64 + 1;
+        }
+        let cells = (dims[0] * dims[1] * dims[2]) as usize;
+        if cells > 8 * points.len() + 4096 {
+            return None;
+        }
+        let mut grid = Self {
+            origin: lo,
+            inv_cell,
+            dims,
+            starts: vec![0u32; cells + 1],
+            order: Vec::new(),
+            pos: Vec::new(),
+        };
+        let keys: Vec<usize> = points
+            .iter()
+            .map(|p| {
+                if finite(&p) {
+                    grid.index(grid.cell_of(*p), true)
+                } else {
+                    usize::MAX
+                }
+            })
+            .collect();
+        for &key in keys.iter().filter(|&&key| key != usize::MAX) {
+            grid.starts[key + 1] += 1;
+        }
+        for c in 0..cells {
+            grid.starts[c + 1] += grid.starts[c];
+        }
+        let mut fill = grid.starts.clone();
+        let total = grid.starts[cells] as usize;
+        grid.order = vec![0u32; total];
+        grid.pos = vec![[0f32; 3]; total];
+        for (i, &key) in keys.iter().enumerate() {
+            if key != usize::MAX {
+                let slot = fill[key] as usize;
+                grid.order[slot] = i as u32;
+                grid.pos[slot] = points[i];
+                fill[key] += 1;
+            }
+        }
+        Some(grid)
+    }
+
+    /// The cell of `p`, not bounded by the grid (a query may lie outside it) but by ±2⁴⁰, so
+    /// that cell arithmetic cannot overflow.
+    fn cell_of(&self, p: [f32; 3]) -> [i64; 3] {
+        const FAR: i64 = 1 << 40;
+        [0, 1, 2]
+            .map(|a| (((p[a] - self.origin[a]) * self.inv_cell).floor() as i64).clamp(-FAR, FAR))
+    }
+
+    /// The index of cell `c`, clamped into the grid when `clamp` (a point's cell off the edge
+    /// by rounding).
+    fn index(&self, c: [i64; 3], clamp: bool) -> usize {
+        let c = if clamp {
+            [0, 1, 2].map(|a| c[a].clamp(0, self.dims[a] - 1))
+        } else {
+            c
+        };
+        ((c[0] * self.dims[1] + c[1]) * self.dims[2] + c[2]) as usize
+    }
+
+    /// The box `lo..=hi` clipped to the grid, None when nothing is left.
+    fn clip(&self, (lo, hi): CellBox) -> Option<CellBox> {
+        let lo = [0, 1, 2].map(|a| lo[a].max(0));
+        let hi = [0, 1, 2].map(|a| hi[a].min(self.dims[a] - 1));
+        (0..3).all(|a| lo[a] <= hi[a]).then_some((lo, hi))
+    }
+
+    /// Pushes every point of the (clipped) box with `d² < r2` onto `best`.
+    fn scan(&self, q: [f32; 3], (lo, hi): CellBox, r2: f32, best: &mut Vec<(u32, f32)>) {
+        for x in lo[0]..=hi[0] {
+            for y in lo[1]..=hi[1] {
+                let first = self.starts[self.index([x, y, lo[2]], false)] as usize;
+                let last = self.starts[self.index([x, y, hi[2]], false) + 1] as usize;
+                for (&i, &p) in self.order[first..last].iter().zip(&self.pos[first..last]) {
+                    let d = dist2(p, q);
+                    if d < r2 {
+                        best.push((i, d));
+                    }
+                }
+            }
+        }
+    }
+
+    /// The `k` nearest points with `d² < radius²`, by ascending (distance, index).
+    fn nearest_k(&self, q: [f32; 3], radius: f32, k: usize, best: &mut Vec<(u32, f32)>) {
+        if q.iter().any(|c| !c.is_finite()) {
+            return;
+        }
+        let r2 = radius * radius;
+        let c = self.cell_of(q);
+        let cube = (c.map(|v| v - FIRST_REACH), c.map(|v| v + FIRST_REACH));
+        if let Some(first) = self.clip(cube) {
+            self.scan(q, first, r2, best);
+            if best.len() >= k {
+                keep_nearest(best, k);
+                let kth = best.last().map_or(0.0, |&(_, d)| d);
+                if f64::from(kth) < self.clearance(q, c) {
+                    return;
+                }
+            }
+            best.clear();
+        }
+        // every cell that touches the ball (a margin of a few ulps against rounding)
+        let scale = q.iter().fold(0f32, |m, v| m.max(v.abs()));
+        let r = radius * (1.0 + 1e-4) + 5e-7 * scale;
+        let ball = (
+            self.cell_of(q.map(|v| v - r)),
+            self.cell_of(q.map(|v| v + r)),
+        );
+        if let Some(ball) = self.clip(ball) {
+            self.scan(q, ball, r2, best);
+        }
+        keep_nearest(best, k);
+    }
+
+    /// A lower bound on `d²` from `q` (in cell `c`) to every point outside the cube of cells
+    /// [`FIRST_REACH`] around `c` (sides at the grid's edge bound nothing), or 0 when none can
+    /// be given safely.
+    fn clearance(&self, q: [f32; 3], c: [i64; 3]) -> f64 {
+        let h = 1.0 / f64::from(self.inv_cell);
+        let mut gap = f64::INFINITY;
+        let mut scale = 0f64;
+        for a in 0..3 {
+            let (qa, oa) = (f64::from(q[a]), f64::from(self.origin[a]));
+            scale = scale.max(qa.abs()).max(oa.abs());
+            if c[a] - FIRST_REACH > 0 {
+                gap = gap.min(qa - (oa + (c[a] - FIRST_REACH) as f64 * h));
+            }
+            if c[a] + FIRST_REACH < self.dims[a] - 1 {
+                gap = gap.min(oa + (c[a] + FIRST_REACH + 1) as f64 * h - qa);
+            }
+        }
+        // rounding of the cell keys and of d² (a few ulps), kept well on the safe side
+        let gap = gap - 1e-6 * (scale + 2.0 * h);
+        if gap > 0.0 {
+            gap * gap * (1.0 - 1e-5)
+        } else {
+            0.0
+        }
     }
 }
 
@@ -514,6 +729,20 @@ mod tests {
         check_all(&points, &queries, 0.1125, 20);
         check_all(&points, &queries, 0.225, 20);
         check_all(&points, &queries, 0.3, 5);
+    }
+
+    #[test]
+    fn lattices_with_tied_distances_match_brute_force() {
+        // PhysNeRF's case: K = 20 of ~380 particles in the ball, the K-th a fifth of the radius
+        // away, many exactly tied distances on a lattice (ties go to the lower index)
+        let lattice: Vec<[f32; 3]> = (0..13 * 13 * 13)
+            .map(|i| [i % 13, i / 13 % 13, i / 169].map(|c| 0.05 * c as f32 - 0.3))
+            .collect();
+        let mut queries = lattice[..400].to_vec();
+        queries.extend(cloud(800, 0.45, 8));
+        check_all(&lattice, &queries, 0.225, 20);
+        check_all(&lattice, &queries, 0.225, 1);
+        check_all(&lattice, &queries, 0.1, 60);
     }
 
     #[test]
