@@ -13,7 +13,7 @@ use burn::tensor::activation::relu;
 use rayon::prelude::*;
 
 use crate::matmul::{Epilogue, Lanes, LayoutA, PackedB, matmul};
-use crate::real::{Real, axpy, dot_in_lanes};
+use crate::real::{Real, axpy, dot_in_lanes, par_zeros};
 
 /// Rows of `x` per task of the forward pass and of `dx`.
 const ROWS_PER_TASK: usize = 1024;
@@ -53,7 +53,7 @@ impl Activation {
 pub fn forward<T: Lanes>(x: &[T], w: &[T], b: &[T], n: usize, act: Activation) -> Vec<T> {
     let k = rows_of(w, n);
     let m = x.len().checked_div(k).unwrap_or(0);
-    let mut y = vec![T::default(); m * n];
+    let mut y = par_zeros(m * n);
     if m == 0 || n == 0 {
         return y;
     }
@@ -229,7 +229,7 @@ pub fn backward<T: Lanes>(
     let d_w = need_w.then(|| sum_in_order(&dws, k * n));
     let d_b = need_b.then(|| sum_in_order(&dbs, n));
     let d_x = need_x.then(|| {
-        let mut dx = vec![T::zero(); m * k];
+        let mut dx = par_zeros(m * k);
         if k == 0 {
             return dx;
         }

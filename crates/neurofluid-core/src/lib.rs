@@ -17,6 +17,7 @@ pub mod metrics;
 pub mod neighbors;
 pub mod npz;
 pub mod params;
+pub mod posenc;
 pub mod real;
 pub mod scene;
 pub mod tensors;

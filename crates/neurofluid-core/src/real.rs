@@ -3,6 +3,8 @@
 
 use std::ops::AddAssign;
 
+use rayon::prelude::*;
+
 /// A float type of the host kernels (dense layers, DLF's sparse convolution).
 pub trait Real:
     Copy
@@ -15,10 +17,35 @@ pub trait Real:
     + bytemuck::Pod
     + burn::tensor::Element
 {
+    /// `2^l`, exactly.
+    fn of_power_of_two(l: usize) -> Self;
+    /// `(sin x, cos x)`, each as the standard library computes it.
+    fn sin_cos(self) -> (Self, Self);
 }
 
-impl Real for f32 {}
-impl Real for f64 {}
+macro_rules! impl_real {
+    ($t:ty) => {
+        impl Real for $t {
+            fn of_power_of_two(l: usize) -> Self {
+                (1u64 << l) as $t
+            }
+            #[inline]
+            fn sin_cos(self) -> (Self, Self) {
+                (self.sin(), self.cos())
+            }
+        }
+    };
+}
+impl_real!(f32);
+impl_real!(f64);
+
+/// `len` zeros written by rayon's threads: a large output buffer is cleared (and its pages
+/// touched) in parallel rather than on the calling thread before the parallel work starts.
+pub fn par_zeros<T: Real>(len: usize) -> Vec<T> {
+    let mut v = Vec::with_capacity(len);
+    v.par_extend(rayon::iter::repeat_n(T::zero(), len));
+    v
+}
 
 /// `dst += s·src`.
 pub fn axpy<T: Real>(dst: &mut [T], s: T, src: &[T]) {

@@ -14,7 +14,7 @@ use std::sync::Arc;
 use burn::prelude::*;
 use burn::tensor::{DType, TensorCreationOptions};
 use neurofluid_core::matmul::{Epilogue, Lanes, LayoutA, PackedB, par_matmul};
-use neurofluid_core::real::Real;
+use neurofluid_core::real::{Real, par_zeros};
 
 use crate::geometry::HostGeometry;
 use crate::mapping::KERNEL_CELLS;
@@ -161,7 +161,7 @@ pub fn host_forward<T: Lanes>(
 fn features_times<T: Lanes>(features: &[T], cin: usize, kt: &[T]) -> Vec<T> {
     let width = kt.len() / cin.max(1);
     let n = features.len() / cin.max(1);
-    let mut h = vec![T::zero(); n * width];
+    let mut h = par_zeros(n * width);
     let packed = PackedB::new(kt, width, 1, cin, width);
     let layout = LayoutA::Rows { stride: cin };
     par_matmul(features, layout, n, &packed, &mut h, width, Epilogue::Store);
@@ -269,7 +269,7 @@ pub fn host_backward<T: Lanes>(
             par_matmul(&g, layout, row_len, &packed, d_k, cout, epilogue);
         }
         if let Some(kt) = &kt {
-            let mut d_g = vec![T::zero(); len * row_len];
+            let mut d_g = par_zeros(len * row_len);
             let layout = LayoutA::Rows { stride: cout };
             par_matmul(d_out_c, layout, len, kt, &mut d_g, row_len, Epilogue::Store);
             op.gather_transpose(

@@ -14,7 +14,7 @@ use rayon::prelude::*;
 use crate::geometry::{CORNERS, HostGeometry};
 use crate::mapping::KERNEL_CELLS;
 
-use neurofluid_core::real::{Real, axpy, dot_in_lanes};
+use neurofluid_core::real::{Real, axpy, dot_in_lanes, par_zeros};
 
 /// The sparse operator `T`: a geometry's pairs and cells with pair-corner weights `[8P]`.
 #[derive(Clone, Copy)]
@@ -52,7 +52,7 @@ impl<'a, T: Real> SparseOp<'a, T> {
     /// `rows` (`q = rows.start + r`; the result has `rows.len()` rows).
     pub fn gather(&self, features: &[T], cin: usize, rows: Range<usize>) -> Vec<T> {
         let row_len = KERNEL_CELLS * cin;
-        let mut g = vec![T::default(); rows.len() * row_len];
+        let mut g = par_zeros(rows.len() * row_len);
         g.par_chunks_mut(row_len).enumerate().for_each(|(r, row)| {
             for_pairs(self.host, rows.start + r, |p, i| {
                 let f = &features[i * cin..(i + 1) * cin];

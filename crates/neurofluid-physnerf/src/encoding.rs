@@ -5,19 +5,7 @@ use burn::prelude::*;
 use crate::config::PhysNerfConfig;
 use crate::features::LocalFeatures;
 
-/// `γ_L(v) = [v, sin(v), cos(v), sin(2v), cos(2v), …, sin(2^{L−1}v), cos(2^{L−1}v)]`:
-/// identity first, no π, for each frequency the sin of every channel then the cos.
-/// `[Q, C] → [Q, C·(1 + 2L)]`.
-pub fn posenc(v: Tensor<2>, freqs: usize) -> Tensor<2> {
-    let mut out = Vec::with_capacity(1 + 2 * freqs);
-    out.push(v.clone());
-    for i in 0..freqs {
-        let fv = v.clone().mul_scalar((1u64 << i) as f64);
-        out.push(fv.clone().sin());
-        out.push(fv.cos());
-    }
-    Tensor::cat(out, 1)
-}
+pub use neurofluid_core::posenc::posenc;
 
 /// `e_x = [γ(x), γ(σ_p)?, γ(p_c)?, γ(v_d)?]` and `e_d = [γ(d), γ(d_c)?]` (switched-off terms
 /// are left out, the others keep their order). `x` and `d` are `[Q, 3]`.

@@ -1,0 +1,128 @@
+//! The host positional encoding (`neurofluid_core::posenc::posenc`: one operation with its own
+//! backward pass on flex) against the same encoding built from Burn's ops and Burn's gradient
+//! (f64 where the device has it, f32 too), and the gradient against central finite
+//! differences; sizes that cross the row split, inputs large enough for the high frequencies
+//! to wrap many times.
+
+use burn::prelude::*;
+use burn::tensor::{DType, TensorCreationOptions, TensorData};
+use neurofluid_core::device::{test_device, test_device_name};
+use neurofluid_core::posenc::{posenc, posenc_composed, try_host_posenc};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+fn tensor(v: &[f64], shape: [usize; 2], dtype: DType, device: &Device) -> Tensor<2> {
+    Tensor::from_data(
+        TensorData::new(v.to_vec(), shape),
+        TensorCreationOptions::new(device.clone()).with_dtype(dtype),
+    )
+}
+
+fn f64s(t: Tensor<2>) -> Vec<f64> {
+    t.into_data()
+        .convert::<f64>()
+        .try_to_vec::<f64>()
+        .expect("f64 values")
+}
+
+/// Output and input gradient of `Σ coeff ⊙ γ(v)` by the host or the composed path.
+fn run(
+    v: &[f64],
+    coeff: &[f64],
+    c: usize,
+    freqs: usize,
+    dtype: DType,
+    host: bool,
+) -> [Vec<f64>; 2] {
+    let ad = test_device().autodiff();
+    let rows = v.len() / c;
+    let x = tensor(v, [rows, c], dtype, &ad).require_grad();
+    let out = if host {
+        posenc(x.clone(), freqs)
+    } else {
+        posenc_composed(x.clone(), freqs)
+    };
+    let width = c * (1 + 2 * freqs);
+    let loss = (out.clone() * tensor(coeff, [rows, width], dtype, &ad)).sum();
+    let grads = loss.backward();
+    [f64s(out), f64s(x.grad(&grads).expect("gradient of v"))]
+}
+
+fn random(n: usize, scale: f64, rng: &mut ChaCha8Rng) -> Vec<f64> {
+    (0..n).map(|_| rng.random_range(-scale..scale)).collect()
+}
+
+fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
+    assert_eq!(a.len(), b.len());
+    a.iter().zip(b).fold(0.0, |m, (x, y)| m.max((x - y).abs()))
+}
+
+#[test]
+fn host_encoding_matches_burns_ops_and_gradient() {
+    let device = test_device();
+    let mut dtypes = vec![DType::F32];
+    if device.supports_dtype(DType::F64) {
+        dtypes.push(DType::F64);
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    // (rows, channels, frequencies): one row, a row split's edge, several tasks
+    for (rows, c, freqs) in [(1, 3, 10), (512, 1, 4), (1300, 3, 6), (700, 2, 0)] {
+        let v = random(rows * c, 2.0, &mut rng);
+        let coeff = random(rows * c * (1 + 2 * freqs), 1.0, &mut rng);
+        for &dtype in &dtypes {
+            let host = run(&v, &coeff, c, freqs, dtype, true);
+            let composed = run(&v, &coeff, c, freqs, dtype, false);
+            // the same sines and cosines; the gradient's terms summed in another order
+            let tol = if dtype == DType::F64 { 1e-12 } else { 2e-4 };
+            assert_eq!(host[0], composed[0], "{rows}×{c}, L = {freqs}: output");
+            let e = max_abs_diff(&host[1], &composed[1]);
+            assert!(
+                e < tol,
+                "{rows}×{c}, L = {freqs}, {dtype:?}: gradient differs by {e:.2e}"
+            );
+        }
+    }
+}
+
+#[test]
+fn host_gradient_matches_finite_differences() {
+    let device = test_device();
+    if !device.supports_dtype(DType::F64) {
+        return;
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(6);
+    let (rows, c, freqs) = (40, 3, 5);
+    let v = random(rows * c, 1.5, &mut rng);
+    let coeff = random(rows * c * (1 + 2 * freqs), 1.0, &mut rng);
+    let [_, grad] = run(&v, &coeff, c, freqs, DType::F64, true);
+    let loss = |v: &[f64]| -> f64 {
+        let out = f64s(posenc(tensor(v, [rows, c], DType::F64, &device), freqs));
+        out.iter().zip(&coeff).map(|(o, k)| o * k).sum()
+    };
+    let h = 1e-6;
+    for i in (0..v.len()).step_by(7) {
+        let (mut up, mut down) = (v.clone(), v.clone());
+        up[i] += h;
+        down[i] -= h;
+        let fd = (loss(&up) - loss(&down)) / (2.0 * h);
+        assert!(
+            (fd - grad[i]).abs() < 1e-6 * (1.0 + fd.abs()),
+            "v[{i}]: analytic {} vs finite difference {fd}",
+            grad[i]
+        );
+    }
+}
+
+/// On the CPU (flex, plain and with autodiff) the host operation is the one `posenc` takes.
+#[test]
+fn the_cpu_takes_the_host_path() {
+    if test_device_name() != "cpu" {
+        return;
+    }
+    let device = test_device();
+    let v = tensor(&[0.1, 0.2, 0.3], [1, 3], DType::F32, &device);
+    assert!(try_host_posenc(&v, 4).is_some());
+    let ad = device.autodiff();
+    let v = tensor(&[0.1, 0.2, 0.3], [1, 3], DType::F32, &ad).require_grad();
+    assert!(try_host_posenc(&v, 4).is_some());
+}
