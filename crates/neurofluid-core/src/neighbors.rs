@@ -423,8 +423,8 @@ const FIRST_REACH: i64 = 2;
 /// the radius wide and its points sorted by cell with `z` fastest, so that a box of cells is
 /// one contiguous slice per `(x, y)` column. A query scans the cube of cells 2 around its own
 /// first and stops there when its K-th nearest is closer than anything outside that cube (in
-/// PhysNeRF's fluids the K-th nearest is about a fifth of the radius away); otherwise it scans
-/// every cell that touches the ball.
+/// PhysNeRF's fluids the K-th nearest is about a third of the radius away, inside the cube);
+/// otherwise it scans every cell that touches the ball.
 struct ColumnGrid {
     origin: [f32; 3],
     inv_cell: f32,
@@ -733,7 +733,7 @@ mod tests {
 
     #[test]
     fn lattices_with_tied_distances_match_brute_force() {
-        // PhysNeRF's case: K = 20 of ~380 particles in the ball, the K-th a fifth of the radius
+        // PhysNeRF's case: K = 20 of ~380 particles in the ball, the K-th a third of the radius
         // away, many exactly tied distances on a lattice (ties go to the lower index)
         let lattice: Vec<[f32; 3]> = (0..13 * 13 * 13)
             .map(|i| [i % 13, i / 13 % 13, i / 169].map(|c| 0.05 * c as f32 - 0.3))
