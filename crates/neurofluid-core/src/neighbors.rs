@@ -143,6 +143,14 @@ fn dist2(a: [f32; 3], b: [f32; 3]) -> f32 {
     dx * dx + dy * dy + dz * dz
 }
 
+/// The half-width of a box around `q` that holds every point within `radius` of it: `radius`
+/// and a margin of a few ulps, so that the cells found from the box's corners stay a superset
+/// under float rounding.
+fn conservative_reach(q: [f32; 3], radius: f32) -> f32 {
+    let scale = q[0].abs().max(q[1].abs()).max(q[2].abs());
+    radius * (1.0 + 1e-4) + 5e-7 * scale
+}
+
 /// Queries are split into chunks of this many for the parallel loops.
 const CHUNK: usize = 1024;
 
@@ -200,9 +208,7 @@ impl<'a> NeighborGrid<'a> {
         if self.order.is_empty() {
             return;
         }
-        // a margin of a few ulps keeps the cell range conservative under float rounding
-        let scale = q[0].abs().max(q[1].abs()).max(q[2].abs());
-        let r = radius * (1.0 + 1e-4) + 5e-7 * scale;
+        let r = conservative_reach(q, radius);
         let (Some(lo), Some(hi)) = (
             cell_of([q[0] - r, q[1] - r, q[2] - r], self.inv_cell),
             cell_of([q[0] + r, q[1] + r, q[2] + r], self.inv_cell),
@@ -569,9 +575,8 @@ impl ColumnGrid {
             }
             best.clear();
         }
-        // every cell that touches the ball (a margin of a few ulps against rounding)
-        let scale = q.iter().fold(0f32, |m, v| m.max(v.abs()));
-        let r = radius * (1.0 + 1e-4) + 5e-7 * scale;
+        // every cell that touches the ball
+        let r = conservative_reach(q, radius);
         let ball = (
             self.cell_of(q.map(|v| v - r)),
             self.cell_of(q.map(|v| v + r)),
