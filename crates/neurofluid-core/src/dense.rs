@@ -49,28 +49,90 @@ impl Activation {
     }
 }
 
-/// `act(x·W + b)` for `x [m, k]` (row-major, `k ≥ 1`), `w [k, n]`, `b [n]` → `[m, n]`.
-pub fn forward<T: Lanes>(x: &[T], w: &[T], b: &[T], n: usize, act: Activation) -> Vec<T> {
+/// The input of a dense layer: column blocks side by side, `x = cat[x₁, x₂, …]`, each given
+/// as its row-major values `[m, kᵢ]` and its column count `kᵢ ≥ 1` (the layer's skip and
+/// direction inputs are not copied into one matrix: `x·W = Σ xᵢ·Wᵢ` over the row blocks Wᵢ).
+pub type Blocks<'a, T> = [(&'a [T], usize)];
+
+/// Rows of the layer's input (0 without blocks).
+fn rows_of_blocks<T>(xs: &Blocks<'_, T>) -> usize {
+    xs.first()
+        .map_or(0, |(x, k)| x.len().checked_div(*k).unwrap_or(0))
+}
+
+/// Rows `r0..r0 + rows` of an input block.
+fn row_range<'a, T>(&(x, k): &(&'a [T], usize), r0: usize, rows: usize) -> &'a [T] {
+    &x[r0 * k..(r0 + rows) * k]
+}
+
+/// The first weight row of each block.
+fn block_offsets<T>(xs: &Blocks<'_, T>) -> Vec<usize> {
+    xs.iter()
+        .scan(0, |at, &(_, k)| {
+            let o = *at;
+            *at += k;
+            Some(o)
+        })
+        .collect()
+}
+
+/// `act(x·W + b)` for `x = cat[xᵢ] [m, k]` ([`Blocks`]), `w [k, n]`, `b [n]` → `[m, n]`.
+pub fn forward<T: Lanes>(
+    xs: &Blocks<'_, T>,
+    w: &[T],
+    b: &[T],
+    n: usize,
+    act: Activation,
+) -> Vec<T> {
     let k = rows_of(w, n);
-    let m = x.len().checked_div(k).unwrap_or(0);
+    let m = rows_of_blocks(xs);
     let mut y = par_zeros(m * n);
     if m == 0 || n == 0 {
         return y;
     }
     let relu = act == Activation::Relu;
+    let offsets = block_offsets(xs);
     let wt = narrow_transposed(w, k, n);
-    let packed = (n >= NARROW).then(|| PackedB::new(w, n, 1, k, n));
+    // one packed Wᵢ per block
+    let packed: Vec<PackedB<T>> = if n >= NARROW {
+        xs.iter()
+            .zip(&offsets)
+            .map(|(&(_, kb), &o)| PackedB::new(&w[o * n..(o + kb) * n], n, 1, kb, n))
+            .collect()
+    } else {
+        Vec::new()
+    };
     y.par_chunks_mut(ROWS_PER_TASK * n)
-        .zip(x.par_chunks(ROWS_PER_TASK * k))
-        .for_each(|(yc, xc)| {
+        .enumerate()
+        .for_each(|(task, yc)| {
             let rows = yc.len() / n;
-            if let Some(packed) = &packed {
-                let bias = Epilogue::Bias { bias: b, relu };
-                matmul(xc, LayoutA::Rows { stride: k }, rows, packed, yc, n, bias);
+            let r0 = task * ROWS_PER_TASK;
+            if !packed.is_empty() {
+                for (i, (xb, pb)) in xs.iter().zip(&packed).enumerate() {
+                    let epilogue = match i {
+                        0 => Epilogue::Bias {
+                            bias: b,
+                            relu: relu && xs.len() == 1,
+                        },
+                        _ => Epilogue::Add,
+                    };
+                    let layout = LayoutA::Rows { stride: xb.1 };
+                    let xc = row_range(xb, r0, rows);
+                    matmul(xc, layout, rows, pb, yc, n, epilogue);
+                }
+                if relu && xs.len() > 1 {
+                    clamp_negative(yc);
+                }
             } else {
-                for (yr, xr) in yc.chunks_mut(n).zip(xc.chunks(k)) {
-                    for ((o, wj), &bj) in yr.iter_mut().zip(wt.chunks(k)).zip(b) {
-                        *o = bj + dot_in_lanes(xr, wj);
+                for yr in yc.chunks_mut(n) {
+                    yr.copy_from_slice(b);
+                }
+                for (xb, &o) in xs.iter().zip(&offsets) {
+                    let kb = xb.1;
+                    for (yr, xr) in yc.chunks_mut(n).zip(row_range(xb, r0, rows).chunks(kb)) {
+                        for (y, wj) in yr.iter_mut().zip(wt.chunks(k)) {
+                            *y += dot_in_lanes(xr, &wj[o..o + kb]);
+                        }
                     }
                 }
                 if relu {
@@ -132,8 +194,8 @@ fn sum_in_order<T: Real>(parts: &[Vec<T>], len: usize) -> Vec<T> {
 /// Gradients of a dense layer, each only when asked for.
 #[derive(Debug, Default)]
 pub struct DenseGrads<T> {
-    /// `[m, k]`.
-    pub x: Option<Vec<T>>,
+    /// `[m, kᵢ]` for each input block.
+    pub x: Vec<Option<Vec<T>>>,
     /// `[k, n]`.
     pub w: Option<Vec<T>>,
     /// `[n]`.
@@ -141,26 +203,38 @@ pub struct DenseGrads<T> {
 }
 
 /// The backward pass of [`forward`] for `dy [m, n]`; `y` is the forward output (read for the
-/// ReLU's mask, may be empty for the identity). `need` = which of `[x, w, b]` to compute.
+/// ReLU's mask, may be empty for the identity). `need` = which of `[x₁, …, x_p, w, b]` to
+/// compute (the order of the autodiff operation's parents).
 ///
 /// One parallel pass over blocks of rows ([`rows_per_partial`]: sized by the batch, not by the
 /// threads) masks `dy` and sums the blocks' `dW` and `db` (added in block order, so the result
-/// does not depend on the number of threads); a second computes `dx`.
+/// does not depend on the number of threads); a second computes each `dxᵢ`.
 pub fn backward<T: Lanes>(
-    x: &[T],
+    xs: &Blocks<'_, T>,
     w: &[T],
     y: &[T],
     mut dz: Vec<T>,
     n: usize,
     act: Activation,
-    need: [bool; 3],
+    need: &[bool],
 ) -> DenseGrads<T> {
-    let [need_x, need_w, need_b] = need;
+    let p = xs.len();
+    assert_eq!(
+        need.len(),
+        p + 2,
+        "one flag per input block, the weight and the bias"
+    );
+    let (need_x, need_w, need_b) = (&need[..p], need[p], need[p + 1]);
     let k = rows_of(w, n);
     let m = dz.len() / n.max(1);
+    let offsets = block_offsets(xs);
     if m == 0 || n == 0 {
         return DenseGrads {
-            x: need_x.then(|| vec![T::default(); m * k]),
+            x: xs
+                .iter()
+                .zip(need_x)
+                .map(|(&(_, kb), &need)| need.then(|| vec![T::default(); m * kb]))
+                .collect(),
             w: need_w.then(|| vec![T::default(); k * n]),
             b: need_b.then(|| vec![T::default(); n]),
         };
@@ -189,37 +263,42 @@ pub fn backward<T: Lanes>(
             }
             let mut dw = Vec::new();
             if need_w {
-                let xc = &x[r0 * k..(r0 + rows) * k];
                 dw = vec![T::zero(); k * n];
                 if n < NARROW {
-                    // dWᵀ[j] += dz[r, j] · x[r]
-                    for (dzr, xr) in dzc.chunks(n).zip(xc.chunks(k.max(1))) {
-                        for (j, &g) in dzr.iter().enumerate() {
-                            axpy(&mut dw[j * k..(j + 1) * k], g, xr);
+                    // dWᵀ[j, oᵢ..oᵢ + kᵢ] += dz[r, j] · xᵢ[r]
+                    for (xb, &o) in xs.iter().zip(&offsets) {
+                        let (xc, kb) = (row_range(xb, r0, rows), xb.1);
+                        for (dzr, xr) in dzc.chunks(n).zip(xc.chunks(kb)) {
+                            for (j, &g) in dzr.iter().enumerate() {
+                                axpy(&mut dw[j * k + o..j * k + o + kb], g, xr);
+                            }
                         }
                     }
                     dw = transposed(&dw, n, k);
-                } else if k > 0 {
-                    // dW = xᵀ·dz, `dz` packed a slice of rows at a time, summed in row order
-                    let slices = dzc
-                        .chunks(ROWS_PER_PACK * n)
-                        .zip(xc.chunks(ROWS_PER_PACK * k));
-                    for (s, (dzs, xs)) in slices.enumerate() {
+                } else {
+                    // dWᵢ = xᵢᵀ·dz, `dz` packed a slice of rows at a time, summed in row order
+                    let mut packs = dzc.chunks(ROWS_PER_PACK * n).enumerate();
+                    for (s, dzs) in &mut packs {
                         let packed = PackedB::new(dzs, n, 1, dzs.len() / n, n);
                         let epilogue = if s == 0 {
                             Epilogue::Store
                         } else {
                             Epilogue::Add
                         };
-                        matmul(
-                            xs,
-                            LayoutA::Cols { stride: k },
-                            k,
-                            &packed,
-                            &mut dw,
-                            n,
-                            epilogue,
-                        );
+                        let pr0 = r0 + s * ROWS_PER_PACK;
+                        let prows = dzs.len() / n;
+                        for (xb, &o) in xs.iter().zip(&offsets) {
+                            let kb = xb.1;
+                            matmul(
+                                row_range(xb, pr0, prows),
+                                LayoutA::Cols { stride: kb },
+                                kb,
+                                &packed,
+                                &mut dw[o * n..(o + kb) * n],
+                                n,
+                                epilogue,
+                            );
+                        }
                     }
                 }
             }
@@ -228,32 +307,13 @@ pub fn backward<T: Lanes>(
         .unzip();
     let d_w = need_w.then(|| sum_in_order(&dws, k * n));
     let d_b = need_b.then(|| sum_in_order(&dbs, n));
-    let d_x = need_x.then(|| {
-        let mut dx = par_zeros(m * k);
-        if k == 0 {
-            return dx;
-        }
-        let wt = narrow_transposed(w, k, n);
-        // Wᵀ [n, k] packed
-        let packed = (n >= NARROW).then(|| PackedB::new(w, 1, n, n, k));
-        dx.par_chunks_mut(ROWS_PER_TASK * k)
-            .zip(dz.par_chunks(ROWS_PER_TASK * n))
-            .for_each(|(dxc, dzc)| {
-                if let Some(packed) = &packed {
-                    let rows = dzc.len() / n;
-                    let layout = LayoutA::Rows { stride: n };
-                    matmul(dzc, layout, rows, packed, dxc, k, Epilogue::Store);
-                } else {
-                    // dx[r] = Σ_j dz[r, j] · W[:, j]
-                    for (dxr, dzr) in dxc.chunks_mut(k).zip(dzc.chunks(n)) {
-                        for (&g, wj) in dzr.iter().zip(wt.chunks(k)) {
-                            axpy(dxr, g, wj);
-                        }
-                    }
-                }
-            });
-        dx
-    });
+    let wt = narrow_transposed(w, k, n);
+    let d_x = xs
+        .iter()
+        .zip(&offsets)
+        .zip(need_x)
+        .map(|((&(_, kb), &o), &need)| need.then(|| input_gradient(&dz, w, &wt, n, o, kb)))
+        .collect();
     DenseGrads {
         x: d_x,
         w: d_w,
@@ -261,26 +321,70 @@ pub fn backward<T: Lanes>(
     }
 }
 
+/// `dxᵢ = dz·Wᵢᵀ [m, kᵢ]` for the input block whose weight rows are `o..o + kᵢ`; `wt` is `Wᵀ`
+/// when the output is narrow ([`narrow_transposed`]).
+fn input_gradient<T: Lanes>(dz: &[T], w: &[T], wt: &[T], n: usize, o: usize, kb: usize) -> Vec<T> {
+    let m = dz.len() / n;
+    let k = rows_of(w, n);
+    let mut dx = par_zeros(m * kb);
+    // Wᵢᵀ [n, kᵢ] packed
+    let packed = (n >= NARROW).then(|| PackedB::new(&w[o * n..(o + kb) * n], 1, n, n, kb));
+    dx.par_chunks_mut(ROWS_PER_TASK * kb)
+        .zip(dz.par_chunks(ROWS_PER_TASK * n))
+        .for_each(|(dxc, dzc)| {
+            if let Some(packed) = &packed {
+                let rows = dzc.len() / n;
+                let layout = LayoutA::Rows { stride: n };
+                matmul(dzc, layout, rows, packed, dxc, kb, Epilogue::Store);
+            } else {
+                // dxᵢ[r] = Σ_j dz[r, j] · Wᵢ[:, j]
+                for (dxr, dzr) in dxc.chunks_mut(kb).zip(dzc.chunks(n)) {
+                    for (&g, wj) in dzr.iter().zip(wt.chunks(k)) {
+                        axpy(dxr, g, &wj[o..o + kb]);
+                    }
+                }
+            }
+        });
+    dx
+}
+
 /// `act(layer(x))`: one host operation on flex (with or without autodiff) when the layer has a
 /// bias and every tensor is f32 or f64 of one type; Burn's ops otherwise.
 pub fn linear(layer: &Linear, x: Tensor<2>, act: Activation) -> Tensor<2> {
+    linear_of_cat(layer, vec![x], act)
+}
+
+/// `act(layer(cat[x₁, x₂, …]))` (column blocks side by side, as the MLP's skip and direction
+/// inputs): on flex one host operation that reads the blocks in place ([`Blocks`]); Burn's
+/// `cat` and ops otherwise.
+///
+/// # Panics
+/// When `xs` is empty.
+pub fn linear_of_cat(layer: &Linear, xs: Vec<Tensor<2>>, act: Activation) -> Tensor<2> {
     if let Some(bias) = &layer.bias
-        && let Some(y) = try_host_linear(&x, &layer.weight.val(), &bias.val(), act)
+        && let Some(y) = try_host_linear(&xs, &layer.weight.val(), &bias.val(), act)
     {
         return y;
     }
+    let x = if xs.len() == 1 {
+        xs.into_iter().next().expect("one input")
+    } else {
+        Tensor::cat(xs, 1)
+    };
     act.apply(layer.forward(x))
 }
 
-/// The host dense layer `act(x·w + b)` when `x`, `w`, `b` are all flex tensors (with autodiff
-/// without checkpointing, or plain) of one float type, f32 or f64; `None` otherwise.
+/// The host dense layer `act(cat[xᵢ]·w + b)` when the inputs (one or two blocks of at least
+/// one column, the same rows), `w` and `b` are all flex tensors (with autodiff without
+/// checkpointing, or plain) of one float type, f32 or f64, and the shapes fit; `None`
+/// otherwise.
 #[cfg(feature = "flex")]
 pub use flex_op::try_host_linear;
 
 /// Without the flex backend compiled in there is no host path.
 #[cfg(not(feature = "flex"))]
 pub fn try_host_linear(
-    _x: &Tensor<2>,
+    _xs: &[Tensor<2>],
     _w: &Tensor<2>,
     _b: &Tensor<1>,
     _act: Activation,
@@ -300,50 +404,50 @@ mod flex_op {
     use burn::backend::{Autodiff, Flex};
     use burn::tensor::DType;
 
-    /// The backward step: inputs (x, weight, bias).
+    /// The backward step: parents (x₁, …, x_p, weight, bias), `N = p + 2`.
     #[derive(Debug)]
-    struct DenseBackward;
+    struct DenseBackward<const N: usize>;
 
     #[derive(Debug, Clone)]
     struct State {
-        x: FlexTensor,
+        xs: Vec<FlexTensor>,
         w: FlexTensor,
         /// The output, kept for the ReLU's mask.
         y: Option<FlexTensor>,
         act: Activation,
     }
 
+    /// The input blocks' values and column counts.
+    fn blocks<T: Real>(xs: &[FlexTensor]) -> Vec<(&[T], usize)> {
+        xs.iter()
+            .map(|x| (slice::<T>(x), x.layout().shape()[1]))
+            .collect()
+    }
+
     fn forward_in<T: Lanes>(
-        x: &FlexTensor,
+        xs: &[FlexTensor],
         w: &FlexTensor,
         b: &FlexTensor,
         act: Activation,
     ) -> FlexTensor {
-        let m = x.layout().shape()[0];
+        let m = xs[0].layout().shape()[0];
         let n = w.layout().shape()[1];
-        tensor(
-            forward(slice::<T>(x), slice(w), slice(b), n, act),
-            vec![m, n],
-        )
+        let y = forward(&blocks::<T>(xs), slice(w), slice(b), n, act);
+        tensor(y, vec![m, n])
     }
 
-    impl Backward<Flex, 3> for DenseBackward {
+    impl<const N: usize> Backward<Flex, N> for DenseBackward<N> {
         type State = State;
 
-        fn backward(self, ops: Ops<State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
+        fn backward(self, ops: Ops<State, N>, grads: &mut Gradients, _: &mut Checkpointer) {
             let dy = contiguous(grads.consume::<Flex>(&ops.node));
-            let [px, pw, pb] = ops.parents;
-            let need = [px.is_some(), pw.is_some(), pb.is_some()];
+            let need: Vec<bool> = ops.parents.iter().map(Option::is_some).collect();
             let s = ops.state;
-            let [k, n] = [s.w.layout().shape()[0], s.w.layout().shape()[1]];
-            let m = s.x.layout().shape()[0];
-            let dtype = s.x.dtype();
-            let shapes = [vec![m, k], vec![k, n], vec![n]];
-            let g = match dtype {
-                DType::F64 => grads_in::<f64>(&s, dy, n, need, shapes),
-                _ => grads_in::<f32>(&s, dy, n, need, shapes),
+            let g = match s.w.dtype() {
+                DType::F64 => grads_in::<f64>(&s, dy, &need),
+                _ => grads_in::<f32>(&s, dy, &need),
             };
-            for (parent, grad) in [px, pw, pb].into_iter().zip(g) {
+            for (parent, grad) in ops.parents.into_iter().zip(g) {
                 if let (Some(node), Some(grad)) = (parent, grad) {
                     grads.register::<Flex>(node.id, grad);
                 }
@@ -351,66 +455,107 @@ mod flex_op {
         }
     }
 
-    /// The gradients of `[x, w, b]` as flex tensors of the given shapes.
-    fn grads_in<T: Lanes>(
-        s: &State,
-        dy: FlexTensor,
-        n: usize,
-        need: [bool; 3],
-        shapes: [Vec<usize>; 3],
-    ) -> [Option<FlexTensor>; 3] {
+    /// The gradients of `[x₁, …, x_p, w, b]` as flex tensors, those in `need`.
+    fn grads_in<T: Lanes>(s: &State, dy: FlexTensor, need: &[bool]) -> Vec<Option<FlexTensor>> {
+        let [k, n] = [s.w.layout().shape()[0], s.w.layout().shape()[1]];
+        let m = s.xs[0].layout().shape()[0];
         let dy: Vec<T> = dy
             .into_data()
             .try_into_vec()
             .expect("dy of the layer's float type");
         let y = s.y.as_ref().map(slice::<T>).unwrap_or(&[]);
-        let g = backward(slice::<T>(&s.x), slice(&s.w), y, dy, n, s.act, need);
-        let [sx, sw, sb] = shapes;
-        [(g.x, sx), (g.w, sw), (g.b, sb)].map(|(v, shape)| v.map(|v| tensor(v, shape)))
+        let g = backward(&blocks::<T>(&s.xs), slice(&s.w), y, dy, n, s.act, need);
+        let mut out: Vec<Option<FlexTensor>> =
+            g.x.into_iter()
+                .zip(&s.xs)
+                .map(|(v, x)| v.map(|v| tensor(v, vec![m, x.layout().shape()[1]])))
+                .collect();
+        out.push(g.w.map(|v| tensor(v, vec![k, n])));
+        out.push(g.b.map(|v| tensor(v, vec![n])));
+        out
     }
 
     /// See [`super::try_host_linear`].
     pub fn try_host_linear(
-        x: &Tensor<2>,
+        xs: &[Tensor<2>],
         w: &Tensor<2>,
         b: &Tensor<1>,
         act: Activation,
     ) -> Option<Tensor<2>> {
-        let dtype = x.dtype();
-        if !matches!(dtype, DType::F32 | DType::F64) || w.dtype() != dtype || b.dtype() != dtype {
+        let dtype = w.dtype();
+        if !matches!(dtype, DType::F32 | DType::F64)
+            || b.dtype() != dtype
+            || xs.iter().any(|x| x.dtype() != dtype)
+        {
             return None;
         }
-        let ([_, k], [kw, n], [nb]) = (x.dims(), w.dims(), b.dims());
-        if k == 0 || k != kw || n != nb {
+        let ([kw, n], [nb]) = (w.dims(), b.dims());
+        let m = xs.first()?.dims()[0];
+        let k: usize = xs.iter().map(|x| x.dims()[1]).sum();
+        if xs.iter().any(|x| x.dims()[1] == 0 || x.dims()[0] != m) || k != kw || n != nb {
             // no inputs, or shapes that do not fit: Burn's `Linear` (and its error)
             return None;
         }
-        let run = |x: &FlexTensor, w: &FlexTensor, b: &FlexTensor| match dtype {
-            DType::F64 => forward_in::<f64>(x, w, b, act),
-            _ => forward_in::<f32>(x, w, b, act),
-        };
-        if let (Ok(xp), Ok(wp), Ok(bp)) = (
-            x.clone().try_into_primitive::<Flex>(),
+        let plain = (
             w.clone().try_into_primitive::<Flex>(),
             b.clone().try_into_primitive::<Flex>(),
-        ) {
-            let y = run(&contiguous(xp), &contiguous(wp), &contiguous(bp));
+        );
+        if let (Ok(wp), Ok(bp)) = plain {
+            let xps = xs
+                .iter()
+                .map(|x| x.clone().try_into_primitive::<Flex>().ok().map(contiguous))
+                .collect::<Option<Vec<_>>>()?;
+            let y = run(&xps, &contiguous(wp), &contiguous(bp), act);
             return Some(Tensor::<2>::from_primitive::<Flex>(y));
         }
-        let xa = x.clone().try_into_primitive::<Autodiff<Flex>>().ok()?;
+        match xs.len() {
+            1 => tracked::<3>(xs, w, b, act),
+            2 => tracked::<4>(xs, w, b, act),
+            _ => None,
+        }
+    }
+
+    /// The forward pass in the weights' float type.
+    fn run(xs: &[FlexTensor], w: &FlexTensor, b: &FlexTensor, act: Activation) -> FlexTensor {
+        match w.dtype() {
+            DType::F64 => forward_in::<f64>(xs, w, b, act),
+            _ => forward_in::<f32>(xs, w, b, act),
+        }
+    }
+
+    /// The layer on autodiff tensors, with `N − 2` input blocks.
+    fn tracked<const N: usize>(
+        xs: &[Tensor<2>],
+        w: &Tensor<2>,
+        b: &Tensor<1>,
+        act: Activation,
+    ) -> Option<Tensor<2>> {
+        let xa = xs
+            .iter()
+            .map(|x| x.clone().try_into_primitive::<Autodiff<Flex>>().ok())
+            .collect::<Option<Vec<_>>>()?;
         let wa = w.clone().try_into_primitive::<Autodiff<Flex>>().ok()?;
         let ba = b.clone().try_into_primitive::<Autodiff<Flex>>().ok()?;
-        let xp = contiguous(xa.primitive().clone());
+        let xps: Vec<FlexTensor> = xa
+            .iter()
+            .map(|a| contiguous(a.primitive().clone()))
+            .collect();
         let wp = contiguous(wa.primitive().clone());
-        let y = run(&xp, &wp, &contiguous(ba.primitive().clone()));
-        let prep = DenseBackward
-            .prepare::<NoCheckpointing>([xa.node(), wa.node(), ba.node()])
+        let y = run(&xps, &wp, &contiguous(ba.primitive().clone()), act);
+        let nodes: Vec<_> = xa
+            .iter()
+            .map(|a| a.node())
+            .chain([wa.node(), ba.node()])
+            .collect();
+        let nodes: [_; N] = nodes.try_into().ok()?;
+        let prep = DenseBackward::<N>
+            .prepare::<NoCheckpointing>(nodes)
             .compute_bound()
             .stateful();
         let out = match prep {
             OpsKind::Tracked(prep) => prep.finish(
                 State {
-                    x: xp,
+                    xs: xps,
                     w: wp,
                     y: (act == Activation::Relu).then(|| y.clone()),
                     act,

@@ -94,6 +94,25 @@ pub fn test_device() -> Device {
     parse_device(&name).unwrap_or_else(|e| panic!("{TEST_DEVICE_VAR}={name}: {e}"))
 }
 
+/// Whether float64 computes correctly on the device named `name` (a [`parse_device`] name): the
+/// device has the type, and it is not wgpu. WGSL and Vulkan's SPIR-V define `exp`, `log`, `sin`
+/// and `cos` for 16- and 32-bit floats only; cubecl emits them for f64 anyway, and drivers such
+/// as Mesa's run them as garbage (cubecl issue 1316; on lavapipe PhysNeRF's float64 weights
+/// were off by up to 1). The float64 checks (finite differences, the f64 parity case) need
+/// this; training runs in float32.
+pub fn float64_supported(name: &str) -> bool {
+    let lower = name.trim().to_ascii_lowercase();
+    if matches!(lower.as_str(), "wgpu" | "gpu") {
+        return false;
+    }
+    parse_device(&lower).is_ok_and(|d| d.supports_dtype(burn::tensor::DType::F64))
+}
+
+/// [`float64_supported`] for the device the backend-generic tests run on.
+pub fn test_device_has_float64() -> bool {
+    float64_supported(&test_device_name())
+}
+
 /// Turns a device name into a device: `cpu` (flex, else ndarray), `flex`, `ndarray`, `wgpu`,
 /// `cuda` or `cuda:N`. Names are case-insensitive.
 pub fn parse_device(name: &str) -> Result<Device, DeviceError> {
@@ -193,6 +212,17 @@ mod tests {
         assert_eq!(device_name_or_cpu(None), "cpu");
         assert_eq!(device_name_or_cpu(Some("  ")), "cpu");
         assert_eq!(device_name_or_cpu(Some(" wgpu\n")), "wgpu");
+    }
+
+    #[test]
+    fn float64_is_refused_on_wgpu_only() {
+        assert!(!float64_supported("wgpu"));
+        assert!(!float64_supported(" GPU"));
+        assert!(!float64_supported("tpu"));
+        assert_eq!(
+            float64_supported("cpu"),
+            cpu().supports_dtype(burn::tensor::DType::F64)
+        );
     }
 
     #[test]

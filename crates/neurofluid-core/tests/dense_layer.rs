@@ -1,19 +1,20 @@
 //! The host dense layer (`neurofluid_core::dense::linear`: one operation with its own backward
 //! pass on flex) against Burn's own `Linear` + activation and Burn's gradients, in float64:
 //! outputs and the gradients of the input, the weight and the bias, for both activations,
-//! every subset of tracked inputs, and sizes that cross the kernels' row splits.
+//! every subset of tracked inputs, sizes that cross the kernels' row splits, and the input
+//! given whole or as two column blocks (`linear_of_cat`, the MLP's skip and direction layers).
 
 use burn::module::Param;
 use burn::nn::Linear;
 use burn::prelude::*;
 use burn::tensor::{DType, TensorCreationOptions, TensorData};
-use neurofluid_core::dense::{Activation, linear, try_host_linear};
+use neurofluid_core::dense::{Activation, linear, linear_of_cat, try_host_linear};
 use neurofluid_core::device::{test_device, test_device_name};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-fn dtype(device: &Device) -> DType {
-    if device.supports_dtype(DType::F64) {
+fn dtype() -> DType {
+    if neurofluid_core::device::test_device_has_float64() {
         DType::F64
     } else {
         DType::F32
@@ -23,7 +24,7 @@ fn dtype(device: &Device) -> DType {
 fn tensor<const D: usize>(v: &[f64], shape: [usize; D], device: &Device) -> Tensor<D> {
     Tensor::from_data(
         TensorData::new(v.to_vec(), shape),
-        TensorCreationOptions::new(device.clone()).with_dtype(dtype(device)),
+        TensorCreationOptions::new(device.clone()).with_dtype(dtype()),
     )
 }
 
@@ -52,6 +53,17 @@ struct Case {
 /// Output, then the gradients of x, W and b (empty when untracked).
 type Run = (Vec<f64>, [Vec<f64>; 3]);
 
+/// How a case's layer is evaluated.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Path {
+    /// Burn's `Linear` and activation.
+    Burn,
+    /// `linear` on the whole input.
+    Host,
+    /// `linear_of_cat` on the input's first `k₁` columns and the rest.
+    Blocks(usize),
+}
+
 impl Case {
     fn new(m: usize, k: usize, n: usize, seed: u64) -> Self {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
@@ -66,10 +78,26 @@ impl Case {
         }
     }
 
-    fn run(&self, host: bool, act: Activation, tracked: [bool; 3]) -> Run {
+    fn run(&self, path: Path, act: Activation, tracked: [bool; 3]) -> Run {
         let ad = test_device().autodiff();
         let track = |t: Tensor<2>, on: bool| if on { t.require_grad() } else { t };
         let x = track(tensor(&self.x, [self.m, self.k], &ad), tracked[0]);
+        let k1 = match path {
+            Path::Blocks(k1) => k1,
+            _ => self.k,
+        };
+        let columns = |from: usize, to: usize| -> Vec<f64> {
+            self.x
+                .chunks(self.k)
+                .flat_map(|row| row[from..to].to_vec())
+                .collect()
+        };
+        let blocks = (k1 < self.k).then(|| {
+            [(0, k1), (k1, self.k)].map(|(from, to)| {
+                let v = columns(from, to);
+                track(tensor(&v, [self.m, to - from], &ad), tracked[0])
+            })
+        });
         let weight = track(tensor(&self.w, [self.k, self.n], &ad), tracked[1]);
         let bias = tensor(&self.b, [self.n], &ad);
         let bias = if tracked[2] {
@@ -81,16 +109,34 @@ impl Case {
             weight: Param::from_tensor(weight.clone()),
             bias: Some(Param::from_tensor(bias.clone())),
         };
-        let y = if host {
-            linear(&layer, x.clone(), act)
-        } else {
-            act.apply(layer.forward(x.clone()))
+        let y = match path {
+            Path::Burn => act.apply(layer.forward(x.clone())),
+            Path::Host => linear(&layer, x.clone(), act),
+            Path::Blocks(_) => {
+                let blocks = blocks.clone().expect("two column blocks");
+                linear_of_cat(&layer, blocks.to_vec(), act)
+            }
         };
         let loss = (y.clone() * tensor(&self.coeff, [self.m, self.n], &ad)).sum();
         let grads = loss.backward();
         let g2 = |t: &Tensor<2>| t.grad(&grads).map(f64s).unwrap_or_default();
         let gb = bias.grad(&grads).map(f64s).unwrap_or_default();
-        (f64s(y), [g2(&x), g2(&weight), gb])
+        let gx = match &blocks {
+            Some([x1, x2]) => {
+                // the blocks' gradients side by side, as x's
+                let (g1, g2) = (g2(x1), g2(x2));
+                if g1.is_empty() {
+                    Vec::new()
+                } else {
+                    g1.chunks(k1)
+                        .zip(g2.chunks(self.k - k1))
+                        .flat_map(|(a, b)| [a, b].concat())
+                        .collect()
+                }
+            }
+            _ => g2(&x),
+        };
+        (f64s(y), [gx, g2(&weight), gb])
     }
 }
 
@@ -102,12 +148,7 @@ fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
 }
 
 fn check(m: usize, k: usize, n: usize) {
-    let device = test_device();
-    let tol = if dtype(&device) == DType::F64 {
-        1e-10
-    } else {
-        1e-3
-    };
+    let tol = if dtype() == DType::F64 { 1e-10 } else { 1e-3 };
     let case = Case::new(m, k, n, (m * 31 + k * 7 + n) as u64);
     for act in [Activation::Relu, Activation::Identity] {
         for tracked in [
@@ -116,30 +157,36 @@ fn check(m: usize, k: usize, n: usize) {
             [true, false, false],
             [false, false, true],
         ] {
-            let (y, g) = case.run(true, act, tracked);
-            let (y_ref, g_ref) = case.run(false, act, tracked);
-            let what = format!("{m}×{k}→{n} {act:?} tracked {tracked:?}");
-            assert_eq!(y.len(), m * n, "{what}: output size");
-            assert!(max_abs_diff(&y, &y_ref) < tol, "{what}: output");
-            if act == Activation::Relu && y.len() >= 8 {
-                let zeros = y.iter().filter(|v| **v == 0.0).count();
-                assert!(
-                    zeros > 0 && zeros < y.len(),
-                    "{what}: the ReLU is exercised"
-                );
+            let mut paths = vec![Path::Host];
+            if k >= 2 {
+                paths.push(Path::Blocks(k / 3 + 1));
             }
-            for (i, name) in ["x", "weight", "bias"].iter().enumerate() {
-                assert_eq!(
-                    !g[i].is_empty(),
-                    tracked[i],
-                    "{what}: {name} gradient presence"
-                );
-                assert_eq!(g[i].len(), g_ref[i].len(), "{what}: {name} gradient size");
-                let e = max_abs_diff(&g[i], &g_ref[i]);
-                assert!(
-                    e < tol * (m as f64).sqrt(),
-                    "{what}: {name} gradient differs by {e:.2e}"
-                );
+            let (y_ref, g_ref) = case.run(Path::Burn, act, tracked);
+            for path in paths {
+                let (y, g) = case.run(path, act, tracked);
+                let what = format!("{m}×{k}→{n} {act:?} tracked {tracked:?} {path:?}");
+                assert_eq!(y.len(), m * n, "{what}: output size");
+                assert!(max_abs_diff(&y, &y_ref) < tol, "{what}: output");
+                if act == Activation::Relu && y.len() >= 8 {
+                    let zeros = y.iter().filter(|v| **v == 0.0).count();
+                    assert!(
+                        zeros > 0 && zeros < y.len(),
+                        "{what}: the ReLU is exercised"
+                    );
+                }
+                for (i, name) in ["x", "weight", "bias"].iter().enumerate() {
+                    assert_eq!(
+                        !g[i].is_empty(),
+                        tracked[i],
+                        "{what}: {name} gradient presence"
+                    );
+                    assert_eq!(g[i].len(), g_ref[i].len(), "{what}: {name} gradient size");
+                    let e = max_abs_diff(&g[i], &g_ref[i]);
+                    assert!(
+                        e < tol * (m as f64).sqrt(),
+                        "{what}: {name} gradient differs by {e:.2e}"
+                    );
+                }
             }
         }
     }
@@ -169,23 +216,40 @@ fn results_do_not_depend_on_the_thread_count() {
             .map(|i| ((i * 7919 + seed * 104_729) % 2003) as f32 / 1001.5 - 1.0)
             .collect()
     };
-    // wide and narrow outputs, batches below and above the largest partial sum (4,096 rows)
-    for (m, k, n) in [(5000, 40, 48), (700, 33, 3), (20_000, 16, 20)] {
-        let (x, w, b, dy) = (fill(m * k, 1), fill(k * n, 2), fill(n, 3), fill(m * n, 4));
+    // wide and narrow outputs, batches below and above the largest partial sum (4,096 rows),
+    // the input whole or in two column blocks
+    for (m, k, n, k1) in [
+        (5000, 40, 48, 40),
+        (700, 33, 3, 33),
+        (20_000, 16, 20, 16),
+        (5000, 40, 48, 15),
+        (700, 33, 3, 10),
+    ] {
+        let (x1, x2) = (fill(m * k1, 1), fill(m * (k - k1), 5));
+        let (w, b, dy) = (fill(k * n, 2), fill(n, 3), fill(m * n, 4));
+        let mut xs = vec![(x1.as_slice(), k1)];
+        if k1 < k {
+            xs.push((x2.as_slice(), k - k1));
+        }
+        let need = vec![true; xs.len() + 2];
         let run = |threads: usize| {
             let pool = rayon::ThreadPoolBuilder::new()
                 .num_threads(threads)
                 .build()
                 .expect("a thread pool");
             pool.install(|| {
-                let y = forward(&x, &w, &b, n, Activation::Relu);
-                let g = backward(&x, &w, &y, dy.clone(), n, Activation::Relu, [true; 3]);
+                let y = forward(&xs, &w, &b, n, Activation::Relu);
+                let g = backward(&xs, &w, &y, dy.clone(), n, Activation::Relu, &need);
                 (y, g.x, g.w, g.b)
             })
         };
         let one = run(1);
         for threads in [2, 3] {
-            assert!(run(threads) == one, "{m}×{k}→{n} with {threads} threads");
+            assert!(
+                run(threads) == one,
+                "{m}×{k}→{n} ({k1} + {}) with {threads} threads",
+                k - k1
+            );
         }
     }
 }
@@ -209,7 +273,7 @@ fn plain_tensors_give_burn_s_values() {
         let w = layer.weight.val();
         let b = layer.bias.as_ref().expect("bias").val();
         assert!(
-            try_host_linear(&x, &w, &b, Activation::Relu).is_some(),
+            try_host_linear(std::slice::from_ref(&x), &w, &b, Activation::Relu).is_some(),
             "plain flex"
         );
         let ad = device.clone().autodiff();
@@ -217,7 +281,11 @@ fn plain_tensors_give_burn_s_values() {
         let wa = tensor(&case.w, [case.k, case.n], &ad);
         let ba = tensor(&case.b, [case.n], &ad);
         assert!(
-            try_host_linear(&xa, &wa, &ba, Activation::Relu).is_some(),
+            try_host_linear(&[xa.clone(), xa.clone()], &wa, &ba, Activation::Relu).is_none(),
+            "columns that do not fit the weight"
+        );
+        assert!(
+            try_host_linear(&[xa], &wa, &ba, Activation::Relu).is_some(),
             "flex, autodiff"
         );
         // A NaN input stays NaN through the ReLU (a diverged run is caught downstream).
@@ -236,12 +304,7 @@ fn plain_tensors_give_burn_s_values() {
 /// input given transposed (non-contiguous): outputs and every gradient against Burn's.
 #[test]
 fn stacked_layers_match_burn() {
-    let device = test_device();
-    let tol = if dtype(&device) == DType::F64 {
-        1e-9
-    } else {
-        1e-3
-    };
+    let tol = if dtype() == DType::F64 { 1e-9 } else { 1e-3 };
     let (m, k, h) = (5000, 13, 24);
     for out in [7, 40] {
         let mut rng = ChaCha8Rng::seed_from_u64(out as u64);

@@ -7,7 +7,7 @@
 use burn::prelude::*;
 use burn::tensor::{DType, TensorCreationOptions, TensorData};
 use neurofluid_core::device::{test_device, test_device_name};
-use neurofluid_core::posenc::{posenc, posenc_composed, try_host_posenc};
+use neurofluid_core::posenc::{Block, posenc, posenc_cat, posenc_composed, try_host_posenc};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -40,7 +40,7 @@ fn run(
     let out = if host {
         posenc(x.clone(), freqs)
     } else {
-        posenc_composed(x.clone(), freqs)
+        posenc_composed(x.clone(), &[Block { channels: c, freqs }])
     };
     let width = c * (1 + 2 * freqs);
     let loss = (out.clone() * tensor(coeff, [rows, width], dtype, &ad)).sum();
@@ -59,9 +59,8 @@ fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
 
 #[test]
 fn host_encoding_matches_burns_ops_and_gradient() {
-    let device = test_device();
     let mut dtypes = vec![DType::F32];
-    if device.supports_dtype(DType::F64) {
+    if neurofluid_core::device::test_device_has_float64() {
         dtypes.push(DType::F64);
     }
     let mut rng = ChaCha8Rng::seed_from_u64(5);
@@ -87,7 +86,7 @@ fn host_encoding_matches_burns_ops_and_gradient() {
 #[test]
 fn host_gradient_matches_finite_differences() {
     let device = test_device();
-    if !device.supports_dtype(DType::F64) {
+    if !neurofluid_core::device::test_device_has_float64() {
         return;
     }
     let mut rng = ChaCha8Rng::seed_from_u64(6);
@@ -120,9 +119,84 @@ fn the_cpu_takes_the_host_path() {
         return;
     }
     let device = test_device();
+    let blocks = [Block {
+        channels: 3,
+        freqs: 4,
+    }];
     let v = tensor(&[0.1, 0.2, 0.3], [1, 3], DType::F32, &device);
-    assert!(try_host_posenc(&v, 4).is_some());
+    assert!(try_host_posenc(&v, &blocks).is_some());
     let ad = device.autodiff();
     let v = tensor(&[0.1, 0.2, 0.3], [1, 3], DType::F32, &ad).require_grad();
-    assert!(try_host_posenc(&v, 4).is_some());
+    assert!(try_host_posenc(&v, &blocks).is_some());
+    // columns that do not match the blocks: no host operation (the caller's error)
+    assert!(
+        try_host_posenc(
+            &v,
+            &[Block {
+                channels: 2,
+                freqs: 4
+            }]
+        )
+        .is_none()
+    );
+}
+
+/// The encodings of several inputs written into one output (the network inputs e_x, e_d) equal
+/// the concatenation of each input's encoding built from Burn's ops: the output, and the
+/// gradient of every input.
+#[test]
+fn concatenated_encodings_match_burns_concatenation() {
+    let mut dtypes = vec![DType::F32];
+    if neurofluid_core::device::test_device_has_float64() {
+        dtypes.push(DType::F64);
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    // (channels, frequencies) of e_x's blocks: x, σ_p, p_c, v_d with a frequency-less block
+    let blocks = [(3, 10), (1, 4), (3, 0), (3, 6)];
+    let rows = 1100;
+    let width: usize = blocks.iter().map(|&(c, l)| c * (1 + 2 * l)).sum();
+    let inputs: Vec<Vec<f64>> = blocks
+        .iter()
+        .map(|&(c, _)| random(rows * c, 2.0, &mut rng))
+        .collect();
+    let coeff = random(rows * width, 1.0, &mut rng);
+    for dtype in dtypes {
+        let run = |host: bool| {
+            let ad = test_device().autodiff();
+            let xs: Vec<Tensor<2>> = inputs
+                .iter()
+                .zip(&blocks)
+                .map(|(v, &(c, _))| tensor(v, [rows, c], dtype, &ad).require_grad())
+                .collect();
+            let out = if host {
+                posenc_cat(xs.iter().cloned().zip(blocks.map(|b| b.1)).collect())
+            } else {
+                let parts = xs.iter().zip(&blocks).map(|(x, &(c, l))| {
+                    posenc_composed(
+                        x.clone(),
+                        &[Block {
+                            channels: c,
+                            freqs: l,
+                        }],
+                    )
+                });
+                Tensor::cat(parts.collect(), 1)
+            };
+            let loss = (out.clone() * tensor(&coeff, [rows, width], dtype, &ad)).sum();
+            let grads = loss.backward();
+            let mut values = vec![f64s(out)];
+            values.extend(xs.iter().map(|x| f64s(x.grad(&grads).expect("a gradient"))));
+            values
+        };
+        let (host, composed) = (run(true), run(false));
+        assert_eq!(host[0], composed[0], "{dtype:?}: output");
+        let tol = if dtype == DType::F64 { 1e-12 } else { 2e-4 };
+        for (i, (a, b)) in host[1..].iter().zip(&composed[1..]).enumerate() {
+            let e = max_abs_diff(a, b);
+            assert!(
+                e < tol,
+                "{dtype:?}: gradient of input {i} differs by {e:.2e}"
+            );
+        }
+    }
 }

@@ -5,7 +5,7 @@ use burn::prelude::*;
 use crate::config::PhysNerfConfig;
 use crate::features::LocalFeatures;
 
-pub use neurofluid_core::posenc::posenc;
+pub use neurofluid_core::posenc::{posenc, posenc_cat};
 
 /// `e_x = [γ(x), γ(σ_p)?, γ(p_c)?, γ(v_d)?]` and `e_d = [γ(d), γ(d_c)?]` (switched-off terms
 /// are left out, the others keep their order). `x` and `d` are `[Q, 3]`.
@@ -17,19 +17,19 @@ pub fn encode_inputs(
 ) -> (Tensor<2>, Tensor<2>) {
     let f = &config.frequencies;
     let t = &config.encoding;
-    let mut ex = vec![posenc(x, f.x)];
+    let mut ex = vec![(x, f.x)];
     if t.sigma_p {
-        ex.push(posenc(feats.sigma_p.clone(), f.sigma_p));
+        ex.push((feats.sigma_p.clone(), f.sigma_p));
     }
     if t.pc {
-        ex.push(posenc(feats.pc.clone(), f.pc));
+        ex.push((feats.pc.clone(), f.pc));
     }
     if t.vd {
-        ex.push(posenc(feats.vd.clone(), f.vd));
+        ex.push((feats.vd.clone(), f.vd));
     }
-    let mut ed = vec![posenc(d, f.d)];
+    let mut ed = vec![(d, f.d)];
     if t.dc {
-        ed.push(posenc(feats.dc.clone(), f.dc));
+        ed.push((feats.dc.clone(), f.dc));
     }
-    (Tensor::cat(ex, 1), Tensor::cat(ed, 1))
+    (posenc_cat(ex), posenc_cat(ed))
 }

@@ -6,7 +6,7 @@
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::sigmoid;
-use neurofluid_core::dense::{Activation, linear};
+use neurofluid_core::dense::{Activation, linear, linear_of_cat};
 
 /// The shape of a NeRF network: trunk depth and width, the skip layer and the input widths.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -164,19 +164,20 @@ impl NerfMlp {
         let mut hidden = Vec::new();
         let mut h = e_x.clone();
         for (i, layer) in self.xyz_encoding.iter().enumerate() {
-            if i == self.skip {
-                h = Tensor::cat(vec![e_x.clone(), h], 1);
-            }
-            h = linear(layer, h, Activation::Relu);
+            h = if i == self.skip {
+                linear_of_cat(layer, vec![e_x.clone(), h], Activation::Relu)
+            } else {
+                linear(layer, h, Activation::Relu)
+            };
             if trace {
                 hidden.push(h.clone());
             }
         }
         let sigma = linear(&self.sigma, h.clone(), Activation::Identity);
         let feat = linear(&self.xyz_encoding_final, h, Activation::Identity);
-        let hd = linear(
+        let hd = linear_of_cat(
             &self.dir_encoding,
-            Tensor::cat(vec![feat.clone(), e_d], 1),
+            vec![feat.clone(), e_d],
             Activation::Relu,
         );
         let rgb = sigmoid(linear(&self.rgb, hd.clone(), Activation::Identity));

@@ -14,7 +14,7 @@ use rand::RngCore;
 use serde::{Deserialize, Serialize};
 
 use crate::config::encoded_width;
-use crate::encoding::posenc;
+use crate::encoding::{posenc, posenc_cat};
 use crate::error::{PhysNerfError, Result};
 use crate::features::host_tensor;
 use crate::hierarchical::{DepthPlan, Pass, read, render_hierarchical};
@@ -280,17 +280,11 @@ impl Nerf {
 
     fn position_input(&self, x: Tensor<2>, times: Option<Vec<f32>>, device: &Device) -> Tensor<2> {
         let q = x.dims()[0];
-        let ex = posenc(x, self.config.freq_x);
-        match times {
-            Some(t) => Tensor::cat(
-                vec![
-                    ex,
-                    posenc(host_tensor(t, [q, 1], device), self.config.freq_t),
-                ],
-                1,
-            ),
-            None => ex,
+        let mut inputs = vec![(x, self.config.freq_x)];
+        if let Some(t) = times {
+            inputs.push((host_tensor(t, [q, 1], device), self.config.freq_t));
         }
+        posenc_cat(inputs)
     }
 
     #[allow(clippy::too_many_arguments)]
