@@ -141,7 +141,7 @@ impl Case {
 }
 
 fn check(cin: usize, cout: usize, same_cloud: bool) {
-    let dtype = if device().supports_dtype(DType::F64) {
+    let dtype = if neurofluid_core::device::test_device_has_float64() {
         DType::F64
     } else {
         DType::F32
