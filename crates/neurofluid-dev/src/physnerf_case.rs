@@ -8,6 +8,7 @@ use std::path::{Path, PathBuf};
 
 use burn::prelude::*;
 use burn::tensor::{DType, Gradients, TensorData};
+use neurofluid_core::tensors::gather_rows;
 use serde::Deserialize;
 
 use neurofluid_physnerf::real::{Real, linspace};
@@ -365,11 +366,11 @@ pub fn run_case(inputs: &CaseInputs, model: &PhysNerf) -> Result<CaseOutputs> {
         (&device, dtype),
     );
     let lc = mse(
-        out.coarse.rgb_map.clone().select(0, ids.clone()),
+        gather_rows(out.coarse.rgb_map.clone(), ids.clone()),
         target.clone(),
     );
     let lf = match &out.fine {
-        Some(f) => mse(f.rgb_map.clone().select(0, ids), target),
+        Some(f) => mse(gather_rows(f.rgb_map.clone(), ids), target),
         None => lc.zeros_like(),
     };
     let loss = lc.clone() + lf.clone();

@@ -2,7 +2,8 @@
 
 use burn::module::Param;
 use burn::prelude::*;
-use burn::tensor::{Distribution, IndexingUpdateOp};
+use burn::tensor::Distribution;
+use neurofluid_core::tensors::{add_rows, gather_rows};
 
 use crate::fused;
 use crate::geometry::ConvGeometry;
@@ -107,16 +108,11 @@ impl ContinuousConv {
                 .iter()
                 .map(|ch| {
                     // one gather per pair, shared by its 8 corners
-                    let fp = features.clone().select(0, ch.pair_in_rows.clone());
+                    let fp = gather_rows(features.clone(), ch.pair_in_rows.clone());
                     let mut g =
                         Tensor::<2>::zeros([ch.out_len * KERNEL_CELLS, cin], (&device, dtype));
                     for (rows, w) in ch.corner_out_cell_rows.iter().zip(&ch.corner_weights) {
-                        g = g.select_assign(
-                            0,
-                            rows.clone(),
-                            fp.clone() * w.clone(),
-                            IndexingUpdateOp::Add,
-                        );
+                        g = add_rows(g, rows.clone(), fp.clone() * w.clone());
                     }
                     g.reshape([ch.out_len, KERNEL_CELLS * cin])
                         .matmul(k.clone())
@@ -134,13 +130,9 @@ impl ContinuousConv {
             chunks
                 .iter()
                 .map(|ch| {
-                    let vals = h.clone().select(0, ch.in_cell_rows.clone()) * ch.weights.clone();
-                    Tensor::<2>::zeros([ch.out_len, cout], (&device, dtype)).select_assign(
-                        0,
-                        ch.out_rows.clone(),
-                        vals,
-                        IndexingUpdateOp::Add,
-                    )
+                    let vals = gather_rows(h.clone(), ch.in_cell_rows.clone()) * ch.weights.clone();
+                    let zeros = Tensor::<2>::zeros([ch.out_len, cout], (&device, dtype));
+                    add_rows(zeros, ch.out_rows.clone(), vals)
                 })
                 .collect()
         };

@@ -8,6 +8,8 @@
 use burn::prelude::*;
 use burn::tensor::TensorData;
 
+use neurofluid_core::tensors::gather_rows;
+
 use crate::real::Real;
 
 /// Added to Σw in p_c and to n in the mean and variance of v_d.
@@ -52,7 +54,7 @@ pub fn gather_neighbors(particles: &Tensor<2>, idx: &[i32], k: usize) -> Tensor<
         .map(|&i| if i < 0 { n as i32 } else { i })
         .collect();
     let ids = Tensor::<1, Int>::from_data(TensorData::new(ids, [q * k]), &device);
-    padded.select(0, ids).reshape([q, k, 3])
+    gather_rows(padded, ids).reshape([q, k, 3])
 }
 
 /// Computes the features of samples `x [Q, 3]` from their gathered neighbours.

@@ -4,7 +4,8 @@ use std::time::{Duration, Instant};
 
 use burn::prelude::*;
 use burn::tensor::activation::softplus;
-use burn::tensor::{DType, IndexingUpdateOp, TensorData};
+use burn::tensor::{DType, TensorData};
+use neurofluid_core::tensors::add_rows;
 use rand::RngCore;
 
 use crate::config::{DensityActivation, PhysNerfConfig};
@@ -360,8 +361,8 @@ impl PhysNerf {
                 let zeros3 = Tensor::<2>::zeros([q_all, 3], (&device, T::DTYPE));
                 let zeros1 = Tensor::<2>::zeros([q_all, 1], (&device, T::DTYPE));
                 (
-                    zeros3.select_assign(0, ids.clone(), rgb_g, IndexingUpdateOp::Add),
-                    zeros1.select_assign(0, ids, sigma_g, IndexingUpdateOp::Add),
+                    add_rows(zeros3, ids.clone(), rgb_g),
+                    add_rows(zeros1, ids, sigma_g),
                 )
             } else {
                 let m: Vec<T> = mask
