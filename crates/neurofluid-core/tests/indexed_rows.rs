@@ -15,7 +15,10 @@ const N: usize = 50;
 const C: usize = 3;
 
 fn f32s(t: Tensor<2>) -> Vec<f32> {
-    t.into_data().convert::<f32>().try_to_vec::<f32>().expect("f32")
+    t.into_data()
+        .convert::<f32>()
+        .try_to_vec::<f32>()
+        .expect("f32")
 }
 
 fn random(len: usize, rng: &mut ChaCha8Rng) -> Vec<f32> {
@@ -73,8 +76,8 @@ fn added_rows_and_their_gradient() {
     let (idx, base, values) = case();
     let device = test_device().autodiff();
     let b = Tensor::<2>::from_data(TensorData::new(base.clone(), [N, C]), &device);
-    let v = Tensor::<2>::from_data(TensorData::new(values.clone(), [ROWS, C]), &device)
-        .require_grad();
+    let v =
+        Tensor::<2>::from_data(TensorData::new(values.clone(), [ROWS, C]), &device).require_grad();
     let ids = Tensor::<1, Int>::from_data(TensorData::new(idx.clone(), [ROWS]), &device);
     let out = add_rows(b, ids, v.clone());
     let mut want = rows_summed(&idx, &values);
