@@ -277,8 +277,7 @@ pub fn backward<T: Lanes>(
                     dw = transposed(&dw, n, k);
                 } else {
                     // dWᵢ = xᵢᵀ·dz, `dz` packed a slice of rows at a time, summed in row order
-                    let mut packs = dzc.chunks(ROWS_PER_PACK * n).enumerate();
-                    for (s, dzs) in &mut packs {
+                    for (s, dzs) in dzc.chunks(ROWS_PER_PACK * n).enumerate() {
                         let packed = PackedB::new(dzs, n, 1, dzs.len() / n, n);
                         let epilogue = if s == 0 {
                             Epilogue::Store

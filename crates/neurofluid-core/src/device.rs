@@ -94,6 +94,9 @@ pub fn test_device() -> Device {
     parse_device(&name).unwrap_or_else(|e| panic!("{TEST_DEVICE_VAR}={name}: {e}"))
 }
 
+/// The names of the wgpu device.
+const WGPU_NAMES: [&str; 2] = ["wgpu", "gpu"];
+
 /// Whether float64 computes correctly on the device named `name` (a [`parse_device`] name): the
 /// device has the type, and it is not wgpu. WGSL and Vulkan's SPIR-V define `exp`, `log`, `sin`
 /// and `cos` for 16- and 32-bit floats only; cubecl emits them for f64 anyway, and drivers such
@@ -102,7 +105,7 @@ pub fn test_device() -> Device {
 /// this; training runs in float32.
 pub fn float64_supported(name: &str) -> bool {
     let lower = name.trim().to_ascii_lowercase();
-    if matches!(lower.as_str(), "wgpu" | "gpu") {
+    if WGPU_NAMES.contains(&lower.as_str()) {
         return false;
     }
     parse_device(&lower).is_ok_and(|d| d.supports_dtype(burn::tensor::DType::F64))
@@ -129,7 +132,7 @@ pub fn parse_device(name: &str) -> Result<Device, DeviceError> {
             .ok_or_else(|| not_compiled("flex")),
         "flex" => flex().ok_or_else(|| not_compiled("flex")),
         "ndarray" => ndarray().ok_or_else(|| not_compiled("ndarray")),
-        "wgpu" | "gpu" => wgpu().ok_or_else(|| not_compiled("wgpu")),
+        n if WGPU_NAMES.contains(&n) => wgpu().ok_or_else(|| not_compiled("wgpu")),
         _ => {
             if let Some(index) = lower.strip_prefix("cuda").and_then(parse_index) {
                 return cuda(index).ok_or_else(|| not_compiled("cuda"));

@@ -43,14 +43,13 @@ pub fn posenc(v: Tensor<2>, freqs: usize) -> Tensor<2> {
 /// # Panics
 /// When `inputs` is empty.
 pub fn posenc_cat(inputs: Vec<(Tensor<2>, usize)>) -> Tensor<2> {
-    let blocks: Vec<Block> = inputs
-        .iter()
-        .map(|(v, freqs)| Block {
-            channels: v.dims()[1],
-            freqs: *freqs,
+    let (vs, blocks): (Vec<Tensor<2>>, Vec<Block>) = inputs
+        .into_iter()
+        .map(|(v, freqs)| {
+            let channels = v.dims()[1];
+            (v, Block { channels, freqs })
         })
-        .collect();
-    let (vs, _): (Vec<Tensor<2>>, Vec<usize>) = inputs.into_iter().unzip();
+        .unzip();
     let v = if vs.len() == 1 {
         vs.into_iter().next().expect("one input")
     } else {

@@ -52,6 +52,15 @@ fn random(n: usize, scale: f64, rng: &mut ChaCha8Rng) -> Vec<f64> {
     (0..n).map(|_| rng.random_range(-scale..scale)).collect()
 }
 
+/// f32, and f64 where the test device computes it correctly.
+fn dtypes() -> Vec<DType> {
+    let mut dtypes = vec![DType::F32];
+    if neurofluid_core::device::test_device_has_float64() {
+        dtypes.push(DType::F64);
+    }
+    dtypes
+}
+
 fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
     assert_eq!(a.len(), b.len());
     a.iter().zip(b).fold(0.0, |m, (x, y)| m.max((x - y).abs()))
@@ -59,10 +68,7 @@ fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
 
 #[test]
 fn host_encoding_matches_burns_ops_and_gradient() {
-    let mut dtypes = vec![DType::F32];
-    if neurofluid_core::device::test_device_has_float64() {
-        dtypes.push(DType::F64);
-    }
+    let dtypes = dtypes();
     let mut rng = ChaCha8Rng::seed_from_u64(5);
     // (rows, channels, frequencies): one row, a row split's edge, several tasks
     for (rows, c, freqs) in [(1, 3, 10), (512, 1, 4), (1300, 3, 6), (700, 2, 0)] {
@@ -146,10 +152,7 @@ fn the_cpu_takes_the_host_path() {
 /// gradient of every input.
 #[test]
 fn concatenated_encodings_match_burns_concatenation() {
-    let mut dtypes = vec![DType::F32];
-    if neurofluid_core::device::test_device_has_float64() {
-        dtypes.push(DType::F64);
-    }
+    let dtypes = dtypes();
     let mut rng = ChaCha8Rng::seed_from_u64(7);
     // (channels, frequencies) of e_x's blocks: x, σ_p, p_c, v_d with a frequency-less block
     let blocks = [(3, 10), (1, 4), (3, 0), (3, 6)];
