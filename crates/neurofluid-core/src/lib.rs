@@ -19,5 +19,6 @@ pub mod npz;
 pub mod params;
 pub mod posenc;
 pub mod real;
+pub mod rows;
 pub mod scene;
 pub mod tensors;

@@ -1,12 +1,13 @@
-//! `tensors::gather_rows` and `tensors::add_rows` against sums written out on the host: values
+//! `rows::gather_rows` and `rows::add_rows` against sums written out on the host: values
 //! and gradients, with more rows than 65,535 (Mesa's lavapipe stops a shader loop after 65,535
 //! iterations, which once lost the gradient of every later row on wgpu) and with repeated
-//! indices. Runs on the device `NEUROFLUID_TEST_DEVICE` names.
+//! indices, spread evenly or skewed; a second run must give the same bits (the sums run in a fixed
+//! order on every backend). Runs on the device `NEUROFLUID_TEST_DEVICE` names.
 
 use burn::prelude::*;
 use burn::tensor::TensorData;
 use neurofluid_core::device::test_device;
-use neurofluid_core::tensors::{add_rows, gather_rows};
+use neurofluid_core::rows::{RowIndex, add_rows, gather_rows};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -25,10 +26,18 @@ fn random(len: usize, rng: &mut ChaCha8Rng) -> Vec<f32> {
     (0..len).map(|_| rng.random_range(-1.0f32..1.0)).collect()
 }
 
-fn case() -> (Vec<i32>, Vec<f32>, Vec<f32>) {
-    let mut rng = ChaCha8Rng::seed_from_u64(11);
-    let idx = (0..ROWS).map(|_| rng.random_range(0..N as i32)).collect();
-    (idx, random(N * C, &mut rng), random(ROWS * C, &mut rng))
+/// Row indices into `N` rows: 70,000 spread evenly (about 1,400 per row), and a skewed set
+/// (rows with 0, 1, 2, 3, 5 and 9,000 indices, shuffled).
+fn index_sets(rng: &mut ChaCha8Rng) -> Vec<(&'static str, Vec<i32>)> {
+    let even = (0..ROWS).map(|_| rng.random_range(0..N as i32)).collect();
+    let mut skewed: Vec<i32> = [(1, 1), (2, 2), (3, 3), (4, 5), (7, 9_000)]
+        .into_iter()
+        .flat_map(|(row, count)| std::iter::repeat_n(row, count))
+        .collect();
+    for i in (1..skewed.len()).rev() {
+        skewed.swap(i, rng.random_range(0..=i));
+    }
+    vec![("even", even), ("skewed", skewed)]
 }
 
 /// `Σ_r coeff[r] at row idx[r]`, summed in f64.
@@ -52,49 +61,79 @@ fn assert_close(what: &str, got: &[f32], want: &[f64]) {
     }
 }
 
-#[test]
-fn gathered_rows_and_their_gradient() {
-    let (idx, table, coeff) = case();
+/// The gathered rows and the table's gradient under `Σ coeff ⊙ rows`.
+fn gather_and_gradient(idx: &[i32], table: &[f32], coeff: &[f32]) -> (Vec<f32>, Vec<f32>) {
     let device = test_device().autodiff();
-    let t = Tensor::<2>::from_data(TensorData::new(table.clone(), [N, C]), &device).require_grad();
-    let ids = Tensor::<1, Int>::from_data(TensorData::new(idx.clone(), [ROWS]), &device);
-    let g = gather_rows(t.clone(), ids);
-    let k = Tensor::<2>::from_data(TensorData::new(coeff.clone(), [ROWS, C]), &device);
+    let t = Tensor::<2>::from_data(TensorData::new(table.to_vec(), [N, C]), &device).require_grad();
+    let ids = RowIndex::new(idx.iter().map(|&i| i as usize), &device);
+    let g = gather_rows(t.clone(), &ids);
+    let k = Tensor::<2>::from_data(TensorData::new(coeff.to_vec(), [idx.len(), C]), &device);
     let grads = (g.clone() * k).sum().backward();
-    let want: Vec<f64> = idx
-        .iter()
+    let grad = f32s(t.grad(&grads).expect("gradient of the table"));
+    (f32s(g), grad)
+}
+
+/// The sums `base + Σ values` and the values' gradient under `Σ k ⊙ sums`.
+fn add_and_gradient(idx: &[i32], base: &[f32], values: &[f32], k: &[f32]) -> (Vec<f32>, Vec<f32>) {
+    let device = test_device().autodiff();
+    let b = Tensor::<2>::from_data(TensorData::new(base.to_vec(), [N, C]), &device);
+    let v = Tensor::<2>::from_data(TensorData::new(values.to_vec(), [idx.len(), C]), &device)
+        .require_grad();
+    let ids = RowIndex::new(idx.iter().map(|&i| i as usize), &device);
+    let out = add_rows(b, &ids, v.clone());
+    let kt = Tensor::<2>::from_data(TensorData::new(k.to_vec(), [N, C]), &device);
+    let grads = (out.clone() * kt).sum().backward();
+    let grad = f32s(v.grad(&grads).expect("gradient of the values"));
+    (f32s(out), grad)
+}
+
+/// Rows `idx` of a `[N, C]` table, in f64.
+fn rows_of(idx: &[i32], table: &[f32]) -> Vec<f64> {
+    idx.iter()
         .flat_map(|&i| (0..C).map(move |c| i as usize * C + c))
         .map(|j| f64::from(table[j]))
-        .collect();
-    assert_close("gathered rows", &f32s(g), &want);
-    let grad = f32s(t.grad(&grads).expect("gradient of the table"));
-    assert_close("gradient", &grad, &rows_summed(&idx, &coeff));
+        .collect()
+}
+
+#[test]
+fn gathered_rows_and_their_gradient() {
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    for (name, idx) in index_sets(&mut rng) {
+        let table = random(N * C, &mut rng);
+        let coeff = random(idx.len() * C, &mut rng);
+        let (g, grad) = gather_and_gradient(&idx, &table, &coeff);
+        assert_close(
+            &format!("{name}: gathered rows"),
+            &g,
+            &rows_of(&idx, &table),
+        );
+        assert_close(
+            &format!("{name}: gradient"),
+            &grad,
+            &rows_summed(&idx, &coeff),
+        );
+        // the sums run in a fixed order: the same bits again (atomic adds would not promise it)
+        let again = gather_and_gradient(&idx, &table, &coeff);
+        assert!(again == (g, grad), "{name}: a second run gave other bits");
+    }
 }
 
 #[test]
 fn added_rows_and_their_gradient() {
-    let (idx, base, values) = case();
-    let device = test_device().autodiff();
-    let b = Tensor::<2>::from_data(TensorData::new(base.clone(), [N, C]), &device);
-    let v =
-        Tensor::<2>::from_data(TensorData::new(values.clone(), [ROWS, C]), &device).require_grad();
-    let ids = Tensor::<1, Int>::from_data(TensorData::new(idx.clone(), [ROWS]), &device);
-    let out = add_rows(b, ids, v.clone());
-    let mut want = rows_summed(&idx, &values);
-    for (w, &b) in want.iter_mut().zip(&base) {
-        *w += f64::from(b);
-    }
-    assert_close("added rows", &f32s(out.clone()), &want);
-    // d Σ k⊙out / d values[r] = k[idx[r]]
     let mut rng = ChaCha8Rng::seed_from_u64(12);
-    let k = random(N * C, &mut rng);
-    let kt = Tensor::<2>::from_data(TensorData::new(k.clone(), [N, C]), &device);
-    let grads = (out * kt).sum().backward();
-    let grad = f32s(v.grad(&grads).expect("gradient of the values"));
-    let want: Vec<f64> = idx
-        .iter()
-        .flat_map(|&i| (0..C).map(move |c| i as usize * C + c))
-        .map(|j| f64::from(k[j]))
-        .collect();
-    assert_close("gradient", &grad, &want);
+    for (name, idx) in index_sets(&mut rng) {
+        let base = random(N * C, &mut rng);
+        let values = random(idx.len() * C, &mut rng);
+        let k = random(N * C, &mut rng);
+        let (out, grad) = add_and_gradient(&idx, &base, &values, &k);
+        let mut want = rows_summed(&idx, &values);
+        for (w, &b) in want.iter_mut().zip(&base) {
+            *w += f64::from(b);
+        }
+        assert_close(&format!("{name}: added rows"), &out, &want);
+        // d Σ k⊙out / d values[r] = k[idx[r]]
+        assert_close(&format!("{name}: gradient"), &grad, &rows_of(&idx, &k));
+        let again = add_and_gradient(&idx, &base, &values, &k);
+        assert!(again == (out, grad), "{name}: a second run gave other bits");
+    }
 }

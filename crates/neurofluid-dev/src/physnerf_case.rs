@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use burn::prelude::*;
 use burn::tensor::{DType, Gradients, TensorData};
-use neurofluid_core::tensors::gather_rows;
+use neurofluid_core::rows::{RowIndex, gather_rows};
 use serde::Deserialize;
 
 use neurofluid_physnerf::real::{Real, linspace};
@@ -359,18 +359,17 @@ pub fn run_case(inputs: &CaseInputs, model: &PhysNerf) -> Result<CaseOutputs> {
         );
     }
     // loss on the case's rays
-    let ids: Vec<i32> = inputs.ray_ids.iter().map(|&i| i as i32).collect();
-    let ids = Tensor::<1, Int>::from_data(TensorData::new(ids, [inputs.ray_ids.len()]), &device);
+    let ids = RowIndex::new(inputs.ray_ids.iter().copied(), &device);
     let target = Tensor::<2>::from_data(
         TensorData::new(flat3(&inputs.target), [inputs.target.len(), 3]),
         (&device, dtype),
     );
     let lc = mse(
-        gather_rows(out.coarse.rgb_map.clone(), ids.clone()),
+        gather_rows(out.coarse.rgb_map.clone(), &ids),
         target.clone(),
     );
     let lf = match &out.fine {
-        Some(f) => mse(gather_rows(f.rgb_map.clone(), ids), target),
+        Some(f) => mse(gather_rows(f.rgb_map.clone(), &ids), target),
         None => lc.zeros_like(),
     };
     let loss = lc.clone() + lf.clone();

@@ -1,10 +1,10 @@
-//! One DLF step on the CPU: forward, and forward+backward of DLF's loss, at 2k/8k/32k fluid
+//! One DLF step on the CPU (or `--device NAME`, any `--device` name of the trainer): forward, and forward+backward of DLF's loss, at 2k/8k/32k fluid
 //! particles (the reference harness's `bench` scenes: a lattice block 5 cm above the floor of a
 //! closed box with DLF-density walls, v = (0.3, 0, 0.2), jitter 2 mm). One warm-up, then the
 //! median of `--repeats` runs, wall and process CPU time (all threads) with the 1-minute load
 //! average; a per-phase breakdown of one forward step at the largest size follows.
 //!
-//! `cargo bench --profile dev -p neurofluid-dlf --bench dlf_step -- [--repeats 5] [--sizes 2000 8000 32000]`
+//! `cargo bench --profile dev -p neurofluid-dlf --bench dlf_step -- [--repeats 5] [--sizes 2000 8000 32000] [--device wgpu]`
 //! (the dev profile builds every dependency at opt-level 3; `cargo bench` alone uses release).
 
 use std::path::PathBuf;
@@ -62,6 +62,7 @@ fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let mut repeats = 5usize;
     let mut sizes = vec![2000usize, 8000, 32000];
+    let mut device_name = "cpu".to_string();
     let mut i = 0;
     while i < args.len() {
         match args[i].as_str() {
@@ -77,12 +78,23 @@ fn main() {
                     i += 1;
                 }
             }
+            "--device" => {
+                device_name = args.get(i + 1).cloned().unwrap_or_default();
+                i += 2;
+            }
             _ => i += 1, // cargo's own flags (--bench)
         }
     }
     let weights = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("../../assets/dlf_pretrained/pretrained_model_weights.pt");
-    let device = neurofluid_core::device::cpu();
+    let device = match neurofluid_core::device::parse_device(&device_name) {
+        Ok(d) => d,
+        Err(e) => {
+            eprintln!("--device: {e}");
+            std::process::exit(2);
+        }
+    };
+    println!("device: {device_name}");
     let ad = device.clone().autodiff();
     let net = load_dlf(&weights, DlfConfig::default(), &device).expect("weights");
     let net_ad: DlfNet = load_dlf(&weights, DlfConfig::default(), &ad).expect("weights");

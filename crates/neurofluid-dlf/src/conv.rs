@@ -3,7 +3,7 @@
 use burn::module::Param;
 use burn::prelude::*;
 use burn::tensor::Distribution;
-use neurofluid_core::tensors::{add_rows, gather_rows};
+use neurofluid_core::rows::{add_rows, gather_rows};
 
 use crate::fused;
 use crate::geometry::ConvGeometry;
@@ -108,11 +108,11 @@ impl ContinuousConv {
                 .iter()
                 .map(|ch| {
                     // one gather per pair, shared by its 8 corners
-                    let fp = gather_rows(features.clone(), ch.pair_in_rows.clone());
+                    let fp = gather_rows(features.clone(), &ch.pair_in_rows);
                     let mut g =
                         Tensor::<2>::zeros([ch.out_len * KERNEL_CELLS, cin], (&device, dtype));
                     for (rows, w) in ch.corner_out_cell_rows.iter().zip(&ch.corner_weights) {
-                        g = add_rows(g, rows.clone(), fp.clone() * w.clone());
+                        g = add_rows(g, rows, fp.clone() * w.clone());
                     }
                     g.reshape([ch.out_len, KERNEL_CELLS * cin])
                         .matmul(k.clone())
@@ -130,9 +130,9 @@ impl ContinuousConv {
             chunks
                 .iter()
                 .map(|ch| {
-                    let vals = gather_rows(h.clone(), ch.in_cell_rows.clone()) * ch.weights.clone();
+                    let vals = gather_rows(h.clone(), &ch.in_cell_rows) * ch.weights.clone();
                     let zeros = Tensor::<2>::zeros([ch.out_len, cout], (&device, dtype));
-                    add_rows(zeros, ch.out_rows.clone(), vals)
+                    add_rows(zeros, &ch.out_rows, vals)
                 })
                 .collect()
         };

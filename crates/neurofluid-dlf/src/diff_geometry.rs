@@ -4,7 +4,7 @@
 //! are piecewise constant in the positions.
 
 use burn::prelude::*;
-use neurofluid_core::tensors::gather_rows;
+use neurofluid_core::rows::{RowIndex, gather_rows};
 
 use crate::geometry::{CORNERS, HostGeometry, search_radius};
 use crate::mapping::KERNEL_SIZE;
@@ -36,10 +36,9 @@ pub fn differentiable_weights(
     }
     let device = inputs.device();
     let dtype = inputs.dtype();
-    let idx = |v: Vec<i64>| Tensor::<1, Int>::from_data(TensorData::new(v, [p]), &device);
-    let cols = idx(host.pairs.indices.iter().map(|&i| i as i64).collect());
-    let rows = idx(host.query_of_pair.iter().map(|&i| i as i64).collect());
-    let rel = gather_rows(inputs, cols) - gather_rows(outputs, rows);
+    let cols = RowIndex::new(host.pairs.indices.iter().map(|&i| i as usize), &device);
+    let rows = RowIndex::new(host.query_of_pair.iter().map(|&i| i as usize), &device);
+    let rel = gather_rows(inputs, &cols) - gather_rows(outputs, &rows);
     let radius = search_radius(extent);
     // window on the squared distance
     let r2 = (rel.clone() * rel.clone()).sum_dim(1) / (radius * radius);

@@ -11,6 +11,7 @@ use std::sync::{Arc, OnceLock};
 use burn::prelude::*;
 use burn::tensor::DType;
 use neurofluid_core::neighbors::{NeighborGrid, PairList};
+use neurofluid_core::rows::RowIndex;
 use rayon::prelude::*;
 
 use crate::mapping::{
@@ -132,16 +133,16 @@ pub struct GeometryChunk {
     /// Output points in the chunk.
     pub out_len: usize,
     /// `input·64 + cell` of every pair corner (rows of `F·K` viewed as `[N·64, Cout]`).
-    pub in_cell_rows: Tensor<1, Int>,
+    pub in_cell_rows: RowIndex,
     /// Local query index of every pair corner.
-    pub out_rows: Tensor<1, Int>,
+    pub out_rows: RowIndex,
     /// Weight of every pair corner `[entries, 1]`; tracked when the geometry is differentiable.
     pub weights: Tensor<2>,
     /// Input index of every pair `[pairs]`.
-    pub pair_in_rows: Tensor<1, Int>,
+    pub pair_in_rows: RowIndex,
     /// Per corner c: `local query·64 + cell` of every pair `[pairs]` (rows of G viewed as
     /// `[M·64, Cin]`).
-    pub corner_out_cell_rows: Vec<Tensor<1, Int>>,
+    pub corner_out_cell_rows: Vec<RowIndex>,
     /// Per corner c: weight of every pair `[pairs, 1]`.
     pub corner_weights: Vec<Tensor<2>>,
 }
@@ -235,7 +236,7 @@ impl ConvGeometry {
                     in_cell_rows.push(i * KERNEL_CELLS as i64 + cell);
                 }
             }
-            let int = |v: Vec<i64>| Tensor::<1, Int>::from_data(TensorData::new(v, [n8]), device);
+            let int = |v: Vec<i64>| RowIndex::new(v.into_iter().map(|i| i as usize), device);
             let weights = match &self.weights_override {
                 Some(w) => w.clone().narrow(0, p0 * CORNERS, n8),
                 None => Tensor::<2>::from_data(
@@ -244,19 +245,15 @@ impl ConvGeometry {
                 ),
             };
             let np = p1 - p0;
-            let pair_int =
-                |v: Vec<i64>| Tensor::<1, Int>::from_data(TensorData::new(v, [np]), device);
-            let pair_in_rows = pair_int(in_rows.iter().step_by(CORNERS).copied().collect());
+            let pair_in_rows = int(in_rows.iter().step_by(CORNERS).copied().collect());
             let corner_out_cell_rows = (0..CORNERS)
                 .map(|c| {
-                    pair_int(
-                        out_cell_rows
-                            .iter()
-                            .skip(c)
-                            .step_by(CORNERS)
-                            .copied()
-                            .collect(),
-                    )
+                    int(out_cell_rows
+                        .iter()
+                        .skip(c)
+                        .step_by(CORNERS)
+                        .copied()
+                        .collect())
                 })
                 .collect();
             let by_pair = weights.clone().reshape([np, CORNERS]);

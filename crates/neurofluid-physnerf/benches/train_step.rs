@@ -1,9 +1,12 @@
 //! One PhysNeRF training step (forward + backward, coarse + fine) with 1024 rays, 64 + 128
-//! samples and ~10k particles, on the default CPU device; prints rays/s and where the time goes.
+//! samples and ~10k particles, on the default CPU device or `--device NAME` (any `--device` name
+//! of the trainer); prints rays/s and where the time goes.
 //!
-//! `cargo bench -p neurofluid-physnerf --bench train_step` (best of 2 steps after a warm-up;
+//! `cargo bench -p neurofluid-physnerf --bench train_step [-- --device wgpu]` (best of 2 steps after a warm-up;
 //! the best rather than the median because the machine is shared). Without `--bench` (as under
-//! `cargo test --benches`) it runs one 32-ray step as a smoke test.
+//! `cargo test --benches`) it runs one 32-ray step as a smoke test. Off the CPU the stage times
+//! are host clocks around asynchronous GPU work (the neighbour search, host work, is exact); the
+//! step, the backward and the MLPs alone end with a read-back, so they are exact.
 //! The weights are the reference case's test weights (opaque, textured), the particles a
 //! 22×22×21 lattice (spacing 0.05, jitter ±0.003, randomly permuted: 10,164 particles), the
 //! camera 4 units away (400×400, as in NeuroFluid), the rays 1024 random pixels of the view.
@@ -36,7 +39,19 @@ fn main() {
     let full = std::env::args().any(|a| a == "--bench");
     let n_rays: usize = if full { 1024 } else { 32 };
     let repeats = if full { 3 } else { 2 };
-    let device = Device::flex().autodiff();
+    let args: Vec<String> = std::env::args().collect();
+    let device_name = args
+        .iter()
+        .position(|a| a == "--device")
+        .and_then(|i| args.get(i + 1))
+        .map_or("cpu", String::as_str);
+    let device = match neurofluid_core::device::parse_device(device_name) {
+        Ok(d) => d.autodiff(),
+        Err(e) => {
+            eprintln!("--device: {e}");
+            std::process::exit(2);
+        }
+    };
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
     let mut particles = Vec::new();
     for i in 0..22 {
@@ -117,15 +132,21 @@ fn main() {
         for it in 0..repeats {
             let t0 = Instant::now();
             let mut total = Tensor::<1>::zeros([1], &device);
+            let mut inputs = Vec::new();
             for (net, rows) in [(&model.coarse, evaluated.0), (&model.fine, evaluated.1)] {
                 let ex =
                     Tensor::<2>::random([rows, 198], Distribution::Uniform(-1.0, 1.0), &device)
                         .require_grad();
                 let ed = Tensor::<2>::random([rows, 54], Distribution::Uniform(-1.0, 1.0), &device);
-                let (rgb, sigma) = net.forward(ex, ed);
+                let (rgb, sigma) = net.forward(ex.clone(), ed);
                 total = total + rgb.sum() + sigma.sum();
+                inputs.push(ex);
             }
-            let _ = total.backward();
+            let grads = total.backward();
+            for ex in inputs {
+                let g = ex.grad(&grads).expect("input gradient");
+                let _ = g.sum().into_scalar::<f32>();
+            }
             if it > 0 {
                 v.push(secs(t0.elapsed()));
             }
@@ -135,7 +156,7 @@ fn main() {
     let fwd = nb + enc + mlp + comp;
     let pct = |x: f64, of: f64| 100.0 * x / of;
     println!(
-        "PhysNeRF training step: {} rays, 64 + 128 samples, {n} particles",
+        "PhysNeRF training step on {device_name}: {} rays, 64 + 128 samples, {n} particles",
         rays.len()
     );
     println!(

@@ -8,7 +8,7 @@
 use burn::prelude::*;
 use burn::tensor::TensorData;
 
-use neurofluid_core::tensors::gather_rows;
+use neurofluid_core::rows::{RowIndex, gather_rows};
 
 use crate::real::Real;
 
@@ -46,15 +46,13 @@ pub fn rows_tensor<T: Real>(rows: &[[T; 3]], device: &Device) -> Tensor<2> {
 pub fn gather_neighbors(particles: &Tensor<2>, idx: &[i32], k: usize) -> Tensor<3> {
     let [n, _] = particles.dims();
     let device = particles.device();
-    let q = idx.len() / k;
     let zero_row = Tensor::<2>::zeros([1, 3], (&device, particles.dtype()));
     let padded = Tensor::cat(vec![particles.clone(), zero_row], 0);
-    let ids: Vec<i32> = idx
-        .iter()
-        .map(|&i| if i < 0 { n as i32 } else { i })
-        .collect();
-    let ids = Tensor::<1, Int>::from_data(TensorData::new(ids, [q * k]), &device);
-    gather_rows(padded, ids).reshape([q, k, 3])
+    let ids = RowIndex::new(
+        idx.iter().map(|&i| if i < 0 { n } else { i as usize }),
+        &device,
+    );
+    gather_rows(padded, &ids).reshape([idx.len() / k, k, 3])
 }
 
 /// Computes the features of samples `x [Q, 3]` from their gathered neighbours.

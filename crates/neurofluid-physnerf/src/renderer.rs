@@ -3,9 +3,9 @@
 use std::time::{Duration, Instant};
 
 use burn::prelude::*;
+use burn::tensor::DType;
 use burn::tensor::activation::softplus;
-use burn::tensor::{DType, TensorData};
-use neurofluid_core::tensors::add_rows;
+use neurofluid_core::rows::{RowIndex, add_rows};
 use rand::RngCore;
 
 use crate::config::{DensityActivation, PhysNerfConfig};
@@ -356,13 +356,12 @@ impl PhysNerf {
             };
             timings.mlp += t2.elapsed();
             if cfg.gated_only {
-                let ids: Vec<i32> = selected.iter().map(|&q| q as i32).collect();
-                let ids = Tensor::<1, Int>::from_data(TensorData::new(ids, [g]), &device);
+                let ids = RowIndex::new(selected.iter().copied(), &device);
                 let zeros3 = Tensor::<2>::zeros([q_all, 3], (&device, T::DTYPE));
                 let zeros1 = Tensor::<2>::zeros([q_all, 1], (&device, T::DTYPE));
                 (
-                    add_rows(zeros3, ids.clone(), rgb_g),
-                    add_rows(zeros1, ids, sigma_g),
+                    add_rows(zeros3, &ids, rgb_g),
+                    add_rows(zeros1, &ids, sigma_g),
                 )
             } else {
                 let m: Vec<T> = mask
