@@ -2,7 +2,7 @@
 # Builds a bundle that runs NeuroFluid-rs on a GPU machine with no Rust toolchain and no network:
 # the trainer, the two step benchmarks and the backend-generic test binaries, built here with the
 # wgpu backend (Vulkan; on NVIDIA through the driver's Vulkan ICD) in the dev profile (as every
-# figure in BENCHMARKS.md), stripped, packed with xz into parts of at most 60 MiB, with
+# figure in BENCHMARKS.md), stripped, packed with xz into parts of at most 36 MiB, with
 # `run-on-gpu.sh` to run them there.
 #
 #   scripts/gpu-bundle.sh DIR
@@ -65,21 +65,37 @@ if command -v apt-get >/dev/null; then
         echo "libvulkan1 not fetched: put Vulkan's loader in $out/debs if the GPU machine lacks it"
 fi
 cp "$stage/build-root" "$stage/commit" "$out/"
-# parts: the trainer and benchmarks with the core and DLF tests, then the rest
-part() {
-    local n=$1
-    shift
-    (cd "$stage/bin" && tar cf - "$@") | xz -T2 -6 --lzma2=dict=256MiB >"$out/part-$n.tar.xz"
-    local size
-    size=$(stat -c %s "$out/part-$n.tar.xz")
-    echo "part-$n.tar.xz: $((size / 1048576)) MiB"
-    if [ "$size" -gt $((60 * 1048576)) ]; then
-        echo "part-$n.tar.xz is over 60 MiB: split the bundle further" >&2
+# parts of at most 36 MiB (about six binaries' worth: each binary holds Burn's kernels for flex and
+# cubecl, 60 MB stripped, 6 MB more per binary compressed together), so that each fits beside the
+# repository (26 MB) in a 64 MiB transfer; the parts may arrive one at a time and unpack into the
+# same folder there. Two compress at a time.
+parts=(
+    "neurofluid-train train_step dlf_step"
+    "dense_layer posenc indexed_rows backends"
+    "conv_geometry fused_conv parity_forward parity_backward"
+    "parity_rollout supervised_dlf parity_e2e_f32 parity_stages"
+    "options_and_weights nerf_fit pipeline_resume"
+    "pretrain_on_scene learning"
+)
+pack() {
+    # shellcheck disable=SC2086 # the names are a list
+    (cd "$stage/bin" && tar cf - $2) | xz -6 --lzma2=dict=256MiB >"$out/part-$1.tar.xz"
+}
+for ((i = 0; i < ${#parts[@]}; i += 2)); do
+    pack $((i + 1)) "${parts[i]}" &
+    if ((i + 1 < ${#parts[@]})); then pack $((i + 2)) "${parts[i + 1]}" & fi
+    wait
+done
+for f in "$out"/part-*.tar.xz; do
+    size=$(stat -c %s "$f")
+    echo "${f##*/}: $((size / 1048576)) MiB"
+    if [ "$size" -eq 0 ]; then
+        echo "${f##*/} is empty: packing failed" >&2
         exit 1
     fi
-}
-part 1 neurofluid-train train_step dlf_step dense_layer posenc indexed_rows backends \
-    conv_geometry fused_conv parity_forward parity_backward parity_rollout
-part 2 parity_e2e_f32 parity_stages options_and_weights nerf_fit supervised_dlf \
-    pipeline_resume pretrain_on_scene learning
+    if [ "$size" -gt $((36 * 1048576)) ]; then
+        echo "${f##*/} is over 36 MiB: split that part" >&2
+        exit 1
+    fi
+done
 echo "bundle in $out (commit $(cat "$out/commit"))"

@@ -16,10 +16,11 @@ results=$(cd "$results" && pwd)
 summary=$results/summary.txt
 say() { echo "$*" | tee -a "$summary"; }
 
-if [ ! -x "$bundle/bin/neurofluid-train" ]; then
-    mkdir -p "$bundle/bin"
-    for p in "$bundle"/part-*.tar.xz; do xz -dc "$p" | tar xf - -C "$bundle/bin" || exit 1; done
-fi
+# the parts present (one or all; parts unpacked by an earlier call stay in BUNDLE/bin)
+mkdir -p "$bundle/bin"
+for p in "$bundle"/part-*.tar.xz; do
+    [ -e "$p" ] && { xz -dc "$p" | tar xf - -C "$bundle/bin" || exit 1; }
+done
 # the binaries read test data and assets through the path they were built in
 built=$(cat "$bundle/build-root")
 if [ "$built" != "$PWD" ] && [ ! -e "$built" ]; then
@@ -43,6 +44,12 @@ command -v nvidia-smi >/dev/null && say "$(nvidia-smi --query-gpu=name,driver_ve
 timed() { # label log command...: wall seconds and exit status into the summary
     local label=$1 log=$2
     shift 2
+    local exe
+    for exe in "$@"; do [[ $exe == "$bin"/* ]] && break; done
+    if [[ $exe == "$bin"/* ]] && [ ! -x "$exe" ]; then
+        say "$label: skipped, ${exe##*/} is in a part not unpacked here"
+        return
+    fi
     local t0=$SECONDS
     "$@" >>"$log" 2>&1
     local rc=$?
@@ -57,7 +64,7 @@ for step in $steps; do
             nerf_fit supervised_dlf pipeline_resume pretrain_on_scene learning; do
             echo "== $t" >>"$results/tests.log"
             NEUROFLUID_TEST_DEVICE=wgpu timed "test $t" "$results/tests.log" "$bin/$t"
-            grep '^test result' "$results/tests.log" | tail -1 | sed 's/^/  /' | tee -a "$summary"
+            [ -x "$bin/$t" ] && grep '^test result' "$results/tests.log" | tail -1 | sed 's/^/  /' | tee -a "$summary"
         done
         ;;
     benches)
