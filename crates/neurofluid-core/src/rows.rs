@@ -69,11 +69,6 @@ impl RowIndex {
         self.ids.is_empty()
     }
 
-    /// The indices on the host.
-    pub fn ids(&self) -> &[u32] {
-        &self.ids
-    }
-
     /// `Σ values[r]` over the rows `r` whose index is `j`, for every `j < n` → `[n, c]`, in the
     /// plan's fixed order (the plan is cached for the first `n` asked for); a composition of
     /// Burn's gather and sum (any backend, any tracking).
@@ -110,9 +105,9 @@ impl RowIndex {
 }
 
 impl SumPlan {
-    /// Groups the positions of `ids` by destination (a stable counting sort, so each
-    /// destination's rows stay in ascending order), destinations by the next power of two of
-    /// their row count.
+    /// Groups the positions of `ids` (each below `n`) by destination (a stable counting sort, so
+    /// each destination's rows stay in ascending order), destinations by the next power of two
+    /// of their row count.
     fn new(ids: &[u32], n: usize) -> Self {
         let l = ids.len();
         let mut start = vec![0usize; n + 1];
