@@ -140,8 +140,10 @@ fn a_model_that_starts_dead_is_stopped_with_the_reason() {
     let _turn = seeded_turn();
     let tmp = tempfile::tempdir().unwrap();
     let mut e = tiny_experiment(tmp.path(), "dead");
-    // the paper's ReLU density; with this seed both networks start with σ ≤ 0 everywhere
+    // the paper's ReLU density; with seed 1 both networks start with σ ≤ 0 everywhere (so do
+    // seeds 4, 8 and 9 of 0–11; the draw is the CPU's on every device)
     e.apply_override("physnerf.density=\"relu\"").unwrap();
+    e.apply_override("seed=1").unwrap();
     let run = Run::prepare(e, Start::Resume, &Stage::ALL).unwrap();
     let mut log = run.open_log().unwrap();
     let err = format!("{:#}", warmup::run(&run, &mut log).unwrap_err());

@@ -3,6 +3,7 @@
 //! Which backends exist is decided at build time by cargo features; asking for one that is not
 //! compiled in is an error that names the feature to enable.
 
+use burn::module::Module;
 use burn::prelude::Device;
 
 /// Why a device name could not be turned into a device.
@@ -66,6 +67,22 @@ pub fn cpu() -> Device {
         .next()
         .map(|(_, d)| d)
         .expect("no CPU backend compiled in: enable the `flex` or `ndarray` feature")
+}
+
+/// A module built by `build` on the CPU (autodiff on) seeded with `seed`, its parameters drawn
+/// there in visiting order, then moved to `device`. Each backend draws its own random numbers
+/// from a seed, and Burn draws a parameter on its first use (a lazy parameter moved to another
+/// device is drawn there), so this is what gives the same initial weights on every device.
+pub fn init_seeded<M: Module, E>(
+    seed: u64,
+    device: &Device,
+    build: impl FnOnce(&Device) -> Result<M, E>,
+) -> Result<M, E> {
+    let cpu = cpu().autodiff();
+    cpu.seed(seed);
+    let module = build(&cpu)?;
+    crate::params::initialise_all(&module);
+    Ok(module.fork(device))
 }
 
 /// The environment variable that points the backend-generic tests at a device (`cpu` when unset).

@@ -50,6 +50,19 @@ pub fn ids<M: Module>(module: &M) -> Vec<u64> {
     v.0
 }
 
+/// Draws every float parameter of `module` that is still lazy (Burn initialises a parameter on
+/// its first use), in visiting order, so the draws follow the module's layout rather than the
+/// order in which later code happens to touch the parameters.
+pub fn initialise_all<M: Module>(module: &M) {
+    struct Touch;
+    impl ModuleVisitor for Touch {
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            drop(param.val());
+        }
+    }
+    module.visit(&mut Touch);
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

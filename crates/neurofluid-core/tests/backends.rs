@@ -12,6 +12,9 @@ struct Tiny {
     b: Linear,
 }
 
+/// The backend's random stream is global: the tests that draw from it take turns.
+static DRAWS: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 const X: [[f32; 3]; 2] = [[0.5, -1.0, 2.0], [1.5, 0.25, -0.75]];
 
 /// Deterministic weights so every backend runs the same model.
@@ -66,6 +69,7 @@ fn host() -> Vec<f64> {
 
 #[test]
 fn every_cpu_backend_computes_the_same_model() {
+    let _turn = DRAWS.lock().unwrap_or_else(|e| e.into_inner());
     let expected = host();
     let devices = cpu_devices();
     assert!(!devices.is_empty());
@@ -105,4 +109,35 @@ fn select_gradient_sums_repeated_rows() {
     let g = x.grad(&grads).unwrap().try_into_vec_as::<f32>().unwrap();
     // row 0 is picked by rows 0, 2, 3 of w; row 1 by row 4; row 2 by row 1
     assert_eq!(g, vec![8.0, 80.0, 5.0, 50.0, 2.0, 20.0]);
+}
+
+/// A seeded initialisation gives the CPU's draw on `$NEUROFLUID_TEST_DEVICE` (each backend has
+/// its own random numbers: on wgpu building there directly gives other weights), the module
+/// lives on that device afterwards, and another seed gives other weights.
+#[test]
+fn seeded_initialisation_is_the_cpus_draw_on_every_device() {
+    use neurofluid_core::device::{cpu, init_seeded, test_device};
+    let values = |m: &Linear| -> Vec<f32> {
+        let mut v = m.weight.val().try_into_vec_as::<f32>().unwrap();
+        v.extend(
+            m.bias
+                .as_ref()
+                .unwrap()
+                .val()
+                .try_into_vec_as::<f32>()
+                .unwrap(),
+        );
+        v
+    };
+    let build = |d: &Device| Ok::<_, std::convert::Infallible>(LinearConfig::new(5, 7).init(d));
+    let _turn = DRAWS.lock().unwrap_or_else(|e| e.into_inner());
+    let device = test_device().autodiff();
+    let moved = init_seeded(41, &device, build).unwrap();
+    assert_eq!(moved.weight.val().device(), device);
+    let reference = cpu().autodiff();
+    reference.seed(41);
+    let on_cpu = build(&reference).unwrap();
+    assert_eq!(values(&moved), values(&on_cpu));
+    let other = init_seeded(42, &device, build).unwrap();
+    assert_ne!(values(&other), values(&on_cpu));
 }

@@ -80,9 +80,8 @@ fn train(config: NerfConfig, images: &[(RayBatch, Vec<f32>, Option<f64>)], iters
     // initialised on the CPU, then moved: the same start on every device (each backend draws its
     // own random numbers; on wgpu's draw of seed 3 the sphere fit reached 21 dB, the CPU's
     // seeds 3–7 25.3–27.3 dB, with forward, gradients and Adam steps matching across the two)
-    let cpu = neurofluid_core::device::cpu().autodiff();
-    cpu.seed(3);
-    let mut model = Nerf::new(config, &cpu).unwrap().fork(&device);
+    let mut model =
+        neurofluid_core::device::init_seeded(3, &device, |cpu| Nerf::new(config, cpu)).unwrap();
     let mut opt = AdamConfig::new().init();
     let mut rng = ChaCha8Rng::seed_from_u64(7);
     let batch = 256;

@@ -77,8 +77,10 @@ fn config(iterations: u64) -> SupervisedConfig {
 
 fn fresh_net() -> DlfNet {
     let device = neurofluid_core::device::test_device().autodiff();
-    device.seed(7);
-    DlfNet::new(DlfConfig::default(), &device)
+    neurofluid_core::device::init_seeded(7, &device, |cpu| {
+        Ok::<_, std::convert::Infallible>(DlfNet::new(DlfConfig::default(), cpu))
+    })
+    .unwrap()
 }
 
 #[test]

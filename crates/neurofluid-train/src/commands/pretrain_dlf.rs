@@ -115,7 +115,6 @@ fn reset_checkpoints(dir: &Path) -> anyhow::Result<()> {
 /// Runs the training.
 pub fn run(args: Args) -> anyhow::Result<()> {
     let device = parse_device(&args.device)?.autodiff();
-    device.seed(args.train.seed);
     let (train, up) = load_sequences(&args.data)?;
     let val = match &args.val {
         Some(dir) => load_sequences(dir)?.0,
@@ -127,7 +126,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let net: DlfNet = match &args.init {
         Some(path) => load_dlf(path, config, &device)?,
-        None => DlfNet::new(config, &device),
+        None => neurofluid_core::device::init_seeded(args.train.seed, &device, |cpu| {
+            anyhow::Ok(DlfNet::new(config, cpu))
+        })?,
     };
     tracing::info!(
         "pretrain-dlf: {} training and {} validation sequences, {} steps of batch {}",

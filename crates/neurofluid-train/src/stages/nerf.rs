@@ -260,10 +260,12 @@ impl Trainer for NerfTrainer {
 }
 
 /// The NeRF of `kind` for `run`'s scene (the ray segment is the scene's), freshly initialised
-/// from the experiment's seed.
+/// from the experiment's seed (the same weights on every device).
 pub fn new_nerf(run: &Run, kind: NerfKind) -> anyhow::Result<Nerf> {
-    run.device.seed(run.exp.seed);
-    Nerf::new(nerf_config(run, kind), &run.device).context("building the NeRF from [nerf.model]")
+    neurofluid_core::device::init_seeded(run.exp.seed, &run.device, |cpu| {
+        Nerf::new(nerf_config(run, kind), cpu)
+    })
+    .context("building the NeRF from [nerf.model]")
 }
 
 fn nerf_config(run: &Run, kind: NerfKind) -> NerfConfig {

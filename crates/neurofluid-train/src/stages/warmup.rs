@@ -176,10 +176,13 @@ impl Trainer for WarmupTrainer {
     }
 }
 
-/// A fresh PhysNeRF for `run`, initialised from the experiment's seed.
+/// A fresh PhysNeRF for `run`, initialised from the experiment's seed (the same weights on
+/// every device).
 pub fn new_physnerf(run: &Run) -> anyhow::Result<PhysNerf> {
-    run.device.seed(run.exp.seed);
-    PhysNerf::new(run.physnerf_config(), &run.device).context("building PhysNeRF from [physnerf]")
+    neurofluid_core::device::init_seeded(run.exp.seed, &run.device, |cpu| {
+        PhysNerf::new(run.physnerf_config(), cpu)
+    })
+    .context("building PhysNeRF from [physnerf]")
 }
 
 /// Runs (or resumes) the warm-up of `run` with the CLI's sinks and returns PhysNeRF.
