@@ -51,6 +51,23 @@ impl Frame {
     }
 }
 
+/// An axis-aligned container in the **scene** frame: the region every predicted particle is kept
+/// in when set ([`DlfConfig::container`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Container {
+    /// Lower corner (m).
+    pub min: [f32; 3],
+    /// Upper corner (m).
+    pub max: [f32; 3],
+}
+
+impl Container {
+    /// `p` moved to the nearest point of the container (each axis clamped).
+    pub fn clamp(&self, p: [f32; 3]) -> [f32; 3] {
+        std::array::from_fn(|a| p[a].clamp(self.min[a], self.max[a]))
+    }
+}
+
 /// Settings of a DLF model that are not weights.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DlfConfig {
@@ -66,6 +83,10 @@ pub struct DlfConfig {
     pub frame: Frame,
     /// Whether the conv geometry is differentiable.
     pub geometry: GeometryMode,
+    /// Keep every predicted particle inside this box (scene frame): a step that would carry a
+    /// particle through a wall ends on the wall, its velocity the displacement it really made.
+    /// `None` (the reference): the walls act only through the box particles' convolution.
+    pub container: Option<Container>,
 }
 
 impl Default for DlfConfig {
@@ -78,6 +99,7 @@ impl Default for DlfConfig {
             output_scale: 1.0 / 128.0,
             frame: Frame::YUp,
             geometry: GeometryMode::Constant,
+            container: None,
         }
     }
 }

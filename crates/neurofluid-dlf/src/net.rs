@@ -4,7 +4,7 @@ use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
 
-use crate::config::{DlfConfig, GeometryMode};
+use crate::config::{Container, DlfConfig, GeometryMode};
 use crate::conv::ContinuousConv;
 use crate::diff_geometry::differentiable_weights;
 use crate::geometry::{ConvGeometry, build_host_geometry};
@@ -105,6 +105,28 @@ fn rotation_tensor(r: [[f32; 3]; 3], transpose: bool, device: &Device) -> Tensor
 }
 
 pub use neurofluid_core::tensors::{points_tensor, tensor_points};
+
+/// Positions `pos` `[N, 3]` (scene frame) clamped into `container`, and the velocities `vel`
+/// corrected by the same displacement over `dt`, so that v = (x_{t+1} − x_t)/dt still holds.
+/// Gradients pass through every coordinate the clamp leaves and stop at the ones it moves.
+pub fn contain(
+    pos: Tensor<2>,
+    vel: Tensor<2>,
+    container: &Container,
+    dt: f32,
+) -> (Tensor<2>, Tensor<2>) {
+    let device = pos.device();
+    let n = pos.dims()[0];
+    let bound = |c: [f32; 3]| {
+        Tensor::<2>::from_data(TensorData::new(c.to_vec(), [1, 3]), &device).expand([n, 3])
+    };
+    let clamped = pos
+        .clone()
+        .max_pair(bound(container.min))
+        .min_pair(bound(container.max));
+    let vel = vel + (clamped.clone() - pos) / dt;
+    (clamped, vel)
+}
 
 impl DlfNet {
     /// A freshly initialised network (Open3D/torch initialisers) with the given settings.
@@ -261,9 +283,14 @@ impl DlfNet {
         let (raw, features) = self.correction(vel_pred.clone(), boundary, &fluid, &solid);
         let pos_new = pos_pred.clone() + raw.clone() * cfg.output_scale;
         let vel_new = (pos_new.clone() - pos) / cfg.dt;
+        let (pos_new, vel_new) = (self.to_scene(pos_new), self.to_scene(vel_new));
+        let (pos, vel) = match &cfg.container {
+            Some(c) => contain(pos_new, vel_new, c, cfg.dt),
+            None => (pos_new, vel_new),
+        };
         let out = StepOutput {
-            pos: self.to_scene(pos_new),
-            vel: self.to_scene(vel_new),
+            pos,
+            vel,
             num_fluid_neighbors,
         };
         let trace = StepTrace {

@@ -37,8 +37,9 @@ pub use errors::{ConfigError, from_toml_str, line_col};
 pub(crate) use errors::{from_table, read_text};
 pub use preset::Preset;
 pub use sections::{
-    BuiltinScene, DlfSection, EvalSection, InitialParticles, InitialSection, JointSection,
-    NerfSection, PlyEncoding, SceneScale, SceneSection, SurfaceThreshold, WarmupSection,
+    BuiltinScene, Containment, DlfSection, EvalSection, InitialParticles, InitialSection,
+    JointSection, NerfSection, PlyEncoding, SceneScale, SceneSection, SurfaceThreshold,
+    WarmupSection,
 };
 pub use settings::{Settings, StageKind};
 
@@ -300,6 +301,13 @@ impl Experiment {
         let n = &self.nerf;
         if let Some((field, msg)) = n.model.problem() {
             return bad(&format!("nerf.model.{field}"), &msg);
+        }
+        if n.model.density == neurofluid_physnerf::DensityActivation::Softplus && !n.clip_to_box {
+            return bad(
+                "nerf.model.density",
+                "\"softplus\" needs nerf.clip_to_box = true (outside the box the density must \
+                 be zero, or every ray's infinite last interval is opaque)",
+            );
         }
         if n.iters == 0 {
             return bad("nerf.iters", "expected at least 1 iteration");

@@ -3,7 +3,7 @@
 //!
 //! `preset = "paper"` (or `--set preset=paper`) resets every rule in which this project departs
 //! from NeuroFluid's code (spec §4) to the reference's value, whatever the file says: constant
-//! DLF geometry, the lowest-index neighbour rule, ReLU density and the paper's encoding
+//! DLF geometry and open walls, the lowest-index neighbour rule, ReLU density and the paper's encoding
 //! frequencies, the warm-up's and the joint stage's optimisers and schedules, one-step truncated
 //! BPTT with DLF stepping every transition, uniform rays, one view, no silhouette term, the
 //! boundary weight 1. Budgets (iterations, epochs, rays, samples, network widths) stay the
@@ -46,6 +46,7 @@ pub fn apply(exp: &mut Experiment) -> Vec<Change> {
     p.density = paper_nerf.density;
     p.frequencies = paper_nerf.frequencies;
     exp.dlf.geometry = DlfSection::default().geometry;
+    exp.dlf.containment = DlfSection::default().containment;
     exp.warmup.optim = WarmupSection::default().optim;
     let paper = JointSection::default();
     let j = &mut exp.joint;

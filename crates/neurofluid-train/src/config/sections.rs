@@ -260,6 +260,10 @@ pub struct DlfSection {
     pub weights: PathBuf,
     /// `constant` (Open3D, the reference) or `differentiable` (gradients through the geometry).
     pub geometry: GeometryMode,
+    /// `none` (the reference: the walls act only through DLF's box convolution) or `box` (every
+    /// predicted particle is kept inside the scene's box interior, its velocity corrected to the
+    /// move it made), in every rollout: training, diagnostics and evaluation.
+    pub containment: Containment,
 }
 
 impl Default for DlfSection {
@@ -267,8 +271,20 @@ impl Default for DlfSection {
         Self {
             weights: PathBuf::from("assets/dlf_pretrained/pretrained_model_weights.pt"),
             geometry: GeometryMode::Constant,
+            containment: Containment::None,
         }
     }
+}
+
+/// `dlf.containment`: whether the walls of the box are enforced on DLF's predictions.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Containment {
+    /// The reference: particles may cross the walls where DLF's box convolution lets them.
+    #[default]
+    None,
+    /// Predictions clamped into the scene's box interior (`box_interior` of `scene.json`).
+    Box,
 }
 
 /// `[warmup]`: PhysNeRF alone on frame 0 (spec §4.1).
@@ -367,6 +383,10 @@ pub struct JointSection {
     /// particles into fluid the prediction misses and out of places the truth leaves empty.
     /// 0 = the reference's image loss alone.
     pub silhouette_weight: f64,
+    /// Whether the silhouette term also pulls particles into the target's fluid pixels that no
+    /// projected particle covers (true, both sides); false keeps only its spray side (particles
+    /// projected outside the fluid are pulled onto it).
+    pub silhouette_cover: bool,
     /// Training view; unset = the scene manifest's (view_1).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub view: Option<String>,
@@ -396,6 +416,7 @@ impl Default for JointSection {
             precrop_frac: 0.5,
             foreground_rays: 0.0,
             silhouette_weight: 0.0,
+            silhouette_cover: true,
             view: None,
             extra_views: Vec::new(),
             log_every: 49,

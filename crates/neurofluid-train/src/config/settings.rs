@@ -39,6 +39,8 @@ const ADDED_KEYS: &[(&str, &str)] = &[
     ("joint.dlf_every", "1"),
     ("joint.extra_views", "[]"),
     ("joint.silhouette_weight", "0.0"),
+    ("dlf.containment", "\"none\""),
+    ("joint.silhouette_cover", "true"),
 ];
 
 /// The stages whose state the settings shape.

@@ -11,13 +11,13 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use burn::prelude::*;
 use neurofluid_core::scene::{Scene, UpAxis};
-use neurofluid_dlf::{DlfConfig, DlfNet};
+use neurofluid_dlf::{Container, DlfConfig, DlfNet};
 use neurofluid_physnerf::PhysNerfConfig;
 
 use super::nerf::NerfKind;
 use super::preflight::{self, Stage};
 use super::scene_source::generate_scene_if_missing;
-use crate::config::{Experiment, RESOLVED_FILE, Settings, StageKind};
+use crate::config::{Containment, Experiment, RESOLVED_FILE, Settings, StageKind};
 use crate::metrics_log::{CSV_FILE, JSONL_FILE, MetricsLog};
 use crate::trainer::checkpoint;
 use crate::trainer::lock::FolderLock;
@@ -198,6 +198,13 @@ impl Run {
         };
         cfg.dt = 1.0 / self.scene.manifest().fps;
         cfg.geometry = self.exp.dlf.geometry;
+        if self.exp.dlf.containment == Containment::Box {
+            let b = self.scene.manifest().box_interior;
+            cfg.container = Some(Container {
+                min: b.min,
+                max: b.max,
+            });
+        }
         cfg
     }
 
