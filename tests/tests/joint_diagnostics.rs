@@ -176,6 +176,7 @@ fn diagnostics_reach_the_metrics_and_match_an_independent_rollout() {
         let a = r.grad_alignment.expect("alignment");
         assert!((-1.0..=1.0).contains(&a), "{a}");
         assert!(r.psnr_true.expect("PSNR on the true particles").is_finite());
+        assert!(r.rollout_d_prime.expect("the rollout's d′").is_finite());
     }
     let csv =
         std::fs::read_to_string(run.dir.join(neurofluid_train::metrics_log::CSV_FILE)).unwrap();
@@ -183,7 +184,7 @@ fn diagnostics_reach_the_metrics_and_match_an_independent_rollout() {
         csv.lines()
             .next()
             .unwrap()
-            .ends_with("rollout_d,grad_alignment,psnr_true")
+            .ends_with("rollout_d,grad_alignment,psnr_true,rollout_d_prime")
     );
 
     // the last evaluation follows the last update: its rollout d is the grounded DLF's
@@ -350,7 +351,7 @@ fn silhouette_term_joins_the_loss_and_moves_dlf() {
     let pred = tensor_points(&pred.pos);
     let camera = &data.views[0][1].camera;
     let radius = projected_radius(camera, data.interior.centre(), data.radius).unwrap();
-    let term = silhouette_loss(camera, &data.foreground[0][1], &pred, radius).loss;
+    let term = silhouette_loss(camera, &data.foreground[0][1], &pred, radius, true).loss;
     assert!(
         term > 0.0,
         "the pretrained prediction does not fill the silhouette exactly"

@@ -63,6 +63,20 @@ pub enum DensityActivation {
     Softplus,
 }
 
+impl DensityActivation {
+    /// The raw density `sigma` after this activation's part that comes before any gate or box
+    /// mask: softplus(σ − 1), or σ itself for ReLU (which volume rendering applies, the
+    /// reference's place).
+    pub fn before_mask(self, sigma: burn::tensor::Tensor<2>) -> burn::tensor::Tensor<2> {
+        match self {
+            DensityActivation::Relu => sigma,
+            DensityActivation::Softplus => {
+                burn::tensor::activation::softplus(sigma.sub_scalar(1.0), 1.0)
+            }
+        }
+    }
+}
+
 /// Positional-encoding frequency counts L of each encoded term.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]

@@ -5,15 +5,17 @@
 //! Everything but the network inputs is PhysNeRF's: the nerf_pl MLP ([`NerfMlp`]), the
 //! hierarchical sampling ([`render_hierarchical`]), the volume rendering and the loss. The inputs
 //! are `e_x = [γ(x), γ(t)?]` and `e_d = γ(d)`; every sample is evaluated (there is no particle
-//! gate). The density is ReLU'd in the volume rendering, as in the original: with the infinite
-//! last interval a softplus would leave every ray's last sample opaque, hiding the background.
+//! gate). The density is ReLU'd in the volume rendering, as in the original; `density =
+//! "softplus"` (a network that cannot start dead) needs the box bounds, outside which the density
+//! is zero: with the infinite last interval a softplus density there would leave every ray's last
+//! sample opaque, hiding the background.
 
 use burn::prelude::*;
 use burn::tensor::activation::relu;
 use rand::RngCore;
 use serde::{Deserialize, Serialize};
 
-use crate::config::encoded_width;
+use crate::config::{DensityActivation, encoded_width};
 use crate::encoding::{posenc, posenc_cat};
 use crate::error::{PhysNerfError, Result};
 use crate::features::host_tensor;
@@ -66,6 +68,10 @@ pub struct NerfConfig {
     pub white_background: bool,
     /// Rays per chunk when a whole image is rendered (memory only).
     pub chunk: usize,
+    /// The density activation: `relu` (the original NeRF; a network can start dead, σ ≤ 0 on
+    /// every sample and no gradient) or `softplus` (σ = softplus(raw − 1) inside the box bounds,
+    /// which it needs).
+    pub density: DensityActivation,
 }
 
 impl Default for NerfConfig {
@@ -86,6 +92,7 @@ impl Default for NerfConfig {
             stratified: true,
             white_background: true,
             chunk: 1024,
+            density: DensityActivation::Relu,
         }
     }
 }
@@ -157,6 +164,13 @@ impl Nerf {
     pub fn new(config: NerfConfig, device: &Device) -> Result<Self> {
         if let Some((field, message)) = config.problem() {
             return Err(PhysNerfError::Invalid(format!("{field}: {message}")));
+        }
+        if config.density == DensityActivation::Softplus && config.bounds.is_none() {
+            return Err(PhysNerfError::Invalid(
+                "density: a softplus density needs box bounds (without them every ray's last, \
+                 infinite interval would be opaque)"
+                    .into(),
+            ));
         }
         Ok(Self {
             coarse: NerfMlp::new(&config.mlp_shape(), device),
@@ -254,6 +268,7 @@ impl Nerf {
             // density does not depend on the direction: any unit vector will do
             let d = host_tensor([0.0f32, 0.0, 1.0].repeat(q), [q, 3], &device);
             let (_, sigma) = model.fine.forward(e_x, posenc(d, self.config.freq_d));
+            let sigma = self.config.density.before_mask(sigma);
             let sigma = match inside {
                 Some(m) => sigma * m,
                 None => sigma,
@@ -322,6 +337,7 @@ impl Nerf {
         timings.encoding += t1.elapsed();
         let t2 = std::time::Instant::now();
         let (rgb, sigma) = net.forward(e_x, e_d);
+        let sigma = self.config.density.before_mask(sigma);
         let sigma = match inside {
             Some(m) => sigma * m,
             None => sigma,
@@ -383,5 +399,103 @@ mod tests {
             free.density_at(&inside, None).unwrap()
         );
         assert_eq!(boxed.density_at(&outside, None).unwrap(), vec![0.0; 3]);
+    }
+
+    /// A small NeRF in a box, its density heads' raw output −2 everywhere (weights zero): the
+    /// start a ReLU density cannot leave.
+    fn dead_start(density: DensityActivation, device: &Device) -> Nerf {
+        device.seed(2);
+        let mut nerf = Nerf::new(
+            NerfConfig {
+                width: 16,
+                depth: 3,
+                skip: 1,
+                n_samples: 8,
+                n_importance: 8,
+                stratified: false,
+                near: 1.0,
+                far: 3.0,
+                bounds: Some(([-0.5; 3], [0.5; 3])),
+                density,
+                ..NerfConfig::default()
+            },
+            device,
+        )
+        .unwrap();
+        for net in [&mut nerf.coarse, &mut nerf.fine] {
+            let w = net.sigma.weight.val();
+            net.sigma.weight = burn::module::Param::from_tensor(w.zeros_like());
+            let b = net.sigma.bias.take().unwrap().val();
+            net.sigma.bias = Some(burn::module::Param::from_tensor(
+                b.zeros_like().sub_scalar(2.0),
+            ));
+        }
+        nerf
+    }
+
+    /// The gradient of a render's loss reaching the fine density head's bias.
+    fn density_gradient(nerf: &Nerf) -> f32 {
+        let rays = RayBatch {
+            origins: vec![[0.0, 0.0, 2.0]; 3],
+            dirs: vec![[0.0, 0.0, -1.0], [0.1, 0.0, -0.995], [0.0, -0.1, -0.995]],
+        };
+        let out = nerf.render_rays(&rays, None, None).unwrap();
+        let target = Tensor::<2>::zeros([3, 3], &nerf.device());
+        let grads = out.loss(target).total.backward();
+        let g = nerf
+            .fine
+            .sigma
+            .bias
+            .as_ref()
+            .unwrap()
+            .val()
+            .grad(&grads)
+            .unwrap();
+        g.into_data().to_vec::<f32>().unwrap()[0]
+    }
+
+    #[test]
+    fn a_softplus_density_cannot_start_dead_where_a_relu_one_does() {
+        let device = Device::flex().autodiff();
+        let inside = [[0.1, -0.2, 0.3], [0.0, 0.0, 0.0], [-0.4, 0.4, 0.2]];
+        let relu = dead_start(DensityActivation::Relu, &device);
+        assert_eq!(relu.density_at(&inside, None).unwrap(), vec![0.0; 3]);
+        assert_eq!(
+            density_gradient(&relu),
+            0.0,
+            "a dead ReLU start gets no gradient"
+        );
+        let soft = dead_start(DensityActivation::Softplus, &device);
+        let sigma = soft.density_at(&inside, None).unwrap();
+        let expected = (1.0f32 + (-3.0f32).exp()).ln();
+        for s in sigma {
+            assert!(
+                (s - expected).abs() < 1e-6,
+                "softplus(−2 − 1) = {expected}, got {s}"
+            );
+        }
+        assert!(
+            density_gradient(&soft).abs() > 1e-6,
+            "softplus passes a gradient to the density"
+        );
+        // outside the box: nothing, so the background shows
+        assert_eq!(
+            soft.density_at(&[[2.0, 0.0, 0.0]], None).unwrap(),
+            vec![0.0]
+        );
+    }
+
+    #[test]
+    fn a_softplus_density_without_box_bounds_is_refused() {
+        let e = Nerf::new(
+            NerfConfig {
+                density: DensityActivation::Softplus,
+                ..NerfConfig::default()
+            },
+            &Device::flex(),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("softplus density needs box bounds"), "{e}");
     }
 }

@@ -4,11 +4,10 @@ use std::time::{Duration, Instant};
 
 use burn::prelude::*;
 use burn::tensor::DType;
-use burn::tensor::activation::softplus;
 use neurofluid_core::rows::{RowIndex, add_rows};
 use rand::RngCore;
 
-use crate::config::{DensityActivation, PhysNerfConfig};
+use crate::config::PhysNerfConfig;
 use crate::encoding::encode_inputs;
 use crate::error::{PhysNerfError, Result};
 use crate::features::{gather_neighbors, host_tensor, local_features, rows_tensor, valid_tensor};
@@ -348,12 +347,8 @@ impl PhysNerf {
             timings.encoding += t1.elapsed();
             let t2 = Instant::now();
             let (rgb_g, sigma_g) = net.forward(e_x, e_d);
-            // ReLU is applied in volume rendering (the reference's place); softplus must come
-            // before the gate, which zeroes the density of ungated samples
-            let sigma_g = match cfg.density {
-                DensityActivation::Relu => sigma_g,
-                DensityActivation::Softplus => softplus(sigma_g.sub_scalar(1.0), 1.0),
-            };
+            // softplus must come before the gate, which zeroes the density of ungated samples
+            let sigma_g = cfg.density.before_mask(sigma_g);
             timings.mlp += t2.elapsed();
             if cfg.gated_only {
                 let ids = RowIndex::new(selected.iter().copied(), &device);

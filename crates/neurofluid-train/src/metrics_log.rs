@@ -14,7 +14,7 @@ pub const CSV_FILE: &str = "metrics.csv";
 /// JSON-lines file name inside a run folder.
 pub const JSONL_FILE: &str = "metrics.jsonl";
 /// The CSV header.
-pub const CSV_HEADER: &str = "stage,step,loss,psnr,lr_physnerf,lr_dlf,rays_per_s,time_s,grad_norm_physnerf,grad_norm_dlf,ssim,lpips,rollout_d,grad_alignment,psnr_true";
+pub const CSV_HEADER: &str = "stage,step,loss,psnr,lr_physnerf,lr_dlf,rays_per_s,time_s,grad_norm_physnerf,grad_norm_dlf,ssim,lpips,rollout_d,grad_alignment,psnr_true,rollout_d_prime";
 
 /// Errors of the metrics log.
 #[derive(Debug, thiserror::Error)]
@@ -92,6 +92,10 @@ pub struct MetricsRow {
     /// Joint stage: the renderer's PSNR on the true particles of training frames.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub psnr_true: Option<f64>,
+    /// Joint stage: d′ (× 1000, from each predicted particle to the nearest true one) of the
+    /// same rollout as `rollout_d`: spray that d does not see.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rollout_d_prime: Option<f64>,
 }
 
 impl MetricsRow {
@@ -113,14 +117,17 @@ impl MetricsRow {
             rollout_d: None,
             grad_alignment: None,
             psnr_true: None,
+            rollout_d_prime: None,
         }
     }
 
-    /// Sets the column named `name` (`rollout_d`, `grad_alignment`, `psnr_true`); false for a
+    /// Sets the column named `name` (`rollout_d`, `rollout_d_prime`, `grad_alignment`,
+    /// `psnr_true`); false for a
     /// name that is not a column.
     pub fn set_score(&mut self, name: &str, value: f64) -> bool {
         let slot = match name {
             "rollout_d" => &mut self.rollout_d,
+            "rollout_d_prime" => &mut self.rollout_d_prime,
             "grad_alignment" => &mut self.grad_alignment,
             "psnr_true" => &mut self.psnr_true,
             _ => return false,
@@ -147,6 +154,7 @@ impl MetricsRow {
             cell(self.rollout_d),
             cell(self.grad_alignment),
             cell(self.psnr_true),
+            cell(self.rollout_d_prime),
         ]])
     }
 }

@@ -143,17 +143,21 @@ pub fn render_curves(rows: &[MetricsRow]) -> RgbImage {
     }
     // the quantities below loss and PSNR, each a row when some row logged it
     type Column = fn(&MetricsRow) -> Option<f64>;
-    let extra: Vec<(&str, Column)> = [
+    // (title, the row's quantity, a grey companion drawn beside it)
+    let extra: Vec<(&str, Column, Option<(&str, Column)>)> = [
         (
             "rollout d (training frames)",
             (|r: &MetricsRow| r.rollout_d) as Column,
+            Some(("d′ (spray)", (|r: &MetricsRow| r.rollout_d_prime) as Column)),
         ),
-        ("gradient alignment (cos)", |r: &MetricsRow| {
-            r.grad_alignment
-        }),
+        (
+            "gradient alignment (cos)",
+            |r: &MetricsRow| r.grad_alignment,
+            None,
+        ),
     ]
     .into_iter()
-    .filter(|(_, f)| rows.iter().any(|r| f(r).is_some()))
+    .filter(|(_, f, _)| rows.iter().any(|r| f(r).is_some()))
     .collect();
     let cols = stages.len().max(1);
     let n_rows = 2 + extra.len();
@@ -199,14 +203,23 @@ pub fn render_curves(rows: &[MetricsRow]) -> RgbImage {
             };
             let series = [(psnr, PSNR_COLOUR), (psnr_true, PSNR_TRUE_COLOUR)];
             draw_panel(&areas[cols + i], &title, &series, false)?;
-            for (k, (name, f)) in extra.iter().enumerate() {
+            for (k, (name, f, companion)) in extra.iter().enumerate() {
                 let points = of(&|r| f(r), false);
                 if points.is_empty() {
                     continue;
                 }
-                let title = format!("{stage}: {name}");
                 let area = &areas[(2 + k) * cols + i];
-                draw_panel(area, &title, &[(points, DIAGNOSTIC_COLOUR)], false)?;
+                let (beside, label) = match companion {
+                    Some((label, g)) => (of(&|r| g(r), false), *label),
+                    None => (Vec::new(), ""),
+                };
+                let title = if beside.is_empty() {
+                    format!("{stage}: {name}")
+                } else {
+                    format!("{stage}: {name}; grey: {label}")
+                };
+                let series = [(points, DIAGNOSTIC_COLOUR), (beside, PSNR_TRUE_COLOUR)];
+                draw_panel(area, &title, &series, false)?;
             }
         }
         root.present().map_err(|e| e.to_string())

@@ -251,6 +251,24 @@ pub struct EvalReport {
     /// Novel-view baselines scored on the same test views and frames.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub nvs_baselines: Vec<BaselineScores>,
+    /// Per rollout (its table label), the most predicted particles at any step farther than one
+    /// particle radius outside the box interior: particles through the walls.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub escaped: Vec<(String, usize)>,
+}
+
+/// The number of `points` farther than `margin` outside `interior` (on any axis).
+pub fn count_outside(
+    points: &[[f32; 3]],
+    interior: &neurofluid_core::scene::Aabb,
+    margin: f32,
+) -> usize {
+    points
+        .iter()
+        .filter(|p| {
+            (0..3).any(|a| p[a] < interior.min[a] - margin || p[a] > interior.max[a] + margin)
+        })
+        .count()
 }
 
 /// A novel-view baseline's image metrics (NeRF, NeRF-T).
@@ -293,6 +311,7 @@ impl EvalReport {
             windows,
             frames: Vec::new(),
             images: Vec::new(),
+            escaped: Vec::new(),
         }
     }
 
@@ -318,6 +337,12 @@ impl EvalReport {
     /// The Table 2 row of `model` in d′ (prediction → truth): `None` where it was not evaluated.
     pub fn reverse_row(&self, model: Rollout) -> Option<DistanceRow> {
         self.row_of(|f| model.reverse_of(f))
+    }
+
+    /// The symmetric distance (d + d′)/2 of `model`, frame by frame: `None` where d′ was not
+    /// evaluated.
+    pub fn symmetric_row(&self, model: Rollout) -> Option<DistanceRow> {
+        self.row_of(|f| Some(0.5 * (model.of(f)? + model.reverse_of(f)?)))
     }
 
     /// Window means and last frames of the per-frame values `of`.
@@ -422,6 +447,19 @@ impl EvalReport {
              renders."
         );
         md.push_str(&self.reverse_markdown());
+        if !self.escaped.is_empty() {
+            let counts: Vec<String> = self
+                .escaped
+                .iter()
+                .map(|(model, n)| format!("{model} {n}"))
+                .collect();
+            let _ = writeln!(
+                md,
+                "\nParticles through the walls (the most at any step farther than one particle \
+                 radius outside the box interior): {}.",
+                counts.join(", ")
+            );
+        }
         if !self.nvs_baselines.is_empty() {
             md.push_str(&self.nvs_markdown());
         }
@@ -456,24 +494,28 @@ impl EvalReport {
         }
         let (g, p) = (self.windows.grounding, self.windows.prediction);
         let mut md = format!(
-            "\n| model | d′_avg (t = {}–{}) | d′ (t = {}) | d′_avg (t = {}–{}) | d′ (t = {}) |\n|---|---:|---:|---:|---:|\n",
-            g.0, g.1, g.1, p.0, p.1, p.1
+            "\n| model | d′_avg (t = {}–{}) | d′ (t = {}) | d′_avg (t = {}–{}) | d′ (t = {}) | (d + d′)/2 avg (t = {}–{}) | (d + d′)/2 avg (t = {}–{}) |\n|---|---:|---:|---:|---:|---:|---:|\n",
+            g.0, g.1, g.1, p.0, p.1, p.1, g.0, g.1, p.0, p.1
         );
         for (model, row) in rows {
+            let both = self.symmetric_row(model);
             let _ = writeln!(
                 md,
-                "| {} | {} | {} | {} | {} |",
+                "| {} | {} | {} | {} | {} | {} | {} |",
                 model.label(),
                 fmt_opt(row.grounding_mean, 2),
                 fmt_opt(row.grounding_last, 2),
                 fmt_opt(row.prediction_mean, 2),
                 fmt_opt(row.prediction_last, 2),
+                fmt_opt(both.as_ref().and_then(|b| b.grounding_mean), 2),
+                fmt_opt(both.as_ref().and_then(|b| b.prediction_mean), 2),
             );
         }
         md.push_str(
             "\nd′ = the other way: mean distance from each predicted particle to the nearest true \
              one, × 1000 (a diagnostic, not the paper's metric): large where a prediction puts \
-             particles where the truth has none, which d does not see.\n",
+             particles where the truth has none, which d does not see. (d + d′)/2 weighs both: \
+             missing fluid and spray.\n",
         );
         md
     }
@@ -755,18 +797,57 @@ mod tests {
             "{rev:?}"
         );
         assert_eq!(r.reverse_row(Rollout::SupervisedDlf), None);
+        // (d + d′)/2: half of the spray's 500
+        let both = r.symmetric_row(Rollout::NeuroFluid).unwrap();
+        assert!(
+            (both.prediction_mean.unwrap() - 250.0).abs() < 1e-3,
+            "{both:?}"
+        );
+        assert_eq!(r.symmetric_row(Rollout::SupervisedDlf), None);
         let md = r.markdown();
         assert!(
-            md.contains("| NeuroFluid | 500.00 | 500.00 | 500.00 | 500.00 |"),
+            md.contains("| NeuroFluid | 500.00 | 500.00 | 500.00 | 500.00 | 250.00 | 250.00 |"),
             "{md}"
         );
-        assert!(md.contains("| DLF | 0.00 | 0.00 | 0.00 | 0.00 |"), "{md}");
+        assert!(
+            md.contains("| DLF | 0.00 | 0.00 | 0.00 | 0.00 | 0.00 | 0.00 |"),
+            "{md}"
+        );
         // a report written before d′ existed has no d′ table
         assert!(
             !sample_report_without_reverse()
                 .markdown()
                 .contains("d′_avg")
         );
+    }
+
+    /// Particles beyond one radius outside the box count, on every side; those within it do
+    /// not; the report says how many each rollout lost through the walls.
+    #[test]
+    fn particles_through_the_walls_are_counted_and_reported() {
+        let interior = neurofluid_core::scene::Aabb {
+            min: [0.0; 3],
+            max: [1.0, 2.0, 1.0],
+        };
+        let points = [
+            [0.5, 1.0, 0.5],   // inside
+            [0.5, -0.02, 0.5], // within a radius of the floor
+            [0.5, -0.2, 0.5],  // below the floor
+            [1.3, 1.0, 0.5],   // through a side wall
+            [0.5, 2.5, -0.4],  // above and beside
+        ];
+        assert_eq!(count_outside(&points, &interior, 0.025), 3);
+        assert_eq!(count_outside(&points[..2], &interior, 0.025), 0);
+        let mut r = sample_report();
+        assert!(!r.markdown().contains("through the walls"));
+        r.escaped = vec![("DLF".into(), 1), ("NeuroFluid".into(), 0)];
+        let md = r.markdown();
+        assert!(
+            md.contains("outside the box interior): DLF 1, NeuroFluid 0."),
+            "{md}"
+        );
+        let back: EvalReport = serde_json::from_str(&serde_json::to_string(&r).unwrap()).unwrap();
+        assert_eq!(back.escaped, r.escaped);
     }
 
     fn sample_report_without_reverse() -> EvalReport {

@@ -11,7 +11,8 @@
 //!
 //! L = (1/N) Σ_i max(0, d(u_i, F) − 1 px)² + (1/|F|) Σ_{p∈F} max(0, d(p, U) − r)²
 //!
-//! with u_i the projections, F the fluid pixels and r the projected particle radius.
+//! with u_i the projections, F the fluid pixels and r the projected particle radius. Without
+//! `cover` only the first sum (the spray side) is taken.
 
 use neurofluid_core::camera::Camera;
 
@@ -28,12 +29,14 @@ pub struct Silhouette {
 const INSIDE_PX: f64 = 1.0;
 
 /// The silhouette term of `points` seen by `camera` against the fluid pixels `foreground`
-/// (row-major, the camera's size); `radius_px` is the projected particle radius in pixels.
+/// (row-major, the camera's size); `radius_px` is the projected particle radius in pixels; with
+/// `cover` the fluid pixels no particle covers pull the nearest one too.
 pub fn silhouette_loss(
     camera: &Camera,
     foreground: &[bool],
     points: &[[f32; 3]],
     radius_px: f32,
+    cover: bool,
 ) -> Silhouette {
     let w = camera.width as usize;
     let fluid: Vec<[f64; 2]> = foreground
@@ -83,7 +86,7 @@ pub fn silhouette_loss(
     let mut uncovered = 0.0;
     let m = fluid.len() as f64;
     let r = radius_px as f64;
-    for p in &fluid {
+    for p in fluid.iter().filter(|_| cover) {
         let (k, dist) = nearest_index(p, projected.iter().map(|(_, u, _)| *u));
         let excess = dist - r;
         if excess > 0.0 {
@@ -164,7 +167,7 @@ mod tests {
         let mut rng = Rng::new(3);
         // partly inside the fluid's disc, partly outside, a few too many to cover it
         let pts = cloud(&mut rng, [0.05, 0.0, 0.0], 0.5, 12);
-        let s = silhouette_loss(&cam, &mask, &pts, 1.5);
+        let s = silhouette_loss(&cam, &mask, &pts, 1.5, true);
         assert!(s.loss > 0.0);
         // small enough that few pixels change their nearest particle (the loss is C¹ elsewhere)
         let h = 1e-4f32;
@@ -173,8 +176,8 @@ mod tests {
                 let (mut p, mut q) = (pts.clone(), pts.clone());
                 p[i][a] += h;
                 q[i][a] -= h;
-                let fd = (silhouette_loss(&cam, &mask, &p, 1.5).loss
-                    - silhouette_loss(&cam, &mask, &q, 1.5).loss)
+                let fd = (silhouette_loss(&cam, &mask, &p, 1.5, true).loss
+                    - silhouette_loss(&cam, &mask, &q, 1.5, true).loss)
                     / (2.0 * h as f64);
                 let g = s.grad[i][a] as f64;
                 assert!(
@@ -199,14 +202,48 @@ mod tests {
                 [d[0] * t, d[1] * t, 4.0 + d[2] * t]
             })
             .collect();
-        let s = silhouette_loss(&cam, &mask, &pts, 0.5);
+        let s = silhouette_loss(&cam, &mask, &pts, 0.5, true);
         assert!(s.loss < 1e-12, "{}", s.loss);
         assert!(s.grad.iter().flatten().all(|g| g.abs() < 1e-9));
         // no fluid, or nothing in front of the camera: nothing to pull
-        let none = silhouette_loss(&cam, &vec![false; mask.len()], &pts, 0.5);
+        let none = silhouette_loss(&cam, &vec![false; mask.len()], &pts, 0.5, true);
         assert_eq!(none.loss, 0.0);
-        let behind = silhouette_loss(&cam, &mask, &[[0.0, 0.0, 9.0]], 0.5);
+        let behind = silhouette_loss(&cam, &mask, &[[0.0, 0.0, 9.0]], 0.5, true);
         assert_eq!((behind.loss, behind.grad), (0.0, vec![[0.0; 3]]));
+    }
+
+    /// Without `cover` only the particles outside the fluid cost anything: particles on part of
+    /// the disc leave the rest uncovered for free, one particle beside it costs what it costs
+    /// with a gradient that moves it towards the disc.
+    #[test]
+    fn the_spray_side_alone_ignores_uncovered_fluid() {
+        let cam = camera();
+        let mask = disc_mask(&cam);
+        let w = cam.width as usize;
+        let on_pixel = |p: usize| {
+            let d = cam.ray_dir((p / w) as u32, (p % w) as u32);
+            let t = 4.0 / -d[2];
+            [d[0] * t, d[1] * t, 4.0 + d[2] * t]
+        };
+        // the disc's centre pixel only: most of the fluid uncovered
+        let centre = on_pixel(20 * w + 40);
+        let both = silhouette_loss(&cam, &mask, &[centre], 0.5, true);
+        let spray = silhouette_loss(&cam, &mask, &[centre], 0.5, false);
+        assert!(both.loss > 0.0);
+        assert_eq!((spray.loss, spray.grad.clone()), (0.0, vec![[0.0; 3]]));
+        // a particle far from the disc: pulled towards it, by the same amount as the first sum
+        let lone = on_pixel(5 * w + 5);
+        let spray = silhouette_loss(&cam, &mask, &[centre, lone], 0.5, false);
+        assert!(spray.loss > 0.0);
+        assert_eq!(spray.grad[0], [0.0; 3]);
+        let (col, row, _) = cam.project(lone).unwrap();
+        let step: [f32; 3] = std::array::from_fn(|a| lone[a] - 1e-2 * spray.grad[1][a]);
+        let (col2, row2, _) = cam.project(step).unwrap();
+        let dist = |c: f32, r: f32| ((c - 40.0).powi(2) + (r - 20.0).powi(2)).sqrt();
+        assert!(
+            dist(col2, row2) < dist(col, row),
+            "descent moves it towards the disc"
+        );
     }
 
     /// Gradient descent on the term alone moves a cloud beside the fluid onto it.
@@ -216,16 +253,16 @@ mod tests {
         let mask = disc_mask(&cam);
         let mut rng = Rng::new(5);
         let mut pts = cloud(&mut rng, [-0.3, 0.2, 0.0], 0.1, 30);
-        let first = silhouette_loss(&cam, &mask, &pts, 1.5).loss;
+        let first = silhouette_loss(&cam, &mask, &pts, 1.5, true).loss;
         for _ in 0..300 {
-            let s = silhouette_loss(&cam, &mask, &pts, 1.5);
+            let s = silhouette_loss(&cam, &mask, &pts, 1.5, true);
             for (p, g) in pts.iter_mut().zip(&s.grad) {
                 for a in 0..3 {
                     p[a] -= 2.0 * g[a];
                 }
             }
         }
-        let last = silhouette_loss(&cam, &mask, &pts, 1.5).loss;
+        let last = silhouette_loss(&cam, &mask, &pts, 1.5, true).loss;
         assert!(last < 0.02 * first, "{first} → {last}");
         // the cloud's projections sit on the disc
         let w = cam.width as usize;

@@ -23,7 +23,9 @@ use crate::config::PlyEncoding;
 use crate::metrics_log::{MetricsLog, MetricsRow};
 use crate::pictures::{TRUTH_COLOUR, column_of, particle_view, row_of, viridis, write_apng};
 use crate::ply::{PlyFormat, write_ply};
-use crate::report::{EvalReport, FrameDistance, ImageScore, Reverse, Rollout, Windows};
+use crate::report::{
+    EvalReport, FrameDistance, ImageScore, Reverse, Rollout, Windows, count_outside,
+};
 use crate::trainer::Picture;
 use crate::viewer::{Recording, TrackInput};
 
@@ -246,6 +248,29 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
         })
         .collect();
 
+    let interior = scene.manifest().box_interior;
+    let radius = scene.manifest().particle_radius;
+    let escaped = |label: &str, frames: &[Vec<[f32; 3]>]| {
+        let most = frames[1..]
+            .iter()
+            .map(|p| count_outside(p, &interior, radius))
+            .max()
+            .unwrap_or(0);
+        (label.to_string(), most)
+    };
+    report.escaped = [
+        baseline
+            .as_deref()
+            .map(|b| escaped(Rollout::Dlf.label(), b)),
+        supervised
+            .as_deref()
+            .map(|b| escaped(Rollout::SupervisedDlf.label(), b)),
+        Some(escaped(Rollout::NeuroFluid.label(), &grounded)),
+    ]
+    .into_iter()
+    .flatten()
+    .collect();
+
     let dir = run.stage_dir(STAGE);
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
     if cfg.write_ply {
@@ -270,7 +295,6 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
         let physnerf = models.physnerf.valid();
         let frames = rendered_steps(test.len(), cfg.render_every);
         let views = cfg.views(scene);
-        let radius = scene.manifest().particle_radius;
         let lpips = Lpips::new(&neurofluid_core::device::cpu())?;
         for view in &views {
             let bar = indicatif::ProgressBar::new(frames.len() as u64)

@@ -156,12 +156,15 @@ impl JointData {
 type State = (Tensor<2>, Tensor<2>);
 
 /// What the joint stage measures besides its loss, at every evaluation (metrics columns
-/// `rollout_d`, `grad_alignment`, `psnr_true`).
+/// `rollout_d`, `rollout_d_prime`, `grad_alignment`, `psnr_true`).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Diagnostics {
     /// d (× 1000) of DLF's rollout from the first true frame over the training frames
     /// t = 1 … T−1, against the true particles: is the simulator getting closer to the truth?
     pub rollout_d: Option<f64>,
+    /// d′ (× 1000) of the same rollout: from each predicted particle to the nearest true one
+    /// (spray, which d does not see).
+    pub rollout_d_prime: Option<f64>,
     /// The mean, over the transitions since the last evaluation, of the cosine between the image
     /// loss's descent direction at the prediction, −∂L/∂x_{t+1}, and the true error
     /// x_true − x_pred (particles matched by index): does the image signal point at the truth?
@@ -176,6 +179,7 @@ impl Diagnostics {
     pub fn scores(&self) -> Vec<(&'static str, f64)> {
         [
             ("rollout_d", self.rollout_d),
+            ("rollout_d_prime", self.rollout_d_prime),
             ("grad_alignment", self.grad_alignment),
             ("psnr_true", self.psnr_true),
         ]
@@ -561,7 +565,13 @@ impl JointTrainer {
             let Some(radius) = projected_radius(camera, centre, self.data.radius) else {
                 continue;
             };
-            let s = silhouette_loss(camera, &self.data.foreground[v][t], &points, radius);
+            let s = silhouette_loss(
+                camera,
+                &self.data.foreground[v][t],
+                &points,
+                radius,
+                self.cfg.silhouette_cover,
+            );
             loss += weight * s.loss;
             for (g, d) in grad.iter_mut().zip(&s.grad) {
                 for k in 0..3 {
@@ -617,10 +627,14 @@ impl JointTrainer {
             steps,
             |_| {},
         );
-        let distances: Vec<f64> = (1..=steps)
-            .map(|t| gt_to_pred_distance(&truth[t], &rollout.pos[t]).mean)
-            .collect();
-        d.rollout_d = Some(distances.iter().sum::<f64>() / distances.len().max(1) as f64);
+        let mean_over =
+            |f: &dyn Fn(usize) -> f64| (1..=steps).map(f).sum::<f64>() / steps.max(1) as f64;
+        d.rollout_d = Some(mean_over(&|t| {
+            gt_to_pred_distance(&truth[t], &rollout.pos[t]).mean
+        }));
+        d.rollout_d_prime = Some(mean_over(&|t| {
+            gt_to_pred_distance(&rollout.pos[t], &truth[t]).mean
+        }));
         // the renderer on the true particles, at the same pixels every time
         let physnerf = self.physnerf.valid();
         let device = dlf.device();
