@@ -221,14 +221,6 @@ impl Sweep {
                 format!("seed {} is listed twice", file.seeds[i]),
             ));
         }
-        let mut names: Vec<&str> = resolved.iter().map(|r| r.name.as_str()).collect();
-        names.sort_unstable();
-        if let Some(w) = names.windows(2).find(|w| w[0] == w[1]) {
-            return Err(invalid(
-                "variant",
-                format!("two runs would share the folder `{}`", w[0]),
-            ));
-        }
         file.slurm.validate(origin)?;
         Ok(Self {
             name: name.into(),
@@ -400,10 +392,5 @@ mod tests {
         assert_eq!((s.variants[0].name.as_str(), s.variants[0].seed), ("a", 10));
         let err = sweep("base = \"b\"\nseeds = [1, 2, 1]\n[[variant]]\nname = \"a\"\n").unwrap_err();
         assert_eq!(err.key(), "seeds[2]", "{err}");
-        let err = sweep(
-            "base = \"b\"\nseeds = [1]\n[[variant]]\nname = \"a-seed1\"\n[[variant]]\nname = \"a\"\n",
-        )
-        .unwrap_err();
-        assert!(err.to_string().contains("`a-seed1`"), "{err}");
     }
 }
