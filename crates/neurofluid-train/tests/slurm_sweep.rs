@@ -13,84 +13,13 @@
 //! scripts/slurm-local.sh stop
 //! ```
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
 use neurofluid_train::sweep::state::{self, Phase, RunState};
 
-const EXE: &str = env!("CARGO_BIN_EXE_neurofluid-train");
+mod common;
 
-fn workspace_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
-
-/// Runs `program` in `dir` and returns its output.
-fn run(dir: &Path, program: &str, args: &[&str]) -> Output {
-    let out = Command::new(program)
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .unwrap_or_else(|e| panic!("running {program}: {e}"));
-    eprintln!(
-        "$ {program} {}\n{}{}",
-        args.join(" "),
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    out
-}
-
-/// Polls `probe` every second until it gives a value, for at most `limit`.
-fn wait_for<T>(what: &str, limit: Duration, mut probe: impl FnMut() -> Option<T>) -> T {
-    let start = Instant::now();
-    loop {
-        if let Some(v) = probe() {
-            eprintln!("[{:>5.0} s] {what}", start.elapsed().as_secs_f64());
-            return v;
-        }
-        assert!(start.elapsed() < limit, "timed out waiting for: {what}");
-        std::thread::sleep(Duration::from_secs(1));
-    }
-}
-
-/// The step of the latest checkpoint of `stage` in the run folder `run`.
-fn checkpoint_step(run: &Path, stage: &str) -> u64 {
-    ["checkpoint", "checkpoint.old"]
-        .iter()
-        .filter_map(|c| std::fs::read_to_string(run.join(stage).join(c).join("state.json")).ok())
-        .filter_map(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
-        .filter_map(|v| v["step"].as_u64())
-        .max()
-        .unwrap_or(0)
-}
-
-/// Each metrics row's stage, step, loss and PSNR (the timings differ between runs).
-fn metrics(run: &Path) -> Vec<(String, u64, String, String)> {
-    std::fs::read_to_string(run.join("metrics.jsonl"))
-        .unwrap()
-        .lines()
-        .map(|l| {
-            let v: serde_json::Value = serde_json::from_str(l).unwrap();
-            (
-                v["stage"].as_str().unwrap().to_string(),
-                v["step"].as_u64().unwrap(),
-                v["loss"].to_string(),
-                v["psnr"].to_string(),
-            )
-        })
-        .collect()
-}
-
-/// The evaluation's numbers (what is not a name or a path).
-fn report(run: &Path) -> serde_json::Value {
-    let text = std::fs::read_to_string(run.join("eval/report.json")).unwrap();
-    let mut v: serde_json::Value = serde_json::from_str(&text).unwrap();
-    let o = v.as_object_mut().unwrap();
-    o.remove("experiment");
-    o.remove("checkpoint");
-    v
-}
+use common::{EXE, checkpoint_step, metrics, report, run, sweep_file, wait_for};
 
 #[test]
 fn a_stopped_task_requeues_itself_and_resumes_to_the_uninterrupted_result() {
@@ -99,42 +28,13 @@ fn a_stopped_task_requeues_itself_and_resumes_to_the_uninterrupted_result() {
         return;
     }
     let started = Instant::now();
-    let root = workspace_root().canonicalize().unwrap();
     let tmp = tempfile::Builder::new()
         .prefix("nf-slurm-sweep")
         .tempdir()
         .unwrap();
     let dir = tmp.path();
     let out = dir.join("out");
-    let sweep_file = dir.join("pair.toml");
-    // two runs of one variant: `straight` is the uninterrupted twin of `interrupted`
-    std::fs::write(
-        &sweep_file,
-        format!(
-            r#"base = "{base}"
-out_dir = "{out}"
-set = ["scene.dir = '{scene}'", "dlf.weights = '{weights}'", "eval.write_ply = false",
-       "warmup.iters = 160"]
-
-[[variant]]
-name = "interrupted"
-
-[[variant]]
-name = "straight"
-
-[slurm]
-cpus_per_task = 1
-time = "30"
-"#,
-            base = root.join("experiments/tiny-ci.toml").display(),
-            out = out.display(),
-            scene = dir.join("scene").display(),
-            weights = root
-                .join("assets/dlf_pretrained/pretrained_model_weights.pt")
-                .display(),
-        ),
-    )
-    .unwrap();
+    let sweep_file = sweep_file(dir, 160, "[slurm]\ncpus_per_task = 1\ntime = \"30\"\n");
     let file = sweep_file.to_str().unwrap();
 
     let submitted = run(dir, EXE, &["sweep", file, "--slurm"]);
@@ -157,7 +57,10 @@ time = "30"
         let step = checkpoint_step(&run_dir, "warmup");
         (state_of("interrupted").state == Phase::Running && step >= 10).then_some(step)
     });
-    assert!(first < 140, "the warm-up is nearly over ({first}): lengthen it");
+    assert!(
+        first < 140,
+        "the warm-up is nearly over ({first}): lengthen it"
+    );
 
     // a second process on the same run is refused and leaves the task's state alone
     let second = run(dir, EXE, &["sweep", file, "--variant", "interrupted"]);
@@ -170,7 +73,11 @@ time = "30"
     );
 
     // 1: SIGTERM to the batch shell alone (what --signal=B:TERM@… sends before the time limit)
-    assert!(run(dir, "scancel", &["--batch", "--signal=TERM", &task]).status.success());
+    assert!(
+        run(dir, "scancel", &["--batch", "--signal=TERM", &task])
+            .status
+            .success()
+    );
     let stopped_at = wait_for("task 0 stopped with a checkpoint", limit, || {
         let s = state_of("interrupted");
         (s.state == Phase::Stopped).then(|| checkpoint_step(&run_dir, "warmup"))
@@ -184,7 +91,11 @@ time = "30"
     });
 
     // 2: SIGTERM to every process of the task (what preemption sends)
-    assert!(run(dir, "scancel", &["--full", "--signal=TERM", &task]).status.success());
+    assert!(
+        run(dir, "scancel", &["--full", "--signal=TERM", &task])
+            .status
+            .success()
+    );
     wait_for("task 0 requeued a second time", limit, || {
         (state_of("interrupted").attempt == Some(3)).then_some(())
     });
@@ -196,6 +107,11 @@ time = "30"
     });
 
     let log = std::fs::read_to_string(out.join("logs/task-0.out")).unwrap();
+    let lines: Vec<&str> = log
+        .lines()
+        .filter(|l| l.starts_with("==") || l.contains("stop") || l.contains("resuming"))
+        .collect();
+    eprintln!("task 0's log, in short:\n{}", lines.join("\n"));
     assert_eq!(log.matches("requeueing").count(), 2, "{log}");
     assert_eq!(log.matches("stopped on request").count(), 2, "{log}");
     assert!(log.contains("resuming warmup from"), "{log}");

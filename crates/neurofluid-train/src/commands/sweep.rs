@@ -128,7 +128,12 @@ fn run_variant(
     if let Some(d) = device {
         exp.device = d.to_string();
     }
-    tracing::info!("run {} ({}, seed {})", variant.name, variant.label, variant.seed);
+    tracing::info!(
+        "run {} ({}, seed {})",
+        variant.name,
+        variant.label,
+        variant.seed
+    );
     let lock = FolderLock::acquire(&exp.out_dir())?;
     let in_slurm = std::env::var_os("SLURM_ARRAY_TASK_ID").is_some();
     let record = |phase: Phase, reason: Option<String>| {
@@ -218,7 +223,9 @@ fn status(sweep: &Sweep) -> anyhow::Result<()> {
             age(now.saturating_sub(s.submitted))
         );
     }
-    println!("\n| # | run | state | job | start | since | reason | log |\n|---|---|---|---|---|---|---|---|");
+    println!(
+        "\n| # | run | state | job | start | since | reason | log |\n|---|---|---|---|---|---|---|---|"
+    );
     let mut counts: Vec<(String, usize)> = Vec::new();
     for (i, variant) in sweep.variants.iter().enumerate() {
         let (word, cells) = match state::read(&sweep.out_dir, &variant.name) {
@@ -243,7 +250,11 @@ fn status(sweep: &Sweep) -> anyhow::Result<()> {
                 ("unreadable".to_string(), cells)
             }
         };
-        println!("| {i} | {} | {word} | {} |", variant.name, cells.join(" | "));
+        println!(
+            "| {i} | {} | {word} | {} |",
+            variant.name,
+            cells.join(" | ")
+        );
         match counts.iter_mut().find(|(w, _)| *w == word) {
             Some((_, n)) => *n += 1,
             None => counts.push((word, 1)),
@@ -304,7 +315,10 @@ fn submit(sweep: &Sweep, args: &Args) -> anyhow::Result<()> {
         }
     }
     if indices.is_empty() {
-        println!("every run of {} is done; `sweep --table` collects them", sweep.name);
+        println!(
+            "every run of {} is done; `sweep --table` collects them",
+            sweep.name
+        );
         return Ok(());
     }
     let sweep_dir = absolute(&sweep.out_dir);
@@ -326,7 +340,12 @@ fn submit(sweep: &Sweep, args: &Args) -> anyhow::Result<()> {
     neurofluid_core::atomic::write_bytes(&path, script.as_bytes())
         .with_context(|| format!("writing {}", path.display()))?;
     if args.dry_run {
-        println!("wrote {} ({} runs); submit it with: sbatch {}", path.display(), indices.len(), path.display());
+        println!(
+            "wrote {} ({} runs); submit it with: sbatch {}",
+            path.display(),
+            indices.len(),
+            path.display()
+        );
         return Ok(());
     }
     let submission = slurm::submit(sweep, &sweep_dir, &path, &indices)?;

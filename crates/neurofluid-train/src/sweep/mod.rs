@@ -235,7 +235,11 @@ impl Sweep {
     pub fn find(&self, key: &str) -> anyhow::Result<(usize, &ResolvedVariant)> {
         let found = match key.parse::<usize>() {
             Ok(i) => self.variants.get(i).map(|v| (i, v)),
-            Err(_) => self.variants.iter().enumerate().find(|(_, v)| v.name == key),
+            Err(_) => self
+                .variants
+                .iter()
+                .enumerate()
+                .find(|(_, v)| v.name == key),
         };
         found.ok_or_else(|| {
             let names: Vec<&str> = self.variants.iter().map(|v| v.name.as_str()).collect();
@@ -386,11 +390,15 @@ mod tests {
         assert_eq!(s.find("2").unwrap().1.name, "b-seed10");
         assert_eq!(s.find("a-seed12").unwrap().0, 1);
         let err = s.find("4").unwrap_err().to_string();
-        assert!(err.contains("from 0 to 3") && err.contains("a-seed10"), "{err}");
+        assert!(
+            err.contains("from 0 to 3") && err.contains("a-seed10"),
+            "{err}"
+        );
         // without seeds: one run per variant, with the base's seed
         let s = sweep("base = \"b\"\n[[variant]]\nname = \"a\"\n").unwrap();
         assert_eq!((s.variants[0].name.as_str(), s.variants[0].seed), ("a", 10));
-        let err = sweep("base = \"b\"\nseeds = [1, 2, 1]\n[[variant]]\nname = \"a\"\n").unwrap_err();
+        let err =
+            sweep("base = \"b\"\nseeds = [1, 2, 1]\n[[variant]]\nname = \"a\"\n").unwrap_err();
         assert_eq!(err.key(), "seeds[2]", "{err}");
     }
 }

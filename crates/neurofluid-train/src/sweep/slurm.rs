@@ -93,7 +93,12 @@ impl SlurmOptions {
             mem: pick(&self.mem, &defaults.mem),
             max_running: self.max_running.or(defaults.max_running),
             signal_before: self.signal_before.or(defaults.signal_before),
-            sbatch: defaults.sbatch.iter().chain(&self.sbatch).cloned().collect(),
+            sbatch: defaults
+                .sbatch
+                .iter()
+                .chain(&self.sbatch)
+                .cloned()
+                .collect(),
             template: self.template.clone().or_else(|| defaults.template.clone()),
         }
     }
@@ -443,7 +448,12 @@ fn slurm_command(program: &str, args: &[&str]) -> anyhow::Result<String> {
 /// Submits the array script at `script` held, records every submitted run as pending (with its
 /// task id and log) and the submission in [`JOB_FILE`], then releases the job: no task can start
 /// (and record `running`) before its `pending` is written.
-pub fn submit(sweep: &Sweep, sweep_dir: &Path, script: &Path, indices: &[usize]) -> anyhow::Result<Submission> {
+pub fn submit(
+    sweep: &Sweep,
+    sweep_dir: &Path,
+    script: &Path,
+    indices: &[usize],
+) -> anyhow::Result<Submission> {
     let script_arg = script.display().to_string();
     let out = slurm_command("sbatch", &["--parsable", "--hold", &script_arg])?;
     let job = out
@@ -567,7 +577,10 @@ mod tests {
             script.contains("runs=('full-seed1' 'full-seed2' 'no_pc-seed1' 'no_pc-seed2')"),
             "{script}"
         );
-        assert!(script.contains("run=${runs[$SLURM_ARRAY_TASK_ID]}"), "{script}");
+        assert!(
+            script.contains("run=${runs[$SLURM_ARRAY_TASK_ID]}"),
+            "{script}"
+        );
         assert!(
             script.contains(
                 "'/opt/nf it'\\''s/neurofluid-train' sweep '/w/experiments/enc.toml' --variant \
@@ -577,7 +590,10 @@ mod tests {
         );
         assert!(script.contains("cd '/w' || exit 1"), "{script}");
         assert!(script.contains("trap forward TERM INT"), "{script}");
-        assert!(script.contains("if [ \"$status\" -eq 75 ]; then"), "{script}");
+        assert!(
+            script.contains("if [ \"$status\" -eq 75 ]; then"),
+            "{script}"
+        );
         assert!(
             script.contains("task=\"${SLURM_ARRAY_JOB_ID}_${SLURM_ARRAY_TASK_ID}\""),
             "{script}"
@@ -585,8 +601,17 @@ mod tests {
         assert!(script.contains("scontrol requeue \"$task\""), "{script}");
         assert!(script.ends_with("exit \"$status\"\n"), "{script}");
         // bash parses it
-        if let Ok(out) = Command::new("bash").arg("-n").arg("-c").arg(&script).output() {
-            assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        if let Ok(out) = Command::new("bash")
+            .arg("-n")
+            .arg("-c")
+            .arg(&script)
+            .output()
+        {
+            assert!(
+                out.status.success(),
+                "{}",
+                String::from_utf8_lossy(&out.stderr)
+            );
         }
     }
 
@@ -601,7 +626,11 @@ mod tests {
             ("partition = \"gpu a100\"", "slurm.partition", "one word"),
             ("max_running = 0", "slurm.max_running", "positive"),
             ("signal_before = 70000", "slurm.signal_before", "65535"),
-            ("sbatch = [\"constraint=a100\"]", "slurm.sbatch[0]", "--constraint"),
+            (
+                "sbatch = [\"constraint=a100\"]",
+                "slurm.sbatch[0]",
+                "--constraint",
+            ),
             ("sbatch = [\"--x\\n--y\"]", "slurm.sbatch[0]", "one line"),
             ("partitoin = \"gpu\"", "partitoin", "unknown field"),
         ] {
@@ -636,6 +665,9 @@ mod tests {
         .text()
         .unwrap_err()
         .to_string();
-        assert!(err.contains("/w/my runs/s") && err.contains("out_dir"), "{err}");
+        assert!(
+            err.contains("/w/my runs/s") && err.contains("out_dir"),
+            "{err}"
+        );
     }
 }

@@ -183,13 +183,22 @@ mod tests {
         assert_eq!(names, ["a.json"]);
 
         for (bad, expect) in [
-            ("{\"run\": \"a\", \"state\": \"sleeping\", \"since\": 1}", "not a run state"),
-            ("{\"run\": \"b\", \"state\": \"done\", \"since\": 1}", "expected `a`"),
+            (
+                "{\"run\": \"a\", \"state\": \"sleeping\", \"since\": 1}",
+                "not a run state",
+            ),
+            (
+                "{\"run\": \"b\", \"state\": \"done\", \"since\": 1}",
+                "expected `a`",
+            ),
             ("{\"run\": \"a\"", "not a run state"),
         ] {
             std::fs::write(path(dir.path(), "a"), bad).unwrap();
             let err = format!("{:#}", read(dir.path(), "a").unwrap_err());
-            assert!(err.contains("a.json") && err.contains(expect), "{bad}: {err}");
+            assert!(
+                err.contains("a.json") && err.contains(expect),
+                "{bad}: {err}"
+            );
         }
     }
 

@@ -71,8 +71,11 @@ struct Aggregate {
 
 impl Aggregate {
     fn of(rows: &[TableRow]) -> Self {
-        let summaries: Vec<[Option<f64>; 5]> =
-            rows.iter().filter_map(|r| r.summary.as_ref()).map(values).collect();
+        let summaries: Vec<[Option<f64>; 5]> = rows
+            .iter()
+            .filter_map(|r| r.summary.as_ref())
+            .map(values)
+            .collect();
         let columns = std::array::from_fn(|c| {
             let xs: Vec<f64> = summaries.iter().filter_map(|v| v[c]).collect();
             mean_sd(&xs)
@@ -109,11 +112,7 @@ pub fn table_markdown(title: &str, rows: &[TableRow]) -> String {
     for group in groups(rows) {
         for r in group {
             let v = r.summary.as_ref().map(values).unwrap_or_default();
-            let cells: Vec<String> = COLUMNS
-                .iter()
-                .zip(v)
-                .map(|(c, x)| cell(x, c.2))
-                .collect();
+            let cells: Vec<String> = COLUMNS.iter().zip(v).map(|(c, x)| cell(x, c.2)).collect();
             let _ = writeln!(
                 md,
                 "| {} | {} | {} | {} |",
@@ -174,7 +173,11 @@ pub fn table_csv(rows: &[TableRow]) -> String {
                 records.push(
                     [group[0].label.clone(), what.into(), a.count()]
                         .into_iter()
-                        .chain(a.columns.iter().map(|m| csv_cell(m.as_ref().and_then(pick))))
+                        .chain(
+                            a.columns
+                                .iter()
+                                .map(|m| csv_cell(m.as_ref().and_then(pick))),
+                        )
                         .collect(),
                 );
             }
@@ -270,7 +273,11 @@ mod tests {
         assert_eq!(lines[1], "Full model,10,done,10,20,30,0.5,0.25");
         assert_eq!(lines[3], "Full model,12,failed,,,,,");
         assert_eq!(lines[4], "Full model,mean,2 of 3,11,22,29,0.5,0.25");
-        let sd: Vec<f64> = lines[5].split(',').skip(3).map(|x| x.parse().unwrap()).collect();
+        let sd: Vec<f64> = lines[5]
+            .split(',')
+            .skip(3)
+            .map(|x| x.parse().unwrap())
+            .collect();
         let root2 = 2f64.sqrt();
         assert_eq!(lines[5].split(',').nth(1), Some("sd"));
         for (got, want) in sd.iter().zip([root2, 2.0 * root2, root2, 0.0, 0.0]) {
