@@ -436,7 +436,7 @@ mod tests {
             Ok(StepStats {
                 loss: 1.0,
                 grad_norms: vec![("model", 1.0)],
-                updated: (step + 1) % self.window == 0,
+                updated: (step + 1).is_multiple_of(self.window),
                 ..StepStats::default()
             })
         }
