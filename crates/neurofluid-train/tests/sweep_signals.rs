@@ -40,7 +40,11 @@ fn sigterm_stops_a_run_with_a_checkpoint_and_status_75_and_it_resumes_exactly() 
     );
     assert!(at < 50, "the warm-up is nearly over ({at}): lengthen it");
     let pid = child.id().to_string();
-    assert!(run(dir, "kill", &["-TERM", &pid]).status.success());
+    assert!(
+        run(dir, "sh", &["-c", &format!("kill -TERM {pid}")])
+            .status
+            .success()
+    );
     let status = child.wait().unwrap();
     assert_eq!(status.code(), Some(75), "{status}");
     let stopped = state::read(&out, "interrupted").unwrap().unwrap();

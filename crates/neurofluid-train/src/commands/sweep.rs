@@ -291,7 +291,8 @@ fn submit(sweep: &Sweep, args: &Args) -> anyhow::Result<()> {
         .template
         .as_ref()
         .map(|p| {
-            std::fs::read_to_string(p)
+            let p = crate::sweep::locate(p, &args.sweep);
+            std::fs::read_to_string(&p)
                 .with_context(|| format!("reading the script template {}", p.display()))
         })
         .transpose()?;

@@ -134,7 +134,7 @@ impl Sweep {
         let name = path
             .file_stem()
             .map_or_else(|| "sweep".into(), |s| s.to_string_lossy().into_owned());
-        let base_path = locate_base(&file.base, path);
+        let base_path = locate(&file.base, path);
         let base = Experiment::load(&base_path)?;
         Self::resolve(&name, path, &file, &base)
     }
@@ -253,10 +253,11 @@ impl Sweep {
     }
 }
 
-/// The base file: as given (relative to the working directory), else relative to the sweep
-/// file's folder, else to that folder's parent (sweeps in `experiments/` naming
-/// `experiments/x.toml`); the path as given when none exists (the load error names it).
-fn locate_base(base: &Path, sweep_file: &Path) -> PathBuf {
+/// A file a sweep file names (its base, its script template): as given (relative to the working
+/// directory), else relative to the sweep file's folder, else to that folder's parent (sweeps in
+/// `experiments/` naming `experiments/x.toml`); the path as given when none exists (the error of
+/// its reader names it).
+pub(crate) fn locate(base: &Path, sweep_file: &Path) -> PathBuf {
     if base.is_absolute() || base.exists() {
         return base.to_path_buf();
     }

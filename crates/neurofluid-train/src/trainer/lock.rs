@@ -26,9 +26,36 @@ impl FolderLock {
     /// Locks `dir` (created if missing) for this process, or fails naming the process that
     /// holds it.
     pub fn acquire(dir: &Path) -> anyhow::Result<Self> {
-        let (mut file, path) = open(dir)?;
+        Self::take(dir, false)
+    }
+
+    /// Locks `dir` (created if missing) for this process, waiting while another process holds
+    /// it (e.g. one generating the scene this one needs).
+    pub fn wait(dir: &Path) -> anyhow::Result<Self> {
+        Self::take(dir, true)
+    }
+
+    fn take(dir: &Path, wait: bool) -> anyhow::Result<Self> {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        let path = dir.join(LOCK_FILE);
+        let mut file = OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(&path)
+            .with_context(|| format!("opening the lock file {}", path.display()))?;
         match file.try_lock() {
             Ok(()) => {}
+            Err(TryLockError::WouldBlock) if wait => {
+                tracing::info!(
+                    "waiting for {}, in use by another process{}",
+                    dir.display(),
+                    holder(&mut file)
+                );
+                file.lock()
+                    .with_context(|| format!("locking {}", path.display()))?;
+            }
             Err(TryLockError::WouldBlock) => {
                 anyhow::bail!(
                     "{} is in use by another process{}; wait for it to finish, stop it, or give \
@@ -41,33 +68,6 @@ impl FolderLock {
                 return Err(e).with_context(|| format!("locking {}", path.display()));
             }
         }
-        Self::held(file, path)
-    }
-
-    /// Locks `dir` (created if missing) for this process, waiting while another process holds
-    /// it (e.g. one generating the scene this one needs).
-    pub fn wait(dir: &Path) -> anyhow::Result<Self> {
-        let (mut file, path) = open(dir)?;
-        match file.try_lock() {
-            Ok(()) => {}
-            Err(TryLockError::WouldBlock) => {
-                tracing::info!(
-                    "waiting for {}, in use by another process{}",
-                    dir.display(),
-                    holder(&mut file)
-                );
-                file.lock()
-                    .with_context(|| format!("locking {}", path.display()))?;
-            }
-            Err(TryLockError::Error(e)) => {
-                return Err(e).with_context(|| format!("locking {}", path.display()));
-            }
-        }
-        Self::held(file, path)
-    }
-
-    /// Records this process in the lock file it holds.
-    fn held(mut file: File, path: PathBuf) -> anyhow::Result<Self> {
         let command: Vec<String> = std::env::args().collect();
         let since = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
@@ -89,20 +89,6 @@ impl FolderLock {
     pub fn path(&self) -> &Path {
         &self.path
     }
-}
-
-/// Opens (creating) the lock file of `dir`.
-fn open(dir: &Path) -> anyhow::Result<(File, PathBuf)> {
-    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    let path = dir.join(LOCK_FILE);
-    let file = OpenOptions::new()
-        .read(true)
-        .write(true)
-        .create(true)
-        .truncate(false)
-        .open(&path)
-        .with_context(|| format!("opening the lock file {}", path.display()))?;
-    Ok((file, path))
 }
 
 /// ` (<who holds the lock>)`, as its holder recorded it, or nothing.
