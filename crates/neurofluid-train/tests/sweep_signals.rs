@@ -1,6 +1,7 @@
 //! The binary on SIGTERM: `sweep FILE --variant I` stops after the step it is in, with a
 //! checkpoint, exit status 75 and its state `stopped`; run again, it resumes and ends bit for bit
-//! where its uninterrupted twin ends. And `--slurm --dry-run` writes the array script alone.
+//! where its uninterrupted twin ends; meanwhile `--table` and `--status` mark it stopped. And
+//! `--slurm --dry-run` writes the array script alone.
 
 mod common;
 
@@ -60,6 +61,20 @@ fn sigterm_stops_a_run_with_a_checkpoint_and_status_75_and_it_resumes_exactly() 
     let step = checkpoint_step(&run_dir, "warmup");
     assert!(step > at && step < 60, "checkpoint at {step}");
     assert!(!run_dir.join("eval").exists());
+
+    // the table marks the stopped run and holds its twin's row; the status lists both
+    assert!(run(dir, EXE, &["sweep", file, "--table"]).status.success());
+    let csv = std::fs::read_to_string(out.join("table5.csv")).unwrap();
+    let rows: Vec<&str> = csv.lines().collect();
+    assert_eq!(rows[1], "interrupted,10,stopped,,,,,", "{csv}");
+    assert!(rows[2].starts_with("straight,10,done,"), "{csv}");
+    let status = run(dir, EXE, &["sweep", file, "--status"]);
+    let status = String::from_utf8_lossy(&status.stdout);
+    assert!(
+        status.contains("| 0 | interrupted | stopped |")
+            && status.contains("2 runs: 1 stopped, 1 done"),
+        "{status}"
+    );
 
     let resumed = run(dir, EXE, &["sweep", file, "--variant", "interrupted"]);
     assert!(resumed.status.success());
