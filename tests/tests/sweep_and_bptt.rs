@@ -1,5 +1,5 @@
 //! The `sweep` command on a two-variant sweep of the tiny experiment writes the Table-5-shaped
-//! table with a row per variant, and `--table-only` rebuilds it from the variants' folders
+//! table with a row per variant, and `--table` rebuilds it from the variants' folders
 //! (refusing a folder trained under other settings or holding an unfinished joint stage);
 //! multi-step BPTT with differentiable conv geometry trains.
 
@@ -37,11 +37,10 @@ set = ["physnerf.encoding.vd=false"]
             .display(),
     );
     std::fs::write(&file, &text).unwrap();
-    let args = |table_only| sweep::Args {
+    let args = |table| sweep::Args {
         sweep: file.clone(),
-        device: None,
-        keep_going: false,
-        table_only,
+        table,
+        ..sweep::Args::default()
     };
     sweep::run(args(false)).unwrap();
     let md_path = tmp.path().join("out/table5.md");
@@ -78,7 +77,7 @@ set = ["physnerf.encoding.vd=false"]
             csv.lines().nth(1).unwrap(),
             "{extra}: the other row stays"
         );
-        assert_eq!(rows[2], "w/o v_D,,,,,", "{extra}: {rows:?}");
+        assert_eq!(rows[2], "w/o v_D,10,missing,,,,,", "{extra}: {rows:?}");
     }
 }
 

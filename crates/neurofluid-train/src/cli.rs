@@ -31,7 +31,8 @@ pub enum Command {
     Generate(commands::generate::Args),
     /// Summarise a scene directory (generated or released layout).
     Info(commands::info::Args),
-    /// Run every variant of a sweep file and write a Table-5-shaped table.
+    /// Run every variant of a sweep file (in this process, one run alone, or as a Slurm job
+    /// array) and write a Table-5-shaped table.
     Sweep(commands::sweep::Args),
     /// Supervised (pre)training or fine-tuning of DLF on `.msgpack.zst` records.
     PretrainDlf(commands::pretrain_dlf::Args),
@@ -45,6 +46,27 @@ pub enum Command {
     InitParticles(commands::nerf_cmds::InitArgs),
     /// Train and score a novel-view baseline (NeRF or NeRF-T) on NeuroFluid's test views.
     Baseline(commands::nerf_cmds::BaselineArgs),
+}
+
+impl Command {
+    /// Whether the command trains: SIGTERM and SIGINT then stop it between steps with a
+    /// checkpoint (and exit status 75) instead of killing it.
+    pub fn trains(&self) -> bool {
+        match self {
+            Self::Run(_)
+            | Self::Warmup(_)
+            | Self::Joint(_)
+            | Self::PretrainDlf(_)
+            | Self::InitParticles(_)
+            | Self::Baseline(_) => true,
+            Self::Sweep(args) => args.trains(),
+            Self::Eval(_)
+            | Self::Generate(_)
+            | Self::Info(_)
+            | Self::Devices(_)
+            | Self::Mesh(_) => false,
+        }
+    }
 }
 
 /// Sets up `tracing` on stderr at the level chosen by `-v` (or `RUST_LOG`).

@@ -1,7 +1,10 @@
 //! `sweep`: runs every variant of a sweep file (the four encoding switches by default, the
-//! paper's Table 5) through the whole pipeline, then writes the table (markdown and CSV).
+//! paper's Table 5) through the whole pipeline, then writes the table (markdown and CSV). Or:
+//! one run alone (`--variant`, what each Slurm array task runs), the whole sweep submitted as a
+//! Slurm job array (`--slurm`), the table of whatever has finished (`--table`), or each run's
+//! state (`--status`), both from the sweep folder's files alone.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 
@@ -9,10 +12,16 @@ use crate::config::Experiment;
 use crate::report::{EvalReport, JSON_FILE};
 use crate::stages::preflight::Stage;
 use crate::stages::{Run, Start, run_all};
-use crate::sweep::{Sweep, table_rows, write_table};
+use crate::sweep::slurm::{self, ArrayScript, SlurmOptions};
+use crate::sweep::state::{self, Phase, RunState};
+use crate::sweep::table::{DONE, TableRow, write_table};
+use crate::sweep::{ResolvedVariant, Sweep};
+use crate::trainer::lock::FolderLock;
+use crate::trainer::stop;
 
 /// Arguments of `sweep`.
-#[derive(Debug, clap::Args)]
+#[derive(Debug, Default, clap::Args)]
+#[command(group(clap::ArgGroup::new("mode").multiple(false)))]
 pub struct Args {
     /// The sweep TOML (see experiments/sweep-encodings.toml).
     pub sweep: PathBuf,
@@ -22,53 +31,168 @@ pub struct Args {
     /// Keep going when a variant fails (its row stays empty); by default the sweep stops.
     #[arg(long)]
     pub keep_going: bool,
-    /// Run nothing: tabulate the reports the variants' folders already hold (a variant whose
-    /// joint stage is unfinished or was trained under other settings, or that has no report,
-    /// gets an empty row)
-    #[arg(long)]
-    pub table_only: bool,
+    /// Run nothing: tabulate the reports the runs' folders already hold (a run whose joint stage
+    /// is unfinished or was trained under other settings, or that has no report, gets an empty
+    /// row marked with its state); needs no scheduler
+    #[arg(long, alias = "table-only", group = "mode")]
+    pub table: bool,
+    /// Run nothing: print each run's state (pending, running, stopped, done, failed and why)
+    /// from the sweep folder's `state/` files; needs no scheduler
+    #[arg(long, group = "mode")]
+    pub status: bool,
+    /// Run one run alone: its index (0-based, file order; Slurm's array task id) or its name.
+    /// Its state goes to the sweep folder's `state/<run>.json`; it resumes from its checkpoints
+    #[arg(long, value_name = "I", group = "mode")]
+    pub variant: Option<String>,
+    /// Submit the runs that are not done as one Slurm job array (task i runs run i): writes
+    /// `sweep.sbatch` into the sweep folder, submits it with sbatch and records the runs as
+    /// pending
+    #[arg(long, group = "mode")]
+    pub slurm: bool,
+    /// With --slurm: write the script only, submit nothing (`sbatch <script>` submits it)
+    #[arg(long, requires = "slurm")]
+    pub dry_run: bool,
+    /// Scheduling of each task (with --slurm; the sweep file's `[slurm]` table gives defaults).
+    #[command(flatten)]
+    pub slurm_options: SlurmOptions,
+}
+
+impl Args {
+    /// Whether this invocation trains (and so stops between steps on SIGTERM or SIGINT).
+    pub fn trains(&self) -> bool {
+        !(self.table || self.status || self.slurm)
+    }
+}
+
+/// Runs the mode the arguments choose.
+pub fn run(args: Args) -> anyhow::Result<()> {
+    if !args.slurm && !args.slurm_options.is_empty() {
+        anyhow::bail!("the scheduling options (--partition, --time, …) go with --slurm");
+    }
+    let sweep = Sweep::load(&args.sweep)?;
+    if args.table {
+        table(&sweep, args.device.as_deref())
+    } else if args.status {
+        status(&sweep)
+    } else if args.slurm {
+        submit(&sweep, &args)
+    } else if let Some(key) = &args.variant {
+        let (index, variant) = sweep.find(key)?;
+        let report = run_variant(&sweep, index, variant, args.device.as_deref())?;
+        println!("{}", report.markdown());
+        println!("results in {}", variant.experiment.out_dir().display());
+        Ok(())
+    } else {
+        run_all_variants(&sweep, &args)
+    }
 }
 
 /// Runs the variants one after another (each resumes from its own checkpoints).
-pub fn run(args: Args) -> anyhow::Result<()> {
-    let sweep = Sweep::load(&args.sweep)?;
+fn run_all_variants(sweep: &Sweep, args: &Args) -> anyhow::Result<()> {
     tracing::info!(
-        variants = sweep.variants.len(),
+        runs = sweep.variants.len(),
         "sweep {} into {}",
         sweep.name,
         sweep.out_dir.display()
     );
-    let _lock = crate::trainer::lock::FolderLock::acquire(&sweep.out_dir)?;
-    let mut results = Vec::new();
-    for variant in &sweep.variants {
-        if args.table_only {
-            let report = saved_report(&variant.experiment);
-            if let Err(e) = &report {
-                tracing::warn!("variant {}: no row: {e:#}", variant.name);
-            }
-            results.push((variant.label.clone(), report.ok()));
-            continue;
-        }
-        let mut exp = variant.experiment.clone();
-        if let Some(d) = &args.device {
-            exp.device = d.clone();
-        }
-        tracing::info!("variant {} ({})", variant.name, variant.label);
-        let outcome = (|| -> anyhow::Result<_> {
-            let run = Run::prepare(exp, Start::Resume, &Stage::ALL)?;
-            let mut log = run.open_log()?;
-            run_all(&run, &mut log)
-        })();
-        match outcome {
-            Ok(report) => results.push((variant.label.clone(), Some(report))),
+    let _lock = FolderLock::acquire(&sweep.out_dir)?;
+    let mut rows = Vec::new();
+    for (index, variant) in sweep.variants.iter().enumerate() {
+        let outcome = run_variant(sweep, index, variant, args.device.as_deref());
+        let (state, report) = match outcome {
+            Ok(report) => (DONE.to_string(), Some(report)),
+            Err(e) if stop::stopped(&e).is_some() => return Err(e),
             Err(e) if args.keep_going => {
-                tracing::error!("variant {} failed: {e:#}", variant.name);
-                results.push((variant.label.clone(), None));
+                tracing::error!("run {} failed: {e:#}", variant.name);
+                (Phase::Failed.as_str().to_string(), None)
             }
-            Err(e) => return Err(e).with_context(|| format!("variant {}", variant.name)),
-        }
+            Err(e) => return Err(e).with_context(|| format!("run {}", variant.name)),
+        };
+        rows.push(row(variant, state, report));
     }
-    let table = write_table(&sweep.out_dir, &sweep.name, &table_rows(&results))?;
+    let table = write_table(&sweep.out_dir, &sweep.name, &rows)?;
+    println!("{table}");
+    println!("table written to {}", sweep.out_dir.display());
+    Ok(())
+}
+
+/// Runs (or resumes) run `index` of the sweep in its folder, recording its state. The folder is
+/// locked first: a second process on the same run is refused and records nothing.
+fn run_variant(
+    sweep: &Sweep,
+    index: usize,
+    variant: &ResolvedVariant,
+    device: Option<&str>,
+) -> anyhow::Result<EvalReport> {
+    let mut exp = variant.experiment.clone();
+    if let Some(d) = device {
+        exp.device = d.to_string();
+    }
+    tracing::info!(
+        "run {} ({}, seed {})",
+        variant.name,
+        variant.label,
+        variant.seed
+    );
+    let lock = FolderLock::acquire(&exp.out_dir())?;
+    let in_slurm = std::env::var_os("SLURM_ARRAY_TASK_ID").is_some();
+    let record = |phase: Phase, reason: Option<String>| {
+        let mut s = RunState::of_this_task(&variant.name, phase);
+        s.reason = reason;
+        s.log = in_slurm.then(|| slurm::log_path(&sweep.out_dir, index));
+        if let Err(e) = state::write(&sweep.out_dir, &s) {
+            tracing::warn!("recording the state of run {}: {e:#}", variant.name);
+        }
+    };
+    record(Phase::Running, None);
+    let outcome = (|| {
+        let run = Run::prepare_locked(exp, Start::Resume, &Stage::ALL, lock)?;
+        let mut log = run.open_log()?;
+        run_all(&run, &mut log)
+    })();
+    match &outcome {
+        Ok(_) => record(Phase::Done, None),
+        Err(e) if stop::stopped(e).is_some() => record(Phase::Stopped, Some(format!("{e:#}"))),
+        Err(e) => record(Phase::Failed, Some(format!("{e:#}"))),
+    }
+    outcome
+}
+
+fn row(variant: &ResolvedVariant, state: String, report: Option<EvalReport>) -> TableRow {
+    TableRow {
+        label: variant.label.clone(),
+        seed: variant.seed,
+        state,
+        summary: report.as_ref().map(EvalReport::summary),
+    }
+}
+
+/// Writes and prints the table of whatever has finished; the other runs are marked with their
+/// recorded state (`missing` without one).
+fn table(sweep: &Sweep, device: Option<&str>) -> anyhow::Result<()> {
+    let mut rows = Vec::new();
+    for variant in &sweep.variants {
+        let mut exp = variant.experiment.clone();
+        // reading reports computes nothing: any device will do
+        exp.device = device.unwrap_or("cpu").to_string();
+        let (state, report) = match saved_report(&exp) {
+            Ok(report) => (DONE.to_string(), Some(report)),
+            Err(e) => {
+                let recorded = state::read(&sweep.out_dir, &variant.name);
+                let state = match &recorded {
+                    Ok(Some(s)) if s.state != Phase::Done => s.state.as_str(),
+                    Ok(_) => "missing",
+                    Err(_) => "unreadable",
+                };
+                if state != Phase::Pending.as_str() && state != Phase::Running.as_str() {
+                    tracing::warn!("run {}: no row: {e:#}", variant.name);
+                }
+                (state.to_string(), None)
+            }
+        };
+        rows.push(row(variant, state, report));
+    }
+    let table = write_table(&sweep.out_dir, &sweep.name, &rows)?;
     println!("{table}");
     println!("table written to {}", sweep.out_dir.display());
     Ok(())
@@ -83,4 +207,160 @@ fn saved_report(exp: &Experiment) -> anyhow::Result<EvalReport> {
     Ok(EvalReport::read_json(
         &run.stage_dir(Stage::Eval.folder()).join(JSON_FILE),
     )?)
+}
+
+/// Prints each run's recorded state.
+fn status(sweep: &Sweep) -> anyhow::Result<()> {
+    let now = state::now();
+    println!("sweep {} ({})", sweep.name, sweep.out_dir.display());
+    if let Ok(text) = std::fs::read_to_string(sweep.out_dir.join(slurm::JOB_FILE))
+        && let Ok(s) = serde_json::from_str::<slurm::Submission>(&text)
+    {
+        println!(
+            "latest submission: job {} (array {}), {} ago",
+            s.job,
+            s.array,
+            age(now.saturating_sub(s.submitted))
+        );
+    }
+    println!(
+        "\n| # | run | state | job | start | since | reason | log |\n|---|---|---|---|---|---|---|---|"
+    );
+    let mut counts: Vec<(String, usize)> = Vec::new();
+    for (i, variant) in sweep.variants.iter().enumerate() {
+        let (word, cells) = match state::read(&sweep.out_dir, &variant.name) {
+            Ok(Some(s)) => (
+                s.state.as_str().to_string(),
+                [
+                    s.job.clone().unwrap_or_default(),
+                    s.attempt.map(|a| a.to_string()).unwrap_or_default(),
+                    format!("{} ago", age(now.saturating_sub(s.since))),
+                    s.reason
+                        .as_deref()
+                        .and_then(|r| r.lines().next())
+                        .unwrap_or_default()
+                        .to_string(),
+                    s.log.map(|p| p.display().to_string()).unwrap_or_default(),
+                ],
+            ),
+            Ok(None) => ("not started".to_string(), Default::default()),
+            Err(e) => {
+                let mut cells: [String; 5] = Default::default();
+                cells[3] = format!("{e:#}");
+                ("unreadable".to_string(), cells)
+            }
+        };
+        println!(
+            "| {i} | {} | {word} | {} |",
+            variant.name,
+            cells.join(" | ")
+        );
+        match counts.iter_mut().find(|(w, _)| *w == word) {
+            Some((_, n)) => *n += 1,
+            None => counts.push((word, 1)),
+        }
+    }
+    let summary: Vec<String> = counts.iter().map(|(w, n)| format!("{n} {w}")).collect();
+    println!("\n{} runs: {}", sweep.variants.len(), summary.join(", "));
+    Ok(())
+}
+
+/// `seconds` for people: `42 s`, `7 min`, `3.5 h`, `2.0 d`.
+fn age(seconds: u64) -> String {
+    match seconds {
+        s if s < 120 => format!("{s} s"),
+        s if s < 7200 => format!("{} min", s / 60),
+        s if s < 172_800 => format!("{:.1} h", s as f64 / 3600.0),
+        s => format!("{:.1} d", s as f64 / 86400.0),
+    }
+}
+
+/// Writes the array script of the runs that are not done and submits it (unless `--dry-run`).
+fn submit(sweep: &Sweep, args: &Args) -> anyhow::Result<()> {
+    args.slurm_options.validate_args()?;
+    let options = args.slurm_options.over(&sweep.slurm);
+    let workdir = std::env::current_dir().context("the working directory")?;
+    let absolute = |p: &Path| {
+        if p.is_absolute() {
+            p.to_path_buf()
+        } else {
+            workdir.join(p)
+        }
+    };
+    let template = options
+        .template
+        .as_ref()
+        .map(|p| {
+            let p = crate::sweep::locate(p, &args.sweep);
+            std::fs::read_to_string(&p)
+                .with_context(|| format!("reading the script template {}", p.display()))
+        })
+        .transpose()?;
+    let mut indices = Vec::new();
+    for (i, variant) in sweep.variants.iter().enumerate() {
+        match state::read(&sweep.out_dir, &variant.name)? {
+            Some(s) if s.state == Phase::Done => {
+                tracing::info!("run {} is done: not submitted", variant.name);
+            }
+            Some(s) if matches!(s.state, Phase::Pending | Phase::Running) => {
+                tracing::warn!(
+                    "run {} is recorded {} (task {}): a second task on it refuses to start while \
+                     the first holds its folder",
+                    variant.name,
+                    s.state.as_str(),
+                    s.job.as_deref().unwrap_or("by hand")
+                );
+                indices.push(i);
+            }
+            _ => indices.push(i),
+        }
+    }
+    if indices.is_empty() {
+        println!(
+            "every run of {} is done; `sweep --table` collects them",
+            sweep.name
+        );
+        return Ok(());
+    }
+    let sweep_dir = absolute(&sweep.out_dir);
+    let script = ArrayScript {
+        sweep,
+        sweep_file: absolute(&args.sweep),
+        sweep_dir: sweep_dir.clone(),
+        workdir: workdir.clone(),
+        exe: std::env::current_exe().context("the path of this binary")?,
+        device: args.device.clone(),
+        indices: indices.clone(),
+        options,
+        template,
+    }
+    .text()?;
+    let path = sweep_dir.join(slurm::SCRIPT_FILE);
+    std::fs::create_dir_all(sweep_dir.join(slurm::LOG_DIR))
+        .with_context(|| format!("creating {}", sweep_dir.join(slurm::LOG_DIR).display()))?;
+    neurofluid_core::atomic::write_bytes(&path, script.as_bytes())
+        .with_context(|| format!("writing {}", path.display()))?;
+    if args.dry_run {
+        println!(
+            "wrote {} ({} runs); submit it with: sbatch {}",
+            path.display(),
+            indices.len(),
+            path.display()
+        );
+        return Ok(());
+    }
+    let submission = slurm::submit(sweep, &sweep_dir, &path, &indices)?;
+    println!(
+        "submitted job {} (array {}): {} runs of {}\n  script  {}\n  logs    {}/task-<i>.out\n  \
+         states  {}/<run>.json\nprogress: neurofluid-train sweep {} --status; table: --table",
+        submission.job,
+        submission.array,
+        indices.len(),
+        sweep.name,
+        path.display(),
+        sweep_dir.join(slurm::LOG_DIR).display(),
+        sweep_dir.join(state::STATE_DIR).display(),
+        args.sweep.display()
+    );
+    Ok(())
 }

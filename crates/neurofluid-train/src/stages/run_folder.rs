@@ -73,6 +73,16 @@ impl Run {
     /// appends any setting that changed since the previous session to `config.history`.
     pub fn prepare(exp: Experiment, start: Start, stages: &[Stage]) -> anyhow::Result<Self> {
         let lock = FolderLock::acquire(&exp.out_dir())?;
+        Self::prepare_locked(exp, start, stages, lock)
+    }
+
+    /// [`Run::prepare`] with the run folder's lock already held (`lock`, on `exp`'s folder).
+    pub fn prepare_locked(
+        exp: Experiment,
+        start: Start,
+        stages: &[Stage],
+        lock: FolderLock,
+    ) -> anyhow::Result<Self> {
         if stages.iter().any(|s| *s != Stage::Eval) {
             generate_scene_if_missing(&exp)?;
         }

@@ -8,6 +8,7 @@ use neurofluid_core::scene::{MANIFEST_FILE, Role};
 use neurofluid_scenegen::{Preset, SceneConfig};
 
 use crate::config::Experiment;
+use crate::trainer::lock::FolderLock;
 
 /// The generator settings of an experiment's `[scene]` (`None` when it names an existing folder).
 pub fn generator_config(exp: &Experiment) -> anyhow::Result<Option<SceneConfig>> {
@@ -35,6 +36,12 @@ pub fn generate_scene_if_missing(exp: &Experiment) -> anyhow::Result<PathBuf> {
         }
         Some(cfg) => {
             let preset = Preset::resolve(&cfg);
+            // runs sharing a scene (a sweep's array tasks) generate it once: the others wait
+            let _lock = if dir.join(MANIFEST_FILE).is_file() {
+                None
+            } else {
+                Some(FolderLock::wait(&dir)?)
+            };
             if !dir.join(MANIFEST_FILE).is_file() {
                 tracing::info!(
                     "generating the built-in scene {} ({}) into {}",

@@ -1,10 +1,13 @@
 //! The one loop: resume, step, log, evaluate, checkpoint, stop.
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
 use super::checkpoint::{self, CheckpointState};
 use super::guard::Guard;
+use super::stop::{self, Stopped};
 use super::{Event, EventSink, StepStats, Trainer};
 use crate::config::Settings;
 use crate::metrics_log::MetricsRow;
@@ -27,6 +30,7 @@ pub struct Driver<'s> {
     cadence: Cadence,
     settings: Settings,
     sinks: Vec<&'s mut dyn EventSink>,
+    stop: Arc<AtomicBool>,
 }
 
 /// Rays and time since the previous metrics row, for the throughput column.
@@ -68,7 +72,15 @@ impl<'s> Driver<'s> {
             cadence,
             settings,
             sinks: Vec::new(),
+            stop: stop::process_flag(),
         }
+    }
+
+    /// Stops between steps once `flag` is set (by default the process's flag, which SIGTERM and
+    /// SIGINT set once [`stop::install_signal_handlers`] ran).
+    pub fn with_stop(mut self, flag: Arc<AtomicBool>) -> Self {
+        self.stop = flag;
+        self
     }
 
     /// Adds a sink.
@@ -185,6 +197,15 @@ impl<'s> Driver<'s> {
         anyhow::anyhow!(message)
     }
 
+    /// Tells the sinks the stage stopped on request after `done` steps (checkpointed).
+    fn stopped(&mut self, stage: &'static str, done: u64) -> anyhow::Error {
+        tracing::info!("{stage}: stop requested; stopping after step {done}, checkpointed");
+        if let Err(e) = self.emit(Event::Stopped { stage, done }) {
+            tracing::warn!("while reporting the stop: {e:#}");
+        }
+        Stopped { stage, done }.into()
+    }
+
     fn row(stage: &str, done: u64, stats: &StepStats, throughput: &mut Throughput) -> MetricsRow {
         let mut row = MetricsRow::new(stage, done, stats.loss, throughput.elapsed());
         row.psnr = stats.psnr;
@@ -206,6 +227,9 @@ impl<'s> Driver<'s> {
 
     /// Runs (or resumes) `trainer` up to step `stop` (its end for `None`), checkpointing after
     /// the last step run. Returns the steps done.
+    ///
+    /// A stop request (see [`Driver::with_stop`]) ends the stage after the update it is in: the
+    /// driver checkpoints there (unless the cadence just did) and returns [`Stopped`].
     pub fn run<T: Trainer>(&mut self, trainer: &mut T, stop: Option<u64>) -> anyhow::Result<u64> {
         let stage = trainer.stage();
         let total = trainer.total_steps();
@@ -227,6 +251,10 @@ impl<'s> Driver<'s> {
         // a checkpoint is confirmed by the first healthy update after it (one left unconfirmed
         // by an earlier session still has its predecessor beside it)
         let mut unconfirmed = checkpoint::has_previous(&self.stage_dir);
+        let mut saved = start;
+        if start < end && stop::requested(&self.stop) {
+            return Err(self.stopped(stage, start));
+        }
         for step in start..end {
             let stats = trainer.step(step)?;
             let done = step + 1;
@@ -263,6 +291,14 @@ impl<'s> Driver<'s> {
             if c.checkpoint_every > 0 && done % c.checkpoint_every == 0 && done < end {
                 self.checkpoint_or_stop(trainer, done, unconfirmed)?;
                 unconfirmed = true;
+                saved = done;
+            }
+            if done < end && stop::requested(&self.stop) {
+                if saved < done {
+                    // left unconfirmed, as at the end of any session
+                    self.checkpoint_or_stop(trainer, done, unconfirmed)?;
+                }
+                return Err(self.stopped(stage, done));
             }
         }
         if let Some(what) = guard.at_end() {
@@ -374,6 +410,105 @@ mod tests {
         run(tmp.path(), &healthy, Some(4)).unwrap();
         run(tmp.path(), &healthy, None).unwrap();
         assert_eq!(checkpoint::saved_step(tmp.path()), 6);
+    }
+
+    /// A trainer that sums its losses (its state), updating every `window` steps, and raises
+    /// `stop` during step `stop_at`.
+    struct Summing {
+        window: u64,
+        total: f64,
+        stop_at: Option<u64>,
+        stop: Arc<AtomicBool>,
+    }
+
+    impl Trainer for Summing {
+        fn stage(&self) -> &'static str {
+            "summing"
+        }
+        fn total_steps(&self) -> u64 {
+            12
+        }
+        fn step(&mut self, step: u64) -> anyhow::Result<StepStats> {
+            if self.stop_at == Some(step) {
+                self.stop.store(true, std::sync::atomic::Ordering::SeqCst);
+            }
+            self.total += (step as f64 + 1.0).sqrt();
+            Ok(StepStats {
+                loss: 1.0,
+                grad_norms: vec![("model", 1.0)],
+                updated: (step + 1).is_multiple_of(self.window),
+                ..StepStats::default()
+            })
+        }
+        fn evaluate(&mut self, _done: u64) -> anyhow::Result<Option<Evaluation>> {
+            Ok(None)
+        }
+        fn save(&self, _dir: &Path) -> anyhow::Result<StageState> {
+            let mut s = StageState::new();
+            s.insert("total".into(), self.total.into());
+            Ok(s)
+        }
+        fn load(&mut self, _dir: &Path, _done: u64, state: StageState) -> anyhow::Result<()> {
+            self.total = state["total"].as_f64().unwrap();
+            Ok(())
+        }
+    }
+
+    /// A stop request ends the stage after the update it is in, with a checkpoint there (none
+    /// twice when the cadence just wrote one); resuming ends where an uninterrupted run ends.
+    #[test]
+    fn a_stop_request_checkpoints_after_the_update_and_resumes_exactly() {
+        let cadence = Cadence {
+            log_every: 1,
+            evaluate_every: 0,
+            checkpoint_every: 4,
+        };
+        let drive = |dir: &Path, window: u64, stop_at: Option<u64>| {
+            let stop = Arc::new(AtomicBool::new(false));
+            let mut t = Summing {
+                window,
+                total: 0.0,
+                stop_at,
+                stop: Arc::clone(&stop),
+            };
+            let out = Driver::new(dir, cadence, Settings::default())
+                .with_stop(stop)
+                .run(&mut t, None);
+            (out, t.total)
+        };
+        for (window, stop_at, stopped_after) in [(1, 4, 5), (1, 3, 4), (3, 3, 6), (3, 6, 9)] {
+            let tmp = tempfile::tempdir().unwrap();
+            let (straight, expected) = drive(&tmp.path().join("straight"), window, None);
+            assert_eq!(straight.unwrap(), 12);
+            let dir = tmp.path().join("stopped");
+            let (out, _) = drive(&dir, window, Some(stop_at));
+            let err = out.unwrap_err();
+            let stopped = stop::stopped(&err).expect("a Stopped error");
+            assert_eq!(
+                (stopped.stage, stopped.done),
+                ("summing", stopped_after),
+                "window {window}, stop during step {stop_at}"
+            );
+            assert_eq!(checkpoint::saved_step(&dir), stopped_after);
+            let (resumed, total) = drive(&dir, window, None);
+            assert_eq!(resumed.unwrap(), 12);
+            assert_eq!(total.to_bits(), expected.to_bits(), "window {window}");
+        }
+        // a request standing before the first step stops the stage without a step
+        let tmp = tempfile::tempdir().unwrap();
+        let stop = Arc::new(AtomicBool::new(true));
+        let mut t = Summing {
+            window: 1,
+            total: 0.0,
+            stop_at: None,
+            stop: Arc::clone(&stop),
+        };
+        let err = Driver::new(tmp.path(), cadence, Settings::default())
+            .with_stop(stop)
+            .run(&mut t, None)
+            .unwrap_err();
+        assert_eq!(stop::stopped(&err).unwrap().done, 0);
+        assert_eq!(t.total, 0.0);
     }
 
     /// Orphans of a killed process go; a crash between the two renames of a checkpoint write

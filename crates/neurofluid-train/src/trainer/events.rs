@@ -59,6 +59,14 @@ pub enum Event<'a> {
         /// What was not finite, and the last good checkpoint.
         message: &'a str,
     },
+    /// A stop was requested (SIGTERM, SIGINT): the stage stopped after `done` steps, which its
+    /// checkpoint holds, before its end.
+    Stopped {
+        /// The stage.
+        stage: &'static str,
+        /// Steps done.
+        done: u64,
+    },
     /// The stage ran up to `done` steps in this call (its end, or the requested stop).
     Finished {
         /// The stage.

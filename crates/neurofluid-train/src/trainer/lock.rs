@@ -1,5 +1,6 @@
 //! One process per folder: a run folder (or `pretrain-dlf`'s checkpoint folder) is locked while a
-//! process owns it, so two runs never interleave their checkpoints, metrics and results.
+//! process owns it, so two runs never interleave their checkpoints, metrics and results; a
+//! built-in scene's folder is locked while it is generated, and runs that need it wait.
 //!
 //! The lock is an advisory OS file lock on `<folder>/.lock`, which also records who holds it;
 //! the operating system releases it when the process ends, however it ends (a `kill -9` leaves
@@ -25,6 +26,16 @@ impl FolderLock {
     /// Locks `dir` (created if missing) for this process, or fails naming the process that
     /// holds it.
     pub fn acquire(dir: &Path) -> anyhow::Result<Self> {
+        Self::take(dir, false)
+    }
+
+    /// Locks `dir` (created if missing) for this process, waiting while another process holds
+    /// it (e.g. one generating the scene this one needs).
+    pub fn wait(dir: &Path) -> anyhow::Result<Self> {
+        Self::take(dir, true)
+    }
+
+    fn take(dir: &Path, wait: bool) -> anyhow::Result<Self> {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         let path = dir.join(LOCK_FILE);
         let mut file = OpenOptions::new()
@@ -36,19 +47,21 @@ impl FolderLock {
             .with_context(|| format!("opening the lock file {}", path.display()))?;
         match file.try_lock() {
             Ok(()) => {}
+            Err(TryLockError::WouldBlock) if wait => {
+                tracing::info!(
+                    "waiting for {}, in use by another process{}",
+                    dir.display(),
+                    holder(&mut file)
+                );
+                file.lock()
+                    .with_context(|| format!("locking {}", path.display()))?;
+            }
             Err(TryLockError::WouldBlock) => {
-                let mut holder = String::new();
-                let _ = file.read_to_string(&mut holder);
-                let holder = holder.trim();
                 anyhow::bail!(
                     "{} is in use by another process{}; wait for it to finish, stop it, or give \
                      this run another `name`",
                     dir.display(),
-                    if holder.is_empty() {
-                        String::new()
-                    } else {
-                        format!(" ({holder})")
-                    }
+                    holder(&mut file)
                 );
             }
             Err(TryLockError::Error(e)) => {
@@ -78,6 +91,18 @@ impl FolderLock {
     }
 }
 
+/// ` (<who holds the lock>)`, as its holder recorded it, or nothing.
+fn holder(file: &mut File) -> String {
+    let mut holder = String::new();
+    let _ = file.read_to_string(&mut holder);
+    let holder = holder.trim();
+    if holder.is_empty() {
+        String::new()
+    } else {
+        format!(" ({holder})")
+    }
+}
+
 impl Drop for FolderLock {
     fn drop(&mut self) {
         let _ = self.file.set_len(0);
@@ -103,6 +128,15 @@ mod tests {
         );
         assert!(err.contains(&folder.display().to_string()), "{err}");
         drop(first);
-        FolderLock::acquire(&folder).unwrap();
+        let second = FolderLock::acquire(&folder).unwrap();
+        // one who waits gets the folder once the holder lets go
+        let waiter = {
+            let folder = folder.clone();
+            std::thread::spawn(move || FolderLock::wait(&folder).map(drop))
+        };
+        std::thread::sleep(std::time::Duration::from_millis(200));
+        assert!(!waiter.is_finished(), "the waiter did not wait");
+        drop(second);
+        waiter.join().unwrap().unwrap();
     }
 }

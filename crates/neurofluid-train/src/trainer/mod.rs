@@ -14,6 +14,7 @@ mod events;
 pub mod guard;
 pub mod lock;
 pub mod sinks;
+pub mod stop;
 
 use std::path::Path;
 

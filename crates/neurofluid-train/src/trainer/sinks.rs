@@ -85,6 +85,11 @@ impl EventSink for ProgressBars {
                     bar.finish();
                 }
             }
+            Event::Stopped { stage, done } => {
+                if let Some(bar) = self.bar.take() {
+                    bar.abandon_with_message(format!("{stage} stopped after step {done}"));
+                }
+            }
             Event::Checkpointed { .. } => {}
         }
         Ok(())
@@ -179,7 +184,7 @@ impl CurvesPlot {
 
 impl EventSink for CurvesPlot {
     fn on_event(&mut self, event: &Event<'_>) -> anyhow::Result<()> {
-        if let Event::Finished { .. } = event {
+        if let Event::Finished { .. } | Event::Stopped { .. } = event {
             crate::plot::plot_metrics_file(&self.jsonl, &self.png)?;
         }
         Ok(())

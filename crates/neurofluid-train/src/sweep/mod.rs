@@ -1,31 +1,35 @@
-//! Sweeps: one TOML names a base experiment and variants (dotted overrides); each variant
-//! resolves to an [`Experiment`] with its own output folder, and the variants' reports are
-//! tabulated like the paper's Table 5 (rows = variants; grounding d, prediction d, PSNR, SSIM).
+//! Sweeps: one TOML names a base experiment, variants (dotted overrides) and optionally seeds;
+//! each variant (under each seed) resolves to an [`Experiment`] with its own run folder, and the
+//! runs' reports are tabulated like the paper's Table 5 (rows = variants and seeds; grounding d,
+//! prediction d, PSNR, SSIM, LPIPS; mean ± standard deviation over the seeds).
 //!
 //! ```toml
 //! base = "experiments/quick-watercube.toml"
 //! set = ["joint.epochs=1"]          # optional, applied to every variant
+//! seeds = [10, 11, 12]              # optional: every variant once per seed
 //! [[variant]]
 //! name = "no_pc"
 //! label = "w/o p_c"
 //! set = ["physnerf.encoding.pc=false"]
+//! [slurm]                           # optional: defaults of `sweep --slurm`
+//! partition = "gpu"
 //! ```
 //! Without `[[variant]]` the paper's Table 5 set is used: full, unknown initial particle positions
 //! (from images), w/o p_c, σ_p, v_D, d_c.
+//!
+//! A sweep runs in one process (`sweep FILE`), one run at a time (`sweep FILE --variant I`, what
+//! each task of a Slurm array runs: [`slurm`]), and records each run's state in its folder
+//! ([`state`]); [`table`] collects whatever has finished.
 
-use std::fmt::Write as _;
+pub mod slurm;
+pub mod state;
+pub mod table;
+
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
 use crate::config::{ConfigError, Experiment, from_toml_str, read_text};
-use crate::csv_text::{cell as csv_cell, csv_text};
-use crate::report::{EvalReport, ReportError, Summary, write_atomic};
-
-/// Markdown table file name inside the sweep folder.
-pub const TABLE_MD_FILE: &str = "table5.md";
-/// CSV table file name inside the sweep folder.
-pub const TABLE_CSV_FILE: &str = "table5.csv";
 
 /// The sweep file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -40,9 +44,16 @@ pub struct SweepFile {
     /// Overrides applied to every variant before its own.
     #[serde(default)]
     pub set: Vec<String>,
+    /// Seeds: every variant runs once per seed (its run folder `<variant>-seed<N>`); empty =
+    /// once, with the base experiment's seed (or the one its overrides set).
+    #[serde(default)]
+    pub seeds: Vec<u64>,
     /// The variants; empty = [`table5_variants`].
     #[serde(default, rename = "variant")]
     pub variants: Vec<Variant>,
+    /// Defaults of `sweep --slurm` (its options override them).
+    #[serde(default)]
+    pub slurm: slurm::SlurmOptions,
 }
 
 /// One variant.
@@ -85,14 +96,20 @@ pub fn table5_variants() -> Vec<Variant> {
     ]
 }
 
-/// A variant resolved into a runnable experiment.
+/// One run of a sweep: a variant (under one of the sweep's seeds) resolved into a runnable
+/// experiment.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ResolvedVariant {
-    /// Variant name.
+    /// The run's name, its folder in the sweep folder: the variant's name, with `-seed<N>` when
+    /// the sweep lists seeds.
     pub name: String,
+    /// The variant's name.
+    pub variant: String,
     /// Table row label.
     pub label: String,
-    /// The experiment (name `<base>-<variant>`, out dir `<sweep out>/<variant>`).
+    /// The experiment's seed.
+    pub seed: u64,
+    /// The experiment (name `<base>-<run>`, out dir `<sweep out>/<run>`).
     pub experiment: Experiment,
 }
 
@@ -103,8 +120,10 @@ pub struct Sweep {
     pub name: String,
     /// Output folder.
     pub out_dir: PathBuf,
-    /// Variants in file order.
+    /// The runs: the variants in file order, each under every seed in order.
     pub variants: Vec<ResolvedVariant>,
+    /// The file's `[slurm]` defaults.
+    pub slurm: slurm::SlurmOptions,
 }
 
 impl Sweep {
@@ -115,7 +134,7 @@ impl Sweep {
         let name = path
             .file_stem()
             .map_or_else(|| "sweep".into(), |s| s.to_string_lossy().into_owned());
-        let base_path = locate_base(&file.base, path);
+        let base_path = locate(&file.base, path);
         let base = Experiment::load(&base_path)?;
         Self::resolve(&name, path, &file, &base)
     }
@@ -157,7 +176,7 @@ impl Sweep {
                     format!("`{}`: expected letters, digits, `_`, `-` or `.`", v.name),
                 ));
             }
-            if resolved.iter().any(|r| r.name == v.name) {
+            if resolved.iter().any(|r| r.variant == v.name) {
                 return Err(invalid(&key, format!("`{}` is used twice", v.name)));
             }
             let mut exp = base.clone();
@@ -170,26 +189,75 @@ impl Sweep {
                     other => other,
                 })?;
             }
-            exp.name = format!("{}-{}", base.name, v.name);
-            exp.out_dir = Some(out_dir.join(&v.name));
-            resolved.push(ResolvedVariant {
-                name: v.name.clone(),
-                label: v.label.clone().unwrap_or_else(|| v.name.clone()),
-                experiment: exp,
-            });
+            let label = v.label.clone().unwrap_or_else(|| v.name.clone());
+            let seeds: Vec<Option<u64>> = if file.seeds.is_empty() {
+                vec![None]
+            } else {
+                file.seeds.iter().copied().map(Some).collect()
+            };
+            for seed in seeds {
+                let mut exp = exp.clone();
+                let name = match seed {
+                    Some(seed) => {
+                        exp.seed = seed;
+                        format!("{}-seed{seed}", v.name)
+                    }
+                    None => v.name.clone(),
+                };
+                exp.name = format!("{}-{name}", base.name);
+                exp.out_dir = Some(out_dir.join(&name));
+                resolved.push(ResolvedVariant {
+                    name,
+                    variant: v.name.clone(),
+                    label: label.clone(),
+                    seed: exp.seed,
+                    experiment: exp,
+                });
+            }
         }
+        if let Some(i) = (1..file.seeds.len()).find(|&i| file.seeds[..i].contains(&file.seeds[i])) {
+            return Err(invalid(
+                &format!("seeds[{i}]"),
+                format!("seed {} is listed twice", file.seeds[i]),
+            ));
+        }
+        file.slurm.validate(origin)?;
         Ok(Self {
             name: name.into(),
             out_dir,
             variants: resolved,
+            slurm: file.slurm.clone(),
+        })
+    }
+
+    /// The run `key` names: its index (0-based, file order, as Slurm's array task ids) or its
+    /// name.
+    pub fn find(&self, key: &str) -> anyhow::Result<(usize, &ResolvedVariant)> {
+        let found = match key.parse::<usize>() {
+            Ok(i) => self.variants.get(i).map(|v| (i, v)),
+            Err(_) => self
+                .variants
+                .iter()
+                .enumerate()
+                .find(|(_, v)| v.name == key),
+        };
+        found.ok_or_else(|| {
+            let names: Vec<&str> = self.variants.iter().map(|v| v.name.as_str()).collect();
+            anyhow::anyhow!(
+                "sweep {}: no run `{key}`; expected an index from 0 to {} or one of: {}",
+                self.name,
+                self.variants.len().saturating_sub(1),
+                names.join(", ")
+            )
         })
     }
 }
 
-/// The base file: as given (relative to the working directory), else relative to the sweep
-/// file's folder, else to that folder's parent (sweeps in `experiments/` naming
-/// `experiments/x.toml`); the path as given when none exists (the load error names it).
-fn locate_base(base: &Path, sweep_file: &Path) -> PathBuf {
+/// A file a sweep file names (its base, its script template): as given (relative to the working
+/// directory), else relative to the sweep file's folder, else to that folder's parent (sweeps in
+/// `experiments/` naming `experiments/x.toml`); the path as given when none exists (the error of
+/// its reader names it).
+pub(crate) fn locate(base: &Path, sweep_file: &Path) -> PathBuf {
     if base.is_absolute() || base.exists() {
         return base.to_path_buf();
     }
@@ -200,89 +268,9 @@ fn locate_base(base: &Path, sweep_file: &Path) -> PathBuf {
         .unwrap_or_else(|| base.to_path_buf())
 }
 
-/// One row of the Table-5-shaped table.
-#[derive(Debug, Clone, PartialEq)]
-pub struct TableRow {
-    /// Row label.
-    pub label: String,
-    /// The variant's summary (`None` when the variant produced no report).
-    pub summary: Option<Summary>,
-}
-
-/// Builds the table rows from each variant's report (`None` = missing or failed run).
-pub fn table_rows(rows: &[(String, Option<EvalReport>)]) -> Vec<TableRow> {
-    rows.iter()
-        .map(|(label, r)| TableRow {
-            label: label.clone(),
-            summary: r.as_ref().map(EvalReport::summary),
-        })
-        .collect()
-}
-
-fn cell(v: Option<f64>, digits: usize) -> String {
-    v.map_or_else(|| "–".into(), |x| format!("{x:.digits$}"))
-}
-
-/// The markdown table: rows = variants; grounding d, prediction d (×1000, lower is better),
-/// PSNR, SSIM, LPIPS (means over every test render).
-pub fn table_markdown(title: &str, rows: &[TableRow]) -> String {
-    let mut md = format!(
-        "## {title}\n\n| variant | grounding d ↓ | prediction d ↓ | PSNR ↑ | SSIM ↑ | LPIPS ↓ |\n|---|---:|---:|---:|---:|---:|\n"
-    );
-    for r in rows {
-        let s = r.summary.as_ref();
-        let _ = writeln!(
-            md,
-            "| {} | {} | {} | {} | {} | {} |",
-            r.label,
-            cell(s.and_then(|s| s.grounding.neurofluid_d), 2),
-            cell(s.and_then(|s| s.prediction.neurofluid_d), 2),
-            cell(s.and_then(|s| s.all.psnr), 2),
-            cell(s.and_then(|s| s.all.ssim), 4),
-            cell(s.and_then(|s| s.all.lpips), 4)
-        );
-    }
-    md
-}
-
-/// The CSV table (same columns as the markdown; empty cells for missing values).
-pub fn table_csv(rows: &[TableRow]) -> String {
-    let header = [
-        "variant",
-        "grounding_d",
-        "prediction_d",
-        "psnr",
-        "ssim",
-        "lpips",
-    ]
-    .map(String::from)
-    .to_vec();
-    let body = rows.iter().map(|r| {
-        let s = r.summary.as_ref();
-        vec![
-            r.label.clone(),
-            csv_cell(s.and_then(|s| s.grounding.neurofluid_d)),
-            csv_cell(s.and_then(|s| s.prediction.neurofluid_d)),
-            csv_cell(s.and_then(|s| s.all.psnr)),
-            csv_cell(s.and_then(|s| s.all.ssim)),
-            csv_cell(s.and_then(|s| s.all.lpips)),
-        ]
-    });
-    csv_text(std::iter::once(header).chain(body))
-}
-
-/// Writes `table5.md` and `table5.csv` into `dir` atomically; returns the markdown.
-pub fn write_table(dir: &Path, title: &str, rows: &[TableRow]) -> Result<String, ReportError> {
-    let md = table_markdown(title, rows);
-    write_atomic(&dir.join(TABLE_MD_FILE), &md)?;
-    write_atomic(&dir.join(TABLE_CSV_FILE), &table_csv(rows))?;
-    Ok(md)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::report::{FrameDistance, ImageScore, Windows};
 
     fn base() -> Experiment {
         Experiment::from_toml_str(
@@ -375,52 +363,43 @@ mod tests {
     }
 
     #[test]
-    fn table_has_one_row_per_variant() {
-        let report = |d: f64, psnr: f64| {
-            let mut r = EvalReport::new("e", "s", "c", Windows::paper());
-            for t in 1..=59 {
-                let nf = if t < 50 { d } else { 2.0 * d };
-                r.frames.push(FrameDistance {
-                    supervised_dlf: None,
-                    reverse: Default::default(),
-                    t,
-                    neurofluid: nf,
-                    dlf: None,
-                });
-                r.images.push(ImageScore {
-                    view: "view_5".into(),
-                    t,
-                    psnr,
-                    ssim: 0.5,
-                    lpips: Some(0.25),
-                });
-            }
-            r
-        };
-        let rows = table_rows(&[
-            ("Full model".into(), Some(report(10.0, 30.0))),
-            ("w/o p_c".into(), Some(report(12.5, 28.0))),
-            ("w/o d_c".into(), None),
-        ]);
-        let dir = tempfile::tempdir().unwrap();
-        let md = write_table(dir.path(), "Table 5", &rows).unwrap();
-        assert!(
-            md.contains("| Full model | 10.00 | 20.00 | 30.00 | 0.5000 | 0.2500 |"),
-            "{md}"
-        );
-        assert!(
-            md.contains("| w/o p_c | 12.50 | 25.00 | 28.00 | 0.5000 | 0.2500 |"),
-            "{md}"
-        );
-        assert!(md.contains("| w/o d_c | – | – | – | – | – |"), "{md}");
-        let csv = std::fs::read_to_string(dir.path().join(TABLE_CSV_FILE)).unwrap();
-        let lines: Vec<&str> = csv.lines().collect();
-        assert_eq!(lines[0], "variant,grounding_d,prediction_d,psnr,ssim,lpips");
-        assert_eq!(lines[1], "Full model,10,20,30,0.5,0.25");
-        assert_eq!(lines[3], "w/o d_c,,,,,");
+    fn seeds_multiply_the_runs_and_runs_are_found_by_index_or_name() {
+        let s = sweep(
+            "base = \"b\"\nseeds = [10, 12]\n[[variant]]\nname = \"a\"\n[[variant]]\nname = \"b\"\nlabel = \"B\"\n",
+        )
+        .unwrap();
+        let runs: Vec<(&str, &str, u64)> = s
+            .variants
+            .iter()
+            .map(|v| (v.name.as_str(), v.variant.as_str(), v.seed))
+            .collect();
         assert_eq!(
-            std::fs::read_to_string(dir.path().join(TABLE_MD_FILE)).unwrap(),
-            md
+            runs,
+            [
+                ("a-seed10", "a", 10),
+                ("a-seed12", "a", 12),
+                ("b-seed10", "b", 10),
+                ("b-seed12", "b", 12)
+            ]
         );
+        assert!(s.variants.iter().all(|v| v.experiment.seed == v.seed));
+        assert_eq!(
+            s.variants[3].experiment.out_dir(),
+            PathBuf::from("runs/s/b-seed12")
+        );
+        assert_eq!(s.variants[3].label, "B");
+        assert_eq!(s.find("2").unwrap().1.name, "b-seed10");
+        assert_eq!(s.find("a-seed12").unwrap().0, 1);
+        let err = s.find("4").unwrap_err().to_string();
+        assert!(
+            err.contains("from 0 to 3") && err.contains("a-seed10"),
+            "{err}"
+        );
+        // without seeds: one run per variant, with the base's seed
+        let s = sweep("base = \"b\"\n[[variant]]\nname = \"a\"\n").unwrap();
+        assert_eq!((s.variants[0].name.as_str(), s.variants[0].seed), ("a", 10));
+        let err =
+            sweep("base = \"b\"\nseeds = [1, 2, 1]\n[[variant]]\nname = \"a\"\n").unwrap_err();
+        assert_eq!(err.key(), "seeds[2]", "{err}");
     }
 }
