@@ -41,6 +41,7 @@ const ADDED_KEYS: &[(&str, &str)] = &[
     ("joint.silhouette_weight", "0.0"),
     ("dlf.containment", "\"none\""),
     ("joint.silhouette_cover", "true"),
+    ("nerf.model.density", "\"relu\""),
 ];
 
 /// The stages whose state the settings shape.
