@@ -251,6 +251,10 @@ pub struct EvalReport {
     /// Novel-view baselines scored on the same test views and frames.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub nvs_baselines: Vec<BaselineScores>,
+    /// The seal (SHA-256 of `checksums.json`) of the joint checkpoint scored: the report
+    /// describes the run only while that checkpoint is the joint stage's latest.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scored_seal: Option<String>,
 }
 
 /// A novel-view baseline's image metrics (NeRF, NeRF-T).
@@ -290,6 +294,7 @@ impl EvalReport {
             checkpoint: checkpoint.into(),
             initial_from_images: false,
             nvs_baselines: Vec::new(),
+            scored_seal: None,
             windows,
             frames: Vec::new(),
             images: Vec::new(),

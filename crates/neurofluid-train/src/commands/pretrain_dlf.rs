@@ -93,6 +93,7 @@ impl EventSink for ExportWeights<'_> {
             let dir = crate::trainer::checkpoint::latest(self.checkpoints)
                 .with_context(|| format!("no checkpoint in {}", self.checkpoints.display()))?;
             let source = dir.join("dlf.bpk");
+            crate::trainer::checksums::verify_file(&source)?;
             let bytes =
                 std::fs::read(&source).with_context(|| format!("reading {}", source.display()))?;
             neurofluid_core::atomic::write_bytes(self.output, &bytes)
@@ -112,8 +113,44 @@ fn reset_checkpoints(dir: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Checks, before any training, that the weights can be written to `output`: a file name in
+/// an existing folder where a file can be created, not a folder.
+fn check_output(output: &Path) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        !output.is_dir(),
+        "--output {} is a folder; expected a weights file name (e.g. dlf.bpk)",
+        output.display()
+    );
+    anyhow::ensure!(
+        output.file_name().is_some(),
+        "--output {}: expected a weights file name (e.g. dlf.bpk)",
+        output.display()
+    );
+    let parent = output
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    anyhow::ensure!(
+        parent.is_dir(),
+        "--output {}: the folder {} does not exist",
+        output.display(),
+        parent.display()
+    );
+    let probe = parent.join(format!(".pretrain-dlf-probe.{}", std::process::id()));
+    std::fs::write(&probe, b"").with_context(|| {
+        format!(
+            "--output {}: cannot write in {}",
+            output.display(),
+            parent.display()
+        )
+    })?;
+    std::fs::remove_file(&probe).with_context(|| format!("removing {}", probe.display()))?;
+    Ok(())
+}
+
 /// Runs the training.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    check_output(&args.output)?;
     let device = parse_device(&args.device)?.autodiff();
     let (train, up) = load_sequences(&args.data)?;
     let val = match &args.val {

@@ -80,7 +80,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 fn saved_report(exp: &Experiment) -> anyhow::Result<EvalReport> {
     let run = Run::open_existing(exp.clone())?;
     crate::stages::preflight::check(&run, &[Stage::Eval], Start::Resume)?;
-    Ok(EvalReport::read_json(
-        &run.stage_dir(Stage::Eval.folder()).join(JSON_FILE),
-    )?)
+    let report = EvalReport::read_json(&run.stage_dir(Stage::Eval.folder()).join(JSON_FILE))?;
+    crate::stages::eval::check_current(&run, &report)?;
+    Ok(report)
 }
