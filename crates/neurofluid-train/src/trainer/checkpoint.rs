@@ -211,7 +211,6 @@ pub fn load_optimizer<M: Module>(
     path: &Path,
 ) -> anyhow::Result<ModuleOptimizer> {
     anyhow::ensure!(path.is_file(), "{}: no such file", path.display());
-    super::checksums::verify_file(path)?;
     let reader = burn_pack::Reader::from_file(path)
         .map_err(|e| anyhow::anyhow!("{}: not an optimiser state: {e}", path.display()))?;
     let ours: std::collections::HashSet<u64> =
@@ -228,6 +227,9 @@ pub fn load_optimizer<M: Module>(
          belongs to another parameter group or another model)",
         path.display()
     );
+    // what the file is for is checked first (a clearer message for a swapped file), then
+    // that it holds the bytes it was written with
+    super::checksums::verify_file(path)?;
     opt.load(path)
         .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
 }
@@ -256,7 +258,7 @@ pub fn load_matching(
     stage: &str,
     settings: &Settings,
 ) -> anyhow::Result<CheckpointState> {
-    super::checksums::verify(dir)?;
+    super::checksums::verify_file(&dir.join("state.json"))?;
     let state: CheckpointState = load_state(dir)?;
     match &state.settings {
         Some(saved) => {

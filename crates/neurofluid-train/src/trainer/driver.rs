@@ -97,6 +97,8 @@ impl<'s> Driver<'s> {
         };
         let state = checkpoint::load_matching(&dir, trainer.stage(), &self.settings)?;
         trainer.load(&dir, state.step, state.trainer)?;
+        // the files the stage read without its own check (carried particle state) too
+        super::checksums::verify(&dir)?;
         Ok((state.step, Some(dir)))
     }
 
