@@ -158,7 +158,7 @@ fn degenerate(c: &Camera) -> Option<(&'static str, String)> {
     let size = c.width.max(c.height) as f32;
     let (lo, hi) = (size * 1e-3, size * 1e4);
     for (field, f) in [("fl_x", c.fx), ("fl_y", c.fy)] {
-        if !(f >= lo && f <= hi) {
+        if !(lo..=hi).contains(&f) {
             return Some((
                 field,
                 format!(
@@ -169,7 +169,7 @@ fn degenerate(c: &Camera) -> Option<(&'static str, String)> {
     }
     for (field, p, n) in [("cx", c.cx, c.width), ("cy", c.cy, c.height)] {
         let n = n as f32;
-        if !(p >= -n && p <= 2.0 * n) {
+        if !(-n..=2.0 * n).contains(&p) {
             return Some((
                 field,
                 format!(
@@ -187,7 +187,7 @@ fn degenerate(c: &Camera) -> Option<(&'static str, String)> {
     // scale-free: the volume of the unit columns (1 for a rotation, 0 for a flat matrix)
     let norm = |j: usize| (r(0, j).powi(2) + r(1, j).powi(2) + r(2, j).powi(2)).sqrt();
     let volume = det.abs() / (norm(0) * norm(1) * norm(2));
-    if !(volume > 1e-3) {
+    if volume.is_nan() || volume <= 1e-3 {
         return Some((
             "transform_matrix",
             format!(

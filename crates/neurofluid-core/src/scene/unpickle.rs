@@ -348,7 +348,7 @@ fn extend_top(stack: &mut [Node], items: Vec<Node>, at: usize, op: &str) -> Resu
         return Err(format!("{op} on an empty stack at byte {at}"));
     };
     let pairs = matches!(top.v, Value::Dict(_));
-    if pairs && items.len() % 2 != 0 {
+    if pairs && !items.len().is_multiple_of(2) {
         return Err(format!("odd {op} at byte {at}"));
     }
     for c in &items {
@@ -648,9 +648,7 @@ mod tests {
         for _ in 0..200 {
             b.extend([b']', 0x94]);
         }
-        for _ in 0..200 {
-            b.push(b'a');
-        }
+        b.extend(std::iter::repeat_n(b'a', 200));
         let err = pickled_arrays(&b).unwrap_err();
         assert!(err.contains("APPEND") || err.contains("nested"), "{err}");
     }
@@ -670,7 +668,7 @@ mod tests {
         assert!(err.contains("memo bomb"), "{err}");
         // big strings copied: refused by the byte limit, not the value count
         let mut b = vec![0x80, 4, 0x8e];
-        b.extend(((1u64 << 20) as u64).to_le_bytes());
+        b.extend((1u64 << 20).to_le_bytes());
         b.extend(std::iter::repeat_n(b'x', 1 << 20));
         b.push(0x94);
         b.extend(std::iter::repeat_n([b'h', 0], 2000).flatten());
