@@ -211,6 +211,43 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// An output that cannot be written is refused before any training.
+    #[test]
+    fn the_output_is_checked_first() {
+        let dir = tempfile::tempdir().unwrap();
+        let err = check_output(dir.path()).unwrap_err().to_string();
+        assert!(err.contains("is a folder"), "{err}");
+        let missing = dir.path().join("no/such/folder/dlf.bpk");
+        let err = check_output(&missing).unwrap_err().to_string();
+        assert!(err.contains("does not exist"), "{err}");
+        check_output(&dir.path().join("dlf.bpk")).unwrap();
+        assert_eq!(
+            std::fs::read_dir(dir.path()).unwrap().count(),
+            0,
+            "the probe stays"
+        );
+        let args = Args {
+            data: dir.path().join("nothing"),
+            val: None,
+            init: None,
+            output: missing,
+            train: SupervisedConfig {
+                iterations: 1,
+                batch_size: 1,
+                lr: 1e-5,
+                validate_every: 1,
+                frame_skip: 1,
+                no_rotation: false,
+                seed: 1,
+            },
+            device: "cpu".into(),
+            fresh: false,
+        };
+        // the data is missing too, but the output is named first
+        let err = format!("{:#}", run(args).unwrap_err());
+        assert!(err.contains("--output"), "{err}");
+    }
     use neurofluid_dlf::records::{RecordFrame, write_record};
     use neurofluid_dlf::rollout::rollout;
     use neurofluid_dlf::scene::{block_in_box, dlf_wall_spacing};

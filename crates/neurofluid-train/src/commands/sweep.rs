@@ -23,8 +23,8 @@ pub struct Args {
     #[arg(long)]
     pub keep_going: bool,
     /// Run nothing: tabulate the reports the variants' folders already hold (a variant whose
-    /// joint stage is unfinished or was trained under other settings, or that has no report,
-    /// gets an empty row)
+    /// joint stage is unfinished or was trained under other settings, or that has no report or
+    /// one that scored an earlier checkpoint, gets an empty row)
     #[arg(long)]
     pub table_only: bool,
 }
