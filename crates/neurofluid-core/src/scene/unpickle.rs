@@ -3,7 +3,9 @@
 //! of joblib ≥ 1.2) or a plain pickle of numpy arrays (`_reconstruct` + state, as
 //! [`super::box_pickle`] writes). Only what such files hold is understood: dicts, lists, tuples,
 //! strings, bytes, numbers, and float32/float64 little-endian arrays; anything else is rejected
-//! with the byte offset and what was found.
+//! with the byte offset and what was found. Nothing is called, and what a pickle builds is
+//! bounded as it is built ([`crate::limits`]): nesting depth, the number of values (memo copies
+//! included) and their bytes.
 
 use std::collections::BTreeMap;
 
