@@ -207,3 +207,257 @@ fn orphan_checkpoint_folders_are_removed() {
     warmup::run(&run, &mut log).unwrap();
     assert!(!orphan.exists());
 }
+
+/// Reads `path` as JSON, lets `edit` change it, writes it back.
+fn edit_json(path: &Path, edit: impl FnOnce(&mut serde_json::Value)) {
+    let mut v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+    edit(&mut v);
+    std::fs::write(path, serde_json::to_string_pretty(&v).unwrap()).unwrap();
+}
+
+/// Names and paths in a downloaded scene's files cannot reach outside it: a view name that is
+/// not one plain name, an absolute or climbing particle path, a box file outside the scene.
+#[test]
+fn names_and_paths_in_scene_files_stay_inside_the_scene() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let e = prepared(tmp.path(), "paths");
+    let scene_dir = e.scene.scene_dir();
+    let manifest = scene_dir.join("scene.json");
+    let original = std::fs::read(&manifest).unwrap();
+    let evil = tmp.path().join("evilview");
+    let climb = format!("../../../../../../../..{}", evil.display());
+    edit_json(&manifest, |m| {
+        m["test"]["views"] = serde_json::json!([climb])
+    });
+    let err = preflight_error(e.clone());
+    assert!(
+        err.contains("scene.json") && err.contains("test.views") && err.contains("plain name"),
+        "{err}"
+    );
+    std::fs::write(&manifest, &original).unwrap();
+    edit_json(&manifest, |m| {
+        m["box_file"] = serde_json::json!("/etc/passwd")
+    });
+    let err = preflight_error(e.clone());
+    assert!(
+        err.contains("box_file") && err.contains("inside the dataset"),
+        "{err}"
+    );
+    std::fs::write(&manifest, &original).unwrap();
+    let transforms = scene_dir.join("view_1/transforms_train.json");
+    for (key, value) in [
+        ("particle_path", "/etc/hostname"),
+        ("particle_path", "../../../outside.npz"),
+        ("file_path", "../../elsewhere/0000"),
+    ] {
+        let before = std::fs::read(&transforms).unwrap();
+        edit_json(&transforms, |t| {
+            t["frames"][1][key] = serde_json::json!(value)
+        });
+        let err = preflight_error(e.clone());
+        assert!(
+            err.contains("transforms_train.json")
+                && err.contains(&format!("frames[1].{key}"))
+                && err.contains("inside the dataset"),
+            "{err}"
+        );
+        std::fs::write(&transforms, before).unwrap();
+    }
+    assert!(!evil.exists() && !tmp.path().join("evilview.png").exists());
+    drop(Run::prepare(e, Start::Resume, &Stage::ALL).unwrap());
+}
+
+/// `--fresh` removes only after every check that can fail before the first step: ray counts the
+/// images cannot supply, and cameras that disagree with their images or cannot see.
+#[test]
+fn fresh_removes_nothing_when_the_cameras_or_ray_counts_are_wrong() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let e = prepared(tmp.path(), "fresh");
+    let run_dir = e.out_dir();
+    // a finished stage's work, standing in for hours of training
+    for stage in ["warmup", "joint", "eval", "nerf"] {
+        std::fs::create_dir_all(run_dir.join(stage)).unwrap();
+        std::fs::write(run_dir.join(stage).join("work"), b"keep").unwrap();
+    }
+    let survives = |what: &str| {
+        for stage in ["warmup", "joint", "eval", "nerf"] {
+            assert!(
+                run_dir.join(stage).join("work").is_file(),
+                "{what}: {stage} removed"
+            );
+        }
+    };
+    // 300 rays from the 16×16 precrop window; 5000 from a 32×32 image
+    for (setting, stages, needle) in [
+        ("warmup.rays=300", &Stage::ALL[..], "warmup.rays"),
+        ("joint.rays=5000", &Stage::ALL[..], "joint.rays"),
+        ("nerf.rays=100000", &[Stage::Nerf][..], "nerf.rays"),
+    ] {
+        let mut bad = e.clone();
+        bad.apply_override(setting).unwrap();
+        let err = format!("{:#}", Run::prepare(bad, Start::Fresh, stages).unwrap_err());
+        assert!(
+            err.contains(needle) && err.contains("distinct pixels"),
+            "{setting}: {err}"
+        );
+        survives(setting);
+    }
+    let transforms = e.scene.scene_dir().join("view_1/transforms_train.json");
+    let before = std::fs::read(&transforms).unwrap();
+    for (what, edit) in [
+        ("w", serde_json::json!({"w": 40})),
+        (
+            "transform_matrix",
+            serde_json::json!({"transform_matrix": vec![[0.0; 4]; 4]}),
+        ),
+        ("fl_x", serde_json::json!({"fl_x": 1e-30})),
+        ("cx", serde_json::json!({"cx": 1e30})),
+    ] {
+        edit_json(&transforms, |t| {
+            for (k, v) in edit.as_object().unwrap() {
+                t["frames"][2][k] = v.clone();
+            }
+        });
+        let err = format!(
+            "{:#}",
+            Run::prepare(e.clone(), Start::Fresh, &Stage::ALL).unwrap_err()
+        );
+        assert!(
+            err.contains("transforms_train.json") && err.contains(what),
+            "{what}: {err}"
+        );
+        survives(what);
+        std::fs::write(&transforms, &before).unwrap();
+    }
+    // with the inputs right, --fresh empties the folder
+    drop(Run::prepare(e, Start::Fresh, &Stage::ALL).unwrap());
+    assert!(!run_dir.join("warmup/work").exists());
+}
+
+/// A folder the tool did not make is not a run folder: it is refused before anything is
+/// written, and `--fresh` refuses a run folder that is a symbolic link.
+#[test]
+fn foreign_and_linked_run_folders_are_refused() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let e = prepared(tmp.path(), "ours");
+    let mut user = e.clone();
+    let home = tmp.path().join("home");
+    std::fs::create_dir_all(&home).unwrap();
+    std::fs::write(home.join("metrics.csv"), b"my numbers").unwrap();
+    std::fs::write(home.join("thesis.tex"), b"my thesis").unwrap();
+    user.out_dir = Some(home.clone());
+    let err = preflight_error(user);
+    assert!(
+        err.contains("not a run folder") && err.contains("thesis.tex"),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read(home.join("metrics.csv")).unwrap(),
+        b"my numbers"
+    );
+    #[cfg(unix)]
+    {
+        let link = tmp.path().join("link");
+        std::os::unix::fs::symlink(e.out_dir(), &link).unwrap();
+        std::fs::create_dir_all(e.out_dir().join("warmup")).unwrap();
+        std::fs::write(e.out_dir().join("warmup/work"), b"keep").unwrap();
+        let mut linked = e.clone();
+        linked.out_dir = Some(link);
+        let err = format!(
+            "{:#}",
+            Run::prepare(linked, Start::Fresh, &Stage::ALL).unwrap_err()
+        );
+        assert!(err.contains("symbolic link"), "{err}");
+        assert!(e.out_dir().join("warmup/work").is_file());
+    }
+}
+
+/// A generated scene whose recorded generator settings differ from the experiment's is not
+/// reused silently.
+#[test]
+fn a_generated_scene_with_other_settings_is_refused() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let mut e = prepared(tmp.path(), "regen");
+    e.apply_override("scene.generate.seed=7").unwrap();
+    let err = preflight_error(e);
+    assert!(
+        err.contains("generated with other settings") && err.contains("seed"),
+        "{err}"
+    );
+}
+
+/// A malformed line in the run's metrics log stops the evaluation before it renders anything.
+#[test]
+fn a_malformed_metrics_line_is_found_before_the_evaluation() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let e = prepared(tmp.path(), "jsonl");
+    let log = e.out_dir().join("metrics.jsonl");
+    std::fs::write(&log, "{\"stage\": \"warmup\"\nnot json\n").unwrap();
+    let err = format!(
+        "{:#}",
+        Run::prepare(e.clone(), Start::Resume, &[Stage::Eval]).unwrap_err()
+    );
+    assert!(err.contains("metrics.jsonl"), "{err}");
+    assert!(!e.out_dir().join("eval").exists());
+}
+
+/// Checkpoint files carry a seal: a damaged model or optimiser file is refused as damaged,
+/// never loaded, and a report made before the stage went on is not taken for the current one.
+#[test]
+fn damaged_checkpoints_and_stale_reports_are_refused() {
+    use neurofluid_train::trainer::{checkpoint, checksums};
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let e = prepared(tmp.path(), "seal");
+    let run = Run::prepare(e, Start::Resume, &Stage::ALL).unwrap();
+    let mut log = run.open_log().unwrap();
+    warmup::run(&run, &mut log).unwrap();
+    let ckpt = checkpoint::latest(&run.stage_dir(warmup::STAGE)).unwrap();
+    for name in ["physnerf.bpk", "optim_physnerf.bpk"] {
+        let path = ckpt.join(name);
+        let good = std::fs::read(&path).unwrap();
+        let mut bad = good.clone();
+        let n = bad.len();
+        for b in &mut bad[n / 2..n / 2 + 64] {
+            *b ^= 0x5a;
+        }
+        std::fs::write(&path, &bad).unwrap();
+        let err = format!("{:#}", warmup::run(&run, &mut log).unwrap_err());
+        assert!(
+            err.contains(name) && err.contains("damaged"),
+            "{name}: {err}"
+        );
+        std::fs::write(&path, good).unwrap();
+    }
+    warmup::run(&run, &mut log).unwrap();
+    // a report names the seal of the checkpoint it scored; a newer checkpoint makes it stale
+    let joint_dir = run.stage_dir(joint::STAGE);
+    let first = checkpoint::write(&joint_dir, |d| {
+        std::fs::write(d.join("state.json"), "{\"step\": 1}")?;
+        Ok(())
+    })
+    .unwrap();
+    let mut report = neurofluid_train::report::EvalReport::new(
+        "seal",
+        "scene",
+        "joint",
+        neurofluid_train::report::Windows::from_lengths(4, 6),
+    );
+    report.scored_seal = checksums::seal_digest(&first).unwrap();
+    neurofluid_train::stages::eval::check_current(&run, &report).unwrap();
+    checkpoint::write(&joint_dir, |d| {
+        std::fs::write(d.join("state.json"), "{\"step\": 2}")?;
+        Ok(())
+    })
+    .unwrap();
+    let err = neurofluid_train::stages::eval::check_current(&run, &report)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("stale"), "{err}");
+}

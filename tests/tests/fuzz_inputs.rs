@@ -1,6 +1,7 @@
 //! Property tests for every reader of user files: a mutated or random experiment TOML, `--set`
-//! override, JSON file, PNG, `.npz`, weights file or DLF record gives a value or an error that
-//! names the file, never a panic (proptest reports a panic as a failure and shrinks it to a
+//! override, JSON file, PNG, `.npz`, weights file or DLF record, and hostile containers (nested
+//! and memo-doubling pickles, huge declared array shapes and vertex counts, compression bombs),
+//! gives a value or an error that names the file, never a panic (proptest reports a panic as a failure and shrinks it to a
 //! small input). The case counts are fixed so CI stays within seconds.
 
 use std::path::{Path, PathBuf};
@@ -338,5 +339,120 @@ proptest! {
         names_file(neurofluid_dlf::load_dlf(&p, Default::default(), &device), &p)?;
         let (_d, p) = file_with("w.safetensors", &st);
         names_file(neurofluid_dlf::load_dlf(&p, Default::default(), &device), &p)?;
+    }
+}
+
+/// Pickles made of structure only (containers, marks, memo puts and gets, small ints): nested,
+/// self-referencing and memo-doubling ones among them. Each reads or fails with the file's
+/// name, within the depth and value limits: no stack overflow, no runaway memory.
+fn pickle_ops() -> impl Strategy<Value = Vec<u8>> {
+    let op = prop_oneof![
+        Just(vec![b'(']),
+        Just(vec![b')']),
+        Just(vec![b']']),
+        Just(vec![b'}']),
+        Just(vec![b't']),
+        Just(vec![0x85]),
+        Just(vec![0x86]),
+        Just(vec![0x87]),
+        Just(vec![b'a']),
+        Just(vec![b'e']),
+        Just(vec![b's']),
+        Just(vec![b'u']),
+        Just(vec![0x94]),
+        Just(vec![b'N']),
+        (0u8..6).prop_map(|i| vec![b'h', i]),
+        any::<u8>().prop_map(|k| vec![b'K', k]),
+    ];
+    (prop::collection::vec(op, 0..600), 0usize..3).prop_map(|(ops, deep)| {
+        let mut b = vec![0x80, 4];
+        // some cases start from a deep or doubling prefix
+        match deep {
+            1 => b.extend(std::iter::repeat_n(0x85, 10_000)),
+            2 => b.extend(std::iter::repeat_n([b']', 0x94, b'h', 0, b'h', 0, 0x86], 40).flatten()),
+            _ => {}
+        }
+        b.extend(ops.concat());
+        b.push(b'.');
+        b
+    })
+}
+
+/// An `.npy` header declaring `shape` over a few bytes of data, stored in an `.npz`.
+fn npz_declaring(shape: &[u64], data: &[u8]) -> Vec<u8> {
+    use std::io::Write;
+    let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
+    let header = format!(
+        "{{'descr': '<f4', 'fortran_order': False, 'shape': ({},), }}\n",
+        dims.join(", ")
+    );
+    let mut npy = b"\x93NUMPY\x01\x00".to_vec();
+    npy.extend((header.len() as u16).to_le_bytes());
+    npy.extend(header.as_bytes());
+    npy.extend(data);
+    let mut zip = zip::ZipWriter::new(std::io::Cursor::new(Vec::new()));
+    zip.start_file("pos.npy", zip::write::SimpleFileOptions::default())
+        .unwrap();
+    zip.write_all(&npy).unwrap();
+    zip.finish().unwrap().into_inner()
+}
+
+proptest! {
+    #![proptest_config(fixed(256))]
+
+    #[test]
+    fn structural_pickles(pickle in pickle_ops()) {
+        let (_d, p) = file_with("box.pt", &pickle);
+        names_file(BoxParticles::read(&p), &p)?;
+    }
+
+    #[test]
+    fn huge_declared_sizes(
+        shape in prop::collection::vec(prop_oneof![0u64..8, 1u64 << 20..1u64 << 40, Just(u64::MAX / 3)], 1..4),
+        data in prop::collection::vec(any::<u8>(), 0..64),
+        vertices in prop_oneof![any::<u64>(), 0u64..64],
+        floats in prop::collection::vec(any::<u8>(), 0..64),
+        ascii in any::<bool>(),
+    ) {
+        let (_d, p) = file_with("particles.npz", &npz_declaring(&shape, &data));
+        let read = neurofluid_core::npz::NpzReader::open(&p).and_then(|mut r| r.f32("pos"));
+        if let Ok(a) = &read {
+            prop_assert_eq!(a.len() as u64, shape.iter().product::<u64>());
+        }
+        names_file(read, &p)?;
+        let format = if ascii { "ascii" } else { "binary_little_endian" };
+        let mut ply = format!(
+            "ply\nformat {format} 1.0\nelement vertex {vertices}\nproperty float x\n\
+             property float y\nproperty float z\nend_header\n"
+        )
+        .into_bytes();
+        ply.extend(floats);
+        let (_d, p) = file_with("cloud.ply", &ply);
+        names_file(neurofluid_train::ply::read_ply(&p), &p)?;
+    }
+}
+
+proptest! {
+    #![proptest_config(fixed(32))]
+
+    #[test]
+    fn compressed_records_expanding(
+        blocks in prop_oneof![1usize..600, 15_000usize..20_000],
+        byte in any::<u8>(),
+    ) {
+        // a zstd frame of RLE blocks of 128 KiB each: 4 bytes on disk per block
+        let mut z = vec![0x28, 0xb5, 0x2f, 0xfd, 0x00, 7 << 3];
+        for i in 0..blocks {
+            let header = u32::from(i + 1 == blocks) | (1 << 1) | (131_072 << 3);
+            z.extend(&header.to_le_bytes()[..3]);
+            z.push(byte);
+        }
+        let (_d, p) = file_with("rec.msgpack.zst", &z);
+        let read = neurofluid_dlf::records::read_record(&p);
+        if blocks >= 15_000 {
+            // 2 GiB from 70 KB: over the ratio cap whatever the bytes
+            prop_assert!(read.is_err());
+        }
+        names_file(read, &p)?;
     }
 }

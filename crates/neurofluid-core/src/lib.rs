@@ -11,12 +11,14 @@ pub mod dense;
 pub mod device;
 #[cfg(feature = "flex")]
 pub mod flex_host;
+pub mod limits;
 pub mod malloc;
 pub mod matmul;
 pub mod metrics;
 pub mod neighbors;
 pub mod npz;
 pub mod params;
+pub mod paths;
 pub mod posenc;
 pub mod real;
 pub mod rows;

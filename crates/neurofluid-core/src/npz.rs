@@ -18,12 +18,12 @@ use std::path::{Path, PathBuf};
 #[derive(Debug, thiserror::Error)]
 pub enum NpzError {
     /// The file could not be opened, read or written.
-    #[error("{path}")]
+    #[error("{path}: {error}")]
     Io {
         /// The archive.
         path: PathBuf,
-        /// The underlying error.
-        source: std::io::Error,
+        /// The underlying error (shown in the message, not repeated as a source).
+        error: std::io::Error,
     },
     /// The file is not a readable zip archive.
     #[error("{path}: not a valid .npz (zip) archive: {message}")]
@@ -176,23 +176,43 @@ struct RawArray {
     bytes: Vec<u8>,
 }
 
-/// Parses an `.npy` file image; `Err` carries a message for [`NpzError::Invalid`].
-fn parse_npy(buf: &[u8]) -> Result<RawArray, String> {
-    if buf.len() < 10 || &buf[..6] != b"\x93NUMPY" {
+/// The longest `.npy` header read (numpy writes under 200 bytes; its own reader allows 10 000).
+const MAX_NPY_HEADER: usize = 1 << 16;
+
+/// Reads an `.npy` array from `r`, whose entry declares `declared` bytes: the header first, then
+/// exactly the bytes its shape needs, once that size is checked against the limit and the entry;
+/// `Err` carries a message for [`NpzError::Invalid`].
+fn read_npy(r: &mut impl Read, declared: u64) -> Result<RawArray, String> {
+    let mut exact = |n: usize| -> Result<Vec<u8>, String> {
+        let mut b = Vec::with_capacity(n);
+        r.take(n as u64)
+            .read_to_end(&mut b)
+            .map_err(|e| format!("reading it: {e}"))?;
+        if b.len() < n {
+            return Err(format!("the entry ends after {} of {n} bytes", b.len()));
+        }
+        Ok(b)
+    };
+    let lead = exact(10).map_err(|_| "not an .npy array (too short)".to_string())?;
+    if &lead[..6] != b"\x93NUMPY" {
         return Err("not an .npy array (bad magic)".into());
     }
-    let (header_len, start) = match buf[6] {
-        1 => (u16::from_le_bytes([buf[8], buf[9]]) as usize, 10),
-        2 | 3 if buf.len() >= 12 => (
-            u32::from_le_bytes([buf[8], buf[9], buf[10], buf[11]]) as usize,
-            12,
-        ),
+    let header_len = match lead[6] {
+        1 => u16::from_le_bytes([lead[8], lead[9]]) as usize,
+        2 | 3 => {
+            let more = exact(2)?;
+            u32::from_le_bytes([lead[8], lead[9], more[0], more[1]]) as usize
+        }
         v => return Err(format!("unsupported .npy version {v}")),
     };
-    let header = buf
-        .get(start..start + header_len)
-        .and_then(|h| std::str::from_utf8(h).ok())
-        .ok_or("truncated or non-text .npy header")?;
+    if header_len > MAX_NPY_HEADER {
+        return Err(format!(
+            "an .npy header of {header_len} bytes (expected at most {MAX_NPY_HEADER})"
+        ));
+    }
+    let start = if lead[6] == 1 { 10 } else { 12 };
+    let header = exact(header_len).map_err(|_| "truncated .npy header".to_string())?;
+    let header = std::str::from_utf8(&header).map_err(|_| "non-text .npy header".to_string())?;
     let field = |key: &str| -> Result<&str, String> {
         let at = header
             .find(&format!("'{key}'"))
@@ -225,21 +245,27 @@ fn parse_npy(buf: &[u8]) -> Result<RawArray, String> {
         .map(|s| s.trim_end_matches('L').parse::<usize>())
         .collect::<Result<Vec<_>, _>>()
         .map_err(|_| format!("malformed shape ({inner})"))?;
-    let n: usize = shape.iter().product();
-    let data = &buf[start + header_len..];
-    if data.len() < n * dtype.size() {
+    let need = crate::limits::array_bytes(&shape, dtype.size())?;
+    crate::limits::check_decoded(&format!("shape {shape:?} of {descr}"), need)?;
+    let held = declared.saturating_sub((start + header_len) as u64);
+    if held < need {
         return Err(format!(
-            "holds {} bytes, shape {shape:?} of {descr} needs {}",
-            data.len(),
-            n * dtype.size()
+            "holds {held} bytes, shape {shape:?} of {descr} needs {need}"
         ));
     }
+    let bytes = exact(need as usize).map_err(|e| {
+        format!("{e}: shape {shape:?} of {descr} needs {need} bytes after the header")
+    })?;
     Ok(RawArray {
         dtype,
         shape,
-        bytes: data[..n * dtype.size()].to_vec(),
+        bytes,
     })
 }
+
+/// Deflate's largest expansion: no honest entry decompresses to more than this many times its
+/// compressed size.
+const DEFLATE_MAX_RATIO: u64 = 1032;
 
 /// Reads arrays from an `.npz` archive by name.
 pub struct NpzReader {
@@ -259,9 +285,9 @@ impl NpzReader {
     /// Opens an archive.
     pub fn open(path: impl AsRef<Path>) -> Result<Self, NpzError> {
         let path = path.as_ref().to_path_buf();
-        let file = File::open(&path).map_err(|source| NpzError::Io {
+        let file = File::open(&path).map_err(|error| NpzError::Io {
             path: path.clone(),
-            source,
+            error,
         })?;
         let zip = zip::ZipArchive::new(file).map_err(|e| NpzError::Zip {
             path: path.clone(),
@@ -318,17 +344,22 @@ impl NpzReader {
                 });
             }
         };
-        // the header's size is a hint a damaged file controls: reserve no more than the file
-        let hint = entry
-            .size()
-            .min(std::fs::metadata(&self.path).map_or(0, |m| m.len()) * 4);
-        let mut buf = Vec::with_capacity(hint as usize);
-        entry.read_to_end(&mut buf).map_err(|source| NpzError::Io {
-            path: self.path.clone(),
-            source,
-        })?;
+        // the declared size is checked against the limit and the stored bytes before reading;
+        // then only what the array's header declares is read
+        let declared = entry.size();
+        let stored = entry.compressed_size();
+        let what = format!("{declared} bytes declared from {stored} stored");
+        let read =
+            crate::limits::check_decoded(&format!("the array ({what})"), declared).and_then(|()| {
+                if declared > stored.saturating_mul(DEFLATE_MAX_RATIO) {
+                    return Err(format!(
+                        "{what}: more than deflate's {DEFLATE_MAX_RATIO}:1 (a damaged archive)"
+                    ));
+                }
+                read_npy(&mut entry, declared)
+            });
         drop(entry);
-        parse_npy(&buf).map_err(|m| self.invalid(name, m))
+        read.map_err(|m| self.invalid(name, m))
     }
 
     /// A float array as f32 (float64 is rounded, integers converted).
@@ -469,9 +500,9 @@ impl NpzWriter {
     /// so the same arrays always give the same bytes.
     pub fn write(self, path: impl AsRef<Path>) -> Result<(), NpzError> {
         let path = path.as_ref();
-        let io = |source| NpzError::Io {
+        let io = |error| NpzError::Io {
             path: path.to_path_buf(),
-            source,
+            error,
         };
         crate::atomic::write_with(path, |file| {
             let mut zip = zip::ZipWriter::new(file);
@@ -553,5 +584,43 @@ mod tests {
             .to_string();
         assert!(e.contains("not a valid .npz"), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// Declared shapes are checked before anything is allocated: one whose size overflows, one
+    /// over the limit, one larger than the entry.
+    #[test]
+    fn huge_declared_shapes_are_errors() {
+        let dir = tempfile_dir("huge");
+        for (shape, needle) in [
+            ("(4611686018427387904, 4)", "overflows"),
+            ("(268435456, 3)", crate::limits::MAX_FILE_MB_ENV),
+            ("(1000, 3)", "holds 0 bytes"),
+        ] {
+            let header =
+                format!("{{'descr': '<f4', 'fortran_order': False, 'shape': {shape}, }}\n");
+            let mut npy = b"\x93NUMPY\x01\x00".to_vec();
+            npy.extend((header.len() as u16).to_le_bytes());
+            npy.extend(header.as_bytes());
+            let path = dir.join("huge.npz");
+            let mut w = NpzWriter::new();
+            w.entries.push(("pos".into(), npy));
+            w.write(&path).unwrap();
+            let e = NpzReader::open(&path)
+                .unwrap()
+                .f32("pos")
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains("huge.npz") && e.contains("`pos`") && e.contains(needle),
+                "{e}"
+            );
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    fn tempfile_dir(tag: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("nf-npz-{tag}-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
     }
 }

@@ -10,12 +10,12 @@ use rmpv::Value;
 #[derive(Debug, thiserror::Error)]
 pub enum RecordError {
     /// I/O failed.
-    #[error("{path}")]
+    #[error("{path}: {error}")]
     Io {
         /// The file.
         path: PathBuf,
-        /// The error.
-        source: std::io::Error,
+        /// The error (shown in the message, not repeated as a source).
+        error: std::io::Error,
     },
     /// The content is not what a DLF record holds.
     #[error("{path}: {what}")]
@@ -93,9 +93,8 @@ fn decode_nd(v: &Value) -> Result<NdArray, String> {
     } else {
         vec![]
     };
-    let count: usize = shape.iter().product();
     let check = |size: usize| -> Result<(), String> {
-        if data.len() != count * size {
+        if neurofluid_core::limits::array_bytes(&shape, size)? != data.len() as u64 {
             return Err(format!(
                 "{} data bytes for shape {shape:?} of {ty}",
                 data.len()
@@ -182,12 +181,82 @@ fn points(data: Vec<f32>, shape: &[usize]) -> Result<Vec<[f32; 3]>, String> {
     Ok(data.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
 }
 
+/// The number of values the first msgpack value of `bytes` holds (itself, its elements, map
+/// keys and values, recursively), counted without building them: a small file of nested empty
+/// lists would otherwise make millions of values. Errors where the data ends early.
+fn msgpack_values(bytes: &[u8]) -> Result<usize, String> {
+    let mut at = 0usize;
+    let mut pending: u64 = 1;
+    let mut count = 0usize;
+    let take = |at: &mut usize, n: usize| -> Result<u64, String> {
+        let end = at
+            .checked_add(n)
+            .filter(|&e| e <= bytes.len())
+            .ok_or_else(|| format!("the data ends inside a value at byte {at}"))?;
+        let v = bytes[*at..end]
+            .iter()
+            .fold(0u64, |a, &b| (a << 8) | u64::from(b));
+        *at = end;
+        Ok(v)
+    };
+    while pending > 0 {
+        pending -= 1;
+        count += 1;
+        let m = take(&mut at, 1)? as u8;
+        // (payload bytes, elements), where a length prefix of `n` bytes precedes the payload
+        let (skip, elements): (u64, u64) = match m {
+            0x00..=0x7f | 0xe0..=0xff | 0xc0 | 0xc2 | 0xc3 => (0, 0),
+            0x80..=0x8f => (0, 2 * u64::from(m & 0x0f)),
+            0x90..=0x9f => (0, u64::from(m & 0x0f)),
+            0xa0..=0xbf => (u64::from(m & 0x1f), 0),
+            0xc4 | 0xd9 => (take(&mut at, 1)?, 0),
+            0xc5 | 0xda => (take(&mut at, 2)?, 0),
+            0xc6 | 0xdb => (take(&mut at, 4)?, 0),
+            0xc7 => (take(&mut at, 1)? + 1, 0),
+            0xc8 => (take(&mut at, 2)? + 1, 0),
+            0xc9 => (take(&mut at, 4)? + 1, 0),
+            0xca => (4, 0),
+            0xcb => (8, 0),
+            0xcc | 0xd0 => (1, 0),
+            0xcd | 0xd1 => (2, 0),
+            0xce | 0xd2 => (4, 0),
+            0xcf | 0xd3 => (8, 0),
+            0xd4..=0xd8 => (1 + (1u64 << (m - 0xd4)), 0),
+            0xdc => (0, take(&mut at, 2)?),
+            0xdd => (0, take(&mut at, 4)?),
+            0xde => (0, 2 * take(&mut at, 2)?),
+            0xdf => (0, 2 * take(&mut at, 4)?),
+            0xc1 => return Err(format!("reserved marker 0xc1 at byte {}", at - 1)),
+        };
+        let skip = usize::try_from(skip).map_err(|_| "a length too large".to_string())?;
+        at = at
+            .checked_add(skip)
+            .filter(|&e| e <= bytes.len())
+            .ok_or_else(|| format!("the data ends inside a value at byte {at}"))?;
+        // every element takes at least one byte: more than the bytes left cannot be there
+        pending += elements;
+        if pending > (bytes.len() - at) as u64 {
+            return Err(format!(
+                "{pending} values announced by byte {at}, with only {} bytes left",
+                bytes.len() - at
+            ));
+        }
+    }
+    Ok(count)
+}
+
 /// Decodes the (decompressed) msgpack bytes of a record.
 pub fn decode_frames(bytes: &[u8], path: &Path) -> Result<Vec<RecordFrame>, RecordError> {
     let fmt = |what: String| RecordError::Format {
         path: path.to_path_buf(),
         what,
     };
+    let values = msgpack_values(bytes).map_err(|e| fmt(format!("not msgpack: {e}")))?;
+    neurofluid_core::limits::check_decoded(
+        &format!("{values} msgpack values"),
+        (values as u64).saturating_mul(std::mem::size_of::<Value>() as u64),
+    )
+    .map_err(fmt)?;
     let value = rmpv::decode::read_value(&mut Cursor::new(bytes))
         .map_err(|e| fmt(format!("not msgpack: {e}")))?;
     let list = value
@@ -256,35 +325,62 @@ pub fn decode_frames(bytes: &[u8], path: &Path) -> Result<Vec<RecordFrame>, Reco
 
 /// Reads a `*.msgpack.zst` record.
 pub fn read_record(path: &Path) -> Result<Vec<RecordFrame>, RecordError> {
-    let io = |source| RecordError::Io {
+    let io = |error| RecordError::Io {
         path: path.to_path_buf(),
-        source,
+        error,
     };
     let compressed = std::fs::read(path).map_err(io)?;
-    let bytes = decompress(&compressed).map_err(|e| RecordError::Format {
+    let limit = neurofluid_core::limits::max_decoded_bytes().min(
+        (compressed.len() as u64)
+            .saturating_mul(ZSTD_MAX_RATIO)
+            .max(ZSTD_RATIO_FREE),
+    );
+    let bytes = decompress(&compressed, limit).map_err(|e| RecordError::Format {
         path: path.to_path_buf(),
         what: format!("not zstd data: {e}"),
     })?;
+    if bytes.len() as u64 > limit {
+        neurofluid_core::limits::check_decoded("the decompressed record", bytes.len() as u64)
+            .and_then(|()| {
+                Err(format!(
+                    "decompresses to more than {limit} bytes, over {ZSTD_MAX_RATIO} times its {} \
+                     compressed bytes (a compression bomb?): a DLF record of particle data \
+                     compresses far less",
+                    compressed.len()
+                ))
+            })
+            .map_err(|what| RecordError::Format {
+                path: path.to_path_buf(),
+                what,
+            })?;
+    }
     decode_frames(&bytes, path)
 }
 
-/// Every zstd frame of `compressed`, decoded and concatenated.
-fn decompress(compressed: &[u8]) -> std::io::Result<Vec<u8>> {
+/// The most a record may expand: particle data (floats) compresses a few times at most.
+const ZSTD_MAX_RATIO: u64 = 256;
+/// Records up to this size may expand further (small, highly regular files).
+const ZSTD_RATIO_FREE: u64 = 64 << 20;
+
+/// Every zstd frame of `compressed`, decoded and concatenated, stopping once past `limit`
+/// bytes (the caller reports the excess).
+fn decompress(compressed: &[u8], limit: u64) -> std::io::Result<Vec<u8>> {
     let mut input = compressed;
     let mut bytes = Vec::new();
-    while !input.is_empty() {
-        let mut frame =
+    while !input.is_empty() && (bytes.len() as u64) <= limit {
+        let frame =
             ruzstd::decoding::StreamingDecoder::new(&mut input).map_err(std::io::Error::other)?;
-        frame.read_to_end(&mut bytes)?;
+        let room = limit + 1 - bytes.len() as u64;
+        frame.take(room).read_to_end(&mut bytes)?;
     }
     Ok(bytes)
 }
 
 /// Writes frames as a DLF record (same encoding; zstd at its fastest level), atomically.
 pub fn write_record(path: &Path, frames: &[RecordFrame]) -> Result<(), RecordError> {
-    let io = |source| RecordError::Io {
+    let io = |error| RecordError::Io {
         path: path.to_path_buf(),
-        source,
+        error,
     };
     let flat = |p: &[[f32; 3]]| -> Vec<f32> { p.iter().flatten().copied().collect() };
     let list: Vec<Value> = frames
@@ -425,5 +521,64 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(err.contains("no field `vel`"), "{err}");
+    }
+
+    /// A zstd frame of `blocks` RLE blocks, each 128 KiB of one byte: 4 bytes on disk per
+    /// 128 KiB decoded.
+    pub(crate) fn zstd_rle_bomb(blocks: usize, byte: u8) -> Vec<u8> {
+        // magic, a frame header with a 128 KiB window and no content size
+        let mut b = vec![0x28, 0xb5, 0x2f, 0xfd, 0x00, 7 << 3];
+        for i in 0..blocks {
+            let last = u32::from(i + 1 == blocks);
+            let header = last | (1 << 1) | (131_072 << 3);
+            b.extend(&header.to_le_bytes()[..3]);
+            b.push(byte);
+        }
+        b
+    }
+
+    /// Compression bombs: 70 KB of zstd that would decode to 2.2 GiB, refused at the ratio cap;
+    /// the value counts of the msgpack inside checked before anything is built.
+    #[test]
+    fn bombs_are_refused_with_the_file_and_the_limit() {
+        let dir = std::env::temp_dir().join(format!("nf_dlf_bomb_{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("bomb.msgpack.zst");
+        let bomb = zstd_rle_bomb(17_600, 0x90);
+        assert!(bomb.len() < 80_000);
+        std::fs::write(&path, &bomb).unwrap();
+        let err = read_record(&path).unwrap_err().to_string();
+        assert!(
+            err.contains("bomb.msgpack.zst") && err.contains("compression bomb"),
+            "{err}"
+        );
+        // under the ratio: a list announcing 2³² - 1 frames, or nested lists
+        let mut lying = vec![0xdd, 0xff, 0xff, 0xff, 0xff];
+        lying.extend([0x90; 100]);
+        let err = decode_frames(&lying, &path).unwrap_err().to_string();
+        assert!(err.contains("announced"), "{err}");
+        let nested = [0x91u8; 1 << 20];
+        let err = decode_frames(&nested, &path).unwrap_err().to_string();
+        assert!(err.contains("bomb.msgpack.zst"), "{err}");
+        // a shape whose size overflows
+        let bad = Value::Array(vec![Value::Map(vec![
+            (Value::from("pos"), {
+                let mut v = encode_nd_f32(&[1.0, 2.0, 3.0], &[1, 3]);
+                if let Value::Map(m) = &mut v {
+                    for (k, x) in m.iter_mut() {
+                        if key_is(k, "shape") {
+                            *x = Value::Array(vec![Value::from(1u64 << 62), Value::from(4)]);
+                        }
+                    }
+                }
+                v
+            }),
+            (Value::from("vel"), encode_nd_f32(&[1.0, 2.0, 3.0], &[1, 3])),
+        ])]);
+        let mut bytes = Vec::new();
+        rmpv::encode::write_value(&mut bytes, &bad).unwrap();
+        let err = decode_frames(&bytes, &path).unwrap_err().to_string();
+        assert!(err.contains("overflows"), "{err}");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -150,7 +150,7 @@ pub fn load_record_dir(dir: &Path) -> Result<Vec<TrainingSequence>, TrainError> 
     let entries = std::fs::read_dir(dir).map_err(|e| {
         TrainError::Record(RecordError::Io {
             path: dir.to_path_buf(),
-            source: e,
+            error: e,
         })
     })?;
     let mut files: Vec<_> = entries

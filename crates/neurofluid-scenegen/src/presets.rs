@@ -157,3 +157,20 @@ impl Preset {
         }
     }
 }
+
+impl Preset {
+    /// The settings of this preset that differ from `generator`, the serialisation a generated
+    /// scene's manifest records (`warmup_every_frame` aside: the warm-up views are added to an
+    /// existing scene). Settings the record lacks (a scene of an earlier release) are not
+    /// compared.
+    pub fn changes_from(&self, generator: &serde_json::Value) -> Vec<String> {
+        let Ok(serde_json::Value::Object(now)) = serde_json::to_value(self) else {
+            return Vec::new();
+        };
+        now.iter()
+            .filter(|(k, _)| k.as_str() != "warmup_every_frame")
+            .filter(|(k, v)| generator.get(k.as_str()).is_some_and(|g| g != *v))
+            .map(|(k, _)| k.clone())
+            .collect()
+    }
+}

@@ -34,6 +34,48 @@ impl Default for SurfaceSettings {
     }
 }
 
+impl SurfaceSettings {
+    /// Every setting finite and > 0 (the command line takes any float).
+    pub fn check(&self) -> anyhow::Result<()> {
+        for (flag, v) in [
+            ("--smoothing-length", self.smoothing_length),
+            ("--cube-size", self.cube_size),
+            ("--threshold", self.threshold),
+        ] {
+            anyhow::ensure!(
+                v.is_finite() && v > 0.0,
+                "{flag} must be a finite number > 0, got {v}"
+            );
+        }
+        Ok(())
+    }
+
+    /// The marching-cubes grid over `particles` (their bounds grown by the kernel's support)
+    /// stays within [`neurofluid_core::limits::max_decoded_bytes`] at 16 bytes a grid point,
+    /// so a tiny `--cube-size` is an error rather than an allocation that aborts.
+    fn check_grid(&self, particles: &[[f32; 3]], radius: f64) -> anyhow::Result<()> {
+        let cube = self.cube_size * radius;
+        let margin = 2.0 * self.smoothing_length * radius;
+        let points: f64 = (0..3)
+            .map(|a| {
+                let (lo, hi) = particles.iter().fold((f64::MAX, f64::MIN), |(lo, hi), p| {
+                    (lo.min(p[a] as f64), hi.max(p[a] as f64))
+                });
+                ((hi - lo + 2.0 * margin) / cube).ceil() + 1.0
+            })
+            .product();
+        let limit = neurofluid_core::limits::max_decoded_bytes() as f64 / 16.0;
+        anyhow::ensure!(
+            points <= limit,
+            "--cube-size {} (× radius {radius}) makes a grid of {points:.3e} points over the \
+             particles, over the limit of {limit:.3e} ({}; raise --cube-size)",
+            self.cube_size,
+            neurofluid_core::limits::MAX_FILE_MB_ENV
+        );
+        Ok(())
+    }
+}
+
 /// A triangle mesh.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Mesh {
@@ -53,10 +95,7 @@ pub fn reconstruct(
         radius.is_finite() && radius > 0.0,
         "the particle radius must be > 0, got {radius}"
     );
-    anyhow::ensure!(
-        settings.smoothing_length > 0.0 && settings.cube_size > 0.0 && settings.threshold > 0.0,
-        "smoothing length, cube size and threshold must be > 0"
-    );
+    settings.check()?;
     anyhow::ensure!(
         particles.iter().flatten().all(|v| v.is_finite()),
         "particle positions must be finite"
@@ -65,6 +104,7 @@ pub fn reconstruct(
         return Ok(Mesh::default());
     }
     let r = radius as f64;
+    settings.check_grid(particles, r)?;
     let params = splashsurf_lib::Parameters {
         particle_radius: r,
         rest_density: 1000.0,

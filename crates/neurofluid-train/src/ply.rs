@@ -173,6 +173,21 @@ pub fn read_ply(path: &Path) -> Result<PlyData, PlyError> {
         _ => None,
     };
     let np = props.len();
+    // the declared count must fit the file before anything is allocated for it
+    let floats = n
+        .checked_mul(np)
+        .filter(|&f| match format {
+            PlyFormat::BinaryLittleEndian => f.checked_mul(4) == Some(body.len()),
+            // an ASCII number takes at least two bytes with its separator
+            PlyFormat::Ascii => f <= body.len().div_ceil(2),
+        })
+        .ok_or_else(|| {
+            bad(format!(
+                "expected {n} vertices × {np} floats, which do not fit the {} bytes after the \
+                 header",
+                body.len()
+            ))
+        })?;
     let values: Vec<f32> = match format {
         PlyFormat::Ascii => {
             let text =
@@ -185,7 +200,7 @@ pub fn read_ply(path: &Path) -> Result<PlyData, PlyError> {
             .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
             .collect(),
     };
-    if values.len() != n * np {
+    if values.len() != floats {
         return Err(bad(format!(
             "expected {n} vertices × {np} floats, found {} floats",
             values.len()
@@ -285,5 +300,30 @@ mod tests {
             "{err}"
         );
         assert!(read_ply(&dir.path().join("missing.ply")).is_err());
+    }
+
+    /// A header may declare any count: one that overflows or outgrows the file is an error
+    /// before anything is allocated for it.
+    #[test]
+    fn huge_vertex_counts_are_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        for (format, n) in [
+            ("binary_little_endian", "18446744073709551615"),
+            ("binary_little_endian", "6148914691236517206"),
+            ("ascii", "18446744073709551615"),
+            ("ascii", "1000000"),
+        ] {
+            let path = dir.path().join("huge.ply");
+            let text = format!(
+                "ply\nformat {format} 1.0\nelement vertex {n}\nproperty float x\n\
+                 property float y\nproperty float z\nend_header\n0 0 0\n"
+            );
+            std::fs::write(&path, text).unwrap();
+            let err = read_ply(&path).unwrap_err().to_string();
+            assert!(
+                err.contains("huge.ply") && err.contains("vertices"),
+                "{err}"
+            );
+        }
     }
 }

@@ -255,6 +255,10 @@ pub struct EvalReport {
     /// particle radius outside the box interior: particles through the walls.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub escaped: Vec<(String, usize)>,
+    /// The seal (SHA-256 of `checksums.json`) of the joint checkpoint scored: the report
+    /// describes the run only while that checkpoint is the joint stage's latest.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scored_seal: Option<String>,
 }
 
 /// The number of `points` farther than `margin` outside `interior` (on any axis).
@@ -308,6 +312,7 @@ impl EvalReport {
             checkpoint: checkpoint.into(),
             initial_from_images: false,
             nvs_baselines: Vec::new(),
+            scored_seal: None,
             windows,
             frames: Vec::new(),
             images: Vec::new(),

@@ -209,7 +209,12 @@ impl Recording {
 
     /// Writes the viewer page atomically.
     pub fn write(&self, path: &Path) -> anyhow::Result<()> {
-        let json = serde_json::to_string(self)?.replace("</", "<\\/");
+        // `<`, `>` and `&` only occur inside JSON strings, where their \u escapes mean the
+        // same: no text of the recording can close the script element or open a tag
+        let json = serde_json::to_string(self)?
+            .replace('<', "\\u003c")
+            .replace('>', "\\u003e")
+            .replace('&', "\\u0026");
         let html = PAGE
             .replace("{{TITLE}}", &html_escape(&self.title))
             .replace("{{DATA}}", &json);
@@ -241,6 +246,8 @@ fn html_escape(s: &str) -> String {
     s.replace('&', "&amp;")
         .replace('<', "&lt;")
         .replace('>', "&gt;")
+        .replace('"', "&quot;")
+        .replace('\'', "&#39;")
 }
 
 const DATA_OPEN: &str = "<script id=\"recording\" type=\"application/json\">";
@@ -272,6 +279,8 @@ per frame.</p>
 <script id="recording" type="application/json">{{DATA}}</script>
 <script>
 const R = JSON.parse(document.getElementById('recording').textContent);
+// every text of the recording that goes into markup passes through esc (the rest are DOM nodes)
+const esc = v => String(v).replace(/[&<>"']/g, ch => '&#'+ch.charCodeAt(0)+';');
 const span = [0,1,2].map(a => Math.max(R.hi[a]-R.lo[a], 1e-6));
 const centre = [0,1,2].map(a => (R.hi[a]+R.lo[a])/2);
 const tracks = R.tracks.map(tr => {
@@ -295,7 +304,8 @@ const W = 320, H = 320, canvases = [];
 const panels = document.getElementById('panels');
 tracks.forEach(tr => {
   const div = document.createElement('div'); div.className = 'panel';
-  div.innerHTML = '<h3 style="color:'+tr.colour+'">'+tr.name+'</h3>';
+  const h3 = document.createElement('h3'); h3.style.color = tr.colour; h3.textContent = tr.name;
+  div.appendChild(h3);
   const c = document.createElement('canvas'); c.width = W; c.height = H;
   div.appendChild(c); panels.appendChild(div); canvases.push(c);
   let drag = null;
@@ -336,7 +346,9 @@ function draw() {
   document.getElementById('label').textContent = 't = '+t+'   '+vals.join('   ');
   const cam = R.cameras[sel.value || 0];
   const ren = cam && cam.renders.find(r => r[0] === t);
-  document.getElementById('renders').innerHTML = ren ? '<img src="'+ren[1]+'" height="200" title="render | truth">' : '';
+  const box = document.getElementById('renders'); box.replaceChildren();
+  if (ren) { const img = document.createElement('img'); img.src = ren[1]; img.height = 200;
+    img.title = 'render | truth'; box.appendChild(img); }
   drawCurves();
 }
 function drawCurves() {
@@ -348,8 +360,8 @@ function drawCurves() {
   let s = '<line x1="'+X(t)+'" x2="'+X(t)+'" y1="'+m+'" y2="'+(h-m)+'" stroke="#aaa"/>';
   s += '<text x="4" y="14" font-size="11">d × 1000 (max '+ymax.toFixed(1)+')</text>';
   R.curves.forEach((c, i) => {
-    s += '<polyline fill="none" stroke="'+c.colour+'" stroke-width="2" points="'+c.points.map(p => X(p[0])+','+Y(p[1])).join(' ')+'"/>';
-    s += '<text x="'+(w-150)+'" y="'+(16+14*i)+'" font-size="11" fill="'+c.colour+'">'+c.name+'</text>';
+    s += '<polyline fill="none" stroke="'+esc(c.colour)+'" stroke-width="2" points="'+c.points.map(p => X(p[0])+','+Y(p[1])).join(' ')+'"/>';
+    s += '<text x="'+(w-150)+'" y="'+(16+14*i)+'" font-size="11" fill="'+esc(c.colour)+'">'+esc(c.name)+'</text>';
   });
   svg.innerHTML = s;
 }
@@ -363,8 +375,8 @@ function drawTraining() {
   let s = '<text x="4" y="14" font-size="11">training loss vs step (log; '+Math.pow(10, lo).toExponential(1)+' – '+Math.pow(10, hi).toExponential(1)+')</text>';
   R.training.forEach((c, i) => {
     const pts = c.points.filter(p => p[1] > 0);
-    s += '<polyline fill="none" stroke="'+c.colour+'" stroke-width="1.5" points="'+pts.map(p => X(p[0])+','+Y(p[1])).join(' ')+'"/>';
-    s += '<text x="'+(w-150)+'" y="'+(16+14*i)+'" font-size="11" fill="'+c.colour+'">'+c.name+'</text>';
+    s += '<polyline fill="none" stroke="'+esc(c.colour)+'" stroke-width="1.5" points="'+pts.map(p => X(p[0])+','+Y(p[1])).join(' ')+'"/>';
+    s += '<text x="'+(w-150)+'" y="'+(16+14*i)+'" font-size="11" fill="'+esc(c.colour)+'">'+esc(c.name)+'</text>';
   });
   svg.innerHTML = s;
 }
@@ -430,5 +442,39 @@ mod tests {
             )
             .is_err()
         );
+    }
+
+    /// Names from data files (view folders, set names) reach the page as data: the recording
+    /// holds no `<`, and the player builds its elements as DOM nodes or through `esc`.
+    #[test]
+    fn hostile_names_stay_text() {
+        let frames = vec![vec![[0.0f32, 0.0, 0.0]]];
+        let evil = "v5\"><img src=x onerror=alert(document.cookie)></script><script>x()</script>";
+        let cam = Camera::look_at(32, 32, 0.7, [0.0, 1.0, 4.0], [0.0; 3], [0.0, 1.0, 0.0]);
+        let rec = Recording::new(evil, 0.025, &[(evil, evil, &frames)])
+            .unwrap()
+            .with_camera(evil, &cam, vec![(0, format!("renders/{evil}/t0000.png"))])
+            .with_curve(evil, evil, vec![(0, 1.0)])
+            .with_training_curve(evil, evil, vec![(1, 0.5)]);
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("viewer.html");
+        rec.write(&path).unwrap();
+        let html = std::fs::read_to_string(&path).unwrap();
+        assert!(!html.contains("<img"), "a tag from a name reached the page");
+        assert_eq!(
+            html.matches("<script").count(),
+            2,
+            "only the page's own scripts"
+        );
+        assert_eq!(html.matches("</script>").count(), 2);
+        let start = html.find(DATA_OPEN).unwrap() + DATA_OPEN.len();
+        let end = start + html[start..].find("</script>").unwrap();
+        assert!(!html[start..end].contains(['<', '>', '&']));
+        // the player concatenates no recording text into markup unescaped
+        let script = &html[end..];
+        for raw in ["+tr.name", "+c.name", "+c.colour", "+tr.colour", "+ren[1]"] {
+            assert!(!script.contains(raw), "{raw} is concatenated into markup");
+        }
+        assert_eq!(Recording::read(&path).unwrap(), rec);
     }
 }

@@ -18,14 +18,20 @@ pub struct Image {
 }
 
 impl Image {
-    /// Reads a PNG (any colour type) and composites it on white: c·a + (1 − a).
+    /// Reads a PNG (any colour type) and composites it on white: c·a + (1 − a). The size in
+    /// its header is checked against [`crate::limits::max_image_pixels`] before decoding.
     pub fn read(path: &Path) -> Result<Self> {
         let bytes = std::fs::read(path).map_err(|e| SceneError::io(path, e))?;
-        let img = image::load_from_memory_with_format(&bytes, image::ImageFormat::Png)
-            .map_err(|e| SceneError::Image {
-                path: path.to_path_buf(),
-                message: e.to_string(),
-            })?
+        let reader = || {
+            image::ImageReader::with_format(std::io::Cursor::new(&bytes), image::ImageFormat::Png)
+        };
+        let (w, h) = reader()
+            .into_dimensions()
+            .map_err(|e| image_error(path, e))?;
+        check_pixels(path, w, h)?;
+        let img = reader()
+            .decode()
+            .map_err(|e| image_error(path, e))?
             .into_rgba32f();
         let (width, height) = img.dimensions();
         let n = (width * height) as usize;
@@ -47,14 +53,28 @@ impl Image {
     }
 }
 
-/// Width and height of a PNG, read from its header only.
+/// Width and height of a PNG, read from its header only, within
+/// [`crate::limits::max_image_pixels`].
 pub fn png_size(path: &Path) -> Result<(u32, u32)> {
-    image::image_dimensions(path).map_err(|e| match e {
+    let (w, h) = image::image_dimensions(path).map_err(|e| image_error(path, e))?;
+    check_pixels(path, w, h)?;
+    Ok((w, h))
+}
+
+fn image_error(path: &Path, e: image::ImageError) -> SceneError {
+    match e {
         image::ImageError::IoError(io) => SceneError::io(path, io),
         e => SceneError::Image {
             path: path.to_path_buf(),
             message: e.to_string(),
         },
+    }
+}
+
+fn check_pixels(path: &Path, w: u32, h: u32) -> Result<()> {
+    crate::limits::check_image(w, h).map_err(|message| SceneError::Image {
+        path: path.to_path_buf(),
+        message,
     })
 }
 

@@ -209,14 +209,24 @@ impl SceneManifest {
         Ok(m)
     }
 
-    /// Checks the values a parser cannot: non-empty view lists, positive radius and fps,
-    /// ordered frame ranges and bounds.
+    /// Checks the values a parser cannot: non-empty view lists of plain names (they become
+    /// folder and file names), a box file inside the scene, positive radius and fps, ordered
+    /// frame ranges and bounds.
     pub fn validate(&self, path: &Path) -> Result<()> {
         for (name, set) in [
             ("warmup", &self.warmup),
             ("train", &self.train),
             ("test", &self.test),
         ] {
+            for (field, value) in set
+                .views
+                .iter()
+                .map(|v| (format!("{name}.views"), v))
+                .chain([(format!("{name}.split"), &set.split)])
+            {
+                crate::paths::one_component(value)
+                    .map_err(|expected| SceneError::field(path, field, expected))?;
+            }
             if set.views.is_empty() {
                 return Err(SceneError::field(
                     path,
@@ -232,6 +242,8 @@ impl SceneManifest {
                 ));
             }
         }
+        crate::paths::confined(&self.box_file, 0)
+            .map_err(|expected| SceneError::field(path, "box_file", expected))?;
         if !(self.particle_radius.is_finite() && self.particle_radius > 0.0) {
             return Err(SceneError::field(
                 path,

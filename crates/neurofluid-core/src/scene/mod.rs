@@ -97,7 +97,7 @@ impl ViewSplit {
                 ));
             }
         };
-        Ok(Camera {
+        let camera = Camera {
             width: w,
             height: h,
             fx,
@@ -106,6 +106,13 @@ impl ViewSplit {
             cx: k.cx.map_or(w as f32 / 2.0, |c| c - 0.5),
             cy: k.cy.map_or(h as f32 / 2.0, |c| c - 0.5),
             c2w: e.transform_matrix,
+        };
+        degenerate(&camera).map_or(Ok(camera), |(field, expected)| {
+            Err(SceneError::field(
+                &self.json_path,
+                format!("frames[{t}]: {field}"),
+                expected,
+            ))
         })
     }
 
@@ -142,6 +149,54 @@ impl ViewSplit {
         })?;
         Ok(particle_path(&self.dir, &self.split, rel))
     }
+}
+
+/// The first field of `c` no real camera has, and what was expected: a focal length between
+/// 1/1000 and 10 000 image widths (fields of view from 0.006° to 179.9°), the principal point
+/// within an image size of the image, and a camera-to-world rotation that is invertible.
+fn degenerate(c: &Camera) -> Option<(&'static str, String)> {
+    let size = c.width.max(c.height) as f32;
+    let (lo, hi) = (size * 1e-3, size * 1e4);
+    for (field, f) in [("fl_x", c.fx), ("fl_y", c.fy)] {
+        if !(lo..=hi).contains(&f) {
+            return Some((
+                field,
+                format!(
+                    "a focal length from {lo} to {hi} pixels for {size}-pixel images, found {f}"
+                ),
+            ));
+        }
+    }
+    for (field, p, n) in [("cx", c.cx, c.width), ("cy", c.cy, c.height)] {
+        let n = n as f32;
+        if !(-n..=2.0 * n).contains(&p) {
+            return Some((
+                field,
+                format!(
+                    "a principal point from {} to {} pixels, found {p}",
+                    -n,
+                    2.0 * n
+                ),
+            ));
+        }
+    }
+    let r = |i: usize, j: usize| c.c2w[i][j] as f64;
+    let det = r(0, 0) * (r(1, 1) * r(2, 2) - r(1, 2) * r(2, 1))
+        - r(0, 1) * (r(1, 0) * r(2, 2) - r(1, 2) * r(2, 0))
+        + r(0, 2) * (r(1, 0) * r(2, 1) - r(1, 1) * r(2, 0));
+    // scale-free: the volume of the unit columns (1 for a rotation, 0 for a flat matrix)
+    let norm = |j: usize| (r(0, j).powi(2) + r(1, j).powi(2) + r(2, j).powi(2)).sqrt();
+    let volume = det.abs() / (norm(0) * norm(1) * norm(2));
+    if volume.is_nan() || volume <= 1e-3 {
+        return Some((
+            "transform_matrix",
+            format!(
+                "an invertible camera-to-world rotation (3×3 block of independent columns), \
+                 found determinant {det:e}"
+            ),
+        ));
+    }
+    None
 }
 
 /// An opened scene directory.
@@ -272,6 +327,8 @@ impl Scene {
     pub fn image(&self, role: Role, view: &str, t: usize) -> Result<Image> {
         let split = self.view_split(role, view)?;
         let path = split.image_path(t)?;
+        // the header's size first: a mismatched image is refused before it is decoded
+        split.check_size(&path, png_size(&path)?)?;
         let image = Image::read(&path)?;
         split.check_size(&path, (image.width, image.height))?;
         Ok(image)

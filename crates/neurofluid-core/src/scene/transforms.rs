@@ -164,6 +164,18 @@ impl TransformsFile {
                     "intrinsics: `camera_angle_x` or `fl_x` (in the file or the frame)",
                 ));
             }
+            // the image sits under the view folder, the particles under view/split
+            let paths = [
+                ("file_path", Some(&f.file_path), 1),
+                ("particle_path", f.particle_path.as_ref(), 2),
+            ];
+            for (key, rel, depth) in paths {
+                if let Some(rel) = rel {
+                    crate::paths::confined(rel, depth).map_err(|expected| {
+                        SceneError::field(path, format!("frames[{i}].{key}"), expected)
+                    })?;
+                }
+            }
             if f.transform_matrix.iter().flatten().any(|v| !v.is_finite()) {
                 return Err(SceneError::field(
                     path,

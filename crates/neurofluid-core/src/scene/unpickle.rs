@@ -3,7 +3,9 @@
 //! of joblib ≥ 1.2) or a plain pickle of numpy arrays (`_reconstruct` + state, as
 //! [`super::box_pickle`] writes). Only what such files hold is understood: dicts, lists, tuples,
 //! strings, bytes, numbers, and float32/float64 little-endian arrays; anything else is rejected
-//! with the byte offset and what was found.
+//! with the byte offset and what was found. Nothing is called, and what a pickle builds is
+//! bounded as it is built ([`crate::limits`]): nesting depth, the number of values (memo copies
+//! included) and their bytes.
 
 use std::collections::BTreeMap;
 
@@ -225,20 +227,147 @@ fn numpy_array(state: &Value) -> Result<Value, String> {
     })
 }
 
-fn pop(stack: &mut Vec<Value>, at: usize) -> Result<Value, String> {
+/// A value on the stack with what it holds: its nesting depth, its number of values and its
+/// payload bytes, so every limit is checked as the value is built, never by walking it.
+#[derive(Debug, Clone)]
+struct Node {
+    v: Value,
+    depth: usize,
+    values: usize,
+    bytes: u64,
+}
+
+impl Node {
+    fn leaf(v: Value) -> Self {
+        let bytes = match &v {
+            Value::Str(s) | Value::Global(s) => s.len() as u64,
+            Value::Bytes(b) => b.len() as u64,
+            Value::Array { data, .. } => 8 * data.len() as u64,
+            _ => 0,
+        };
+        Self {
+            v,
+            depth: 1,
+            values: 1,
+            bytes,
+        }
+    }
+
+    /// A container of `items`' values (`make` builds it).
+    fn parent(items: Vec<Node>, make: impl FnOnce(Vec<Value>) -> Value) -> Self {
+        let mut n = Self {
+            v: Value::None,
+            depth: 1,
+            values: 1,
+            bytes: 0,
+        };
+        let values = items
+            .into_iter()
+            .map(|c| {
+                n.absorb(&c);
+                c.v
+            })
+            .collect();
+        n.v = make(values);
+        n
+    }
+
+    /// Counts `child` as held by this node.
+    fn absorb(&mut self, child: &Node) {
+        self.depth = self.depth.max(child.depth + 1);
+        self.values = self.values.saturating_add(child.values);
+        self.bytes = self.bytes.saturating_add(child.bytes);
+    }
+}
+
+/// What the pickle has built so far, checked against the limits of [`crate::limits`].
+#[derive(Default)]
+struct Budget {
+    values: usize,
+    bytes: u64,
+}
+
+impl Budget {
+    /// Counts `n` (a new value, or a copy of one) and checks its depth.
+    fn charge(&mut self, n: &Node, at: usize) -> Result<(), String> {
+        use crate::limits::{MAX_PICKLE_VALUES, check_decoded};
+        check_depth(n, at)?;
+        self.values = self.values.saturating_add(n.values);
+        self.bytes = self.bytes.saturating_add(n.bytes);
+        if self.values > MAX_PICKLE_VALUES {
+            return Err(format!(
+                "more than {MAX_PICKLE_VALUES} values built by byte {at} (copies of memo \
+                 entries included: a memo bomb?)"
+            ));
+        }
+        check_decoded(&format!("the values built by byte {at}"), self.bytes)
+    }
+
+    /// Counts a new container made of values already counted.
+    fn charge_new(&mut self, n: &Node, at: usize) -> Result<(), String> {
+        self.charge(
+            &Node {
+                v: Value::None,
+                depth: n.depth,
+                values: 1,
+                bytes: 0,
+            },
+            at,
+        )
+    }
+}
+
+/// Checks that `n` nests no deeper than [`crate::limits::MAX_NESTING`].
+fn check_depth(n: &Node, at: usize) -> Result<(), String> {
+    use crate::limits::MAX_NESTING;
+    if n.depth > MAX_NESTING {
+        return Err(format!(
+            "values nested deeper than {MAX_NESTING} levels at byte {at} (a box file nests 5)"
+        ));
+    }
+    Ok(())
+}
+
+fn pop(stack: &mut Vec<Node>, at: usize) -> Result<Node, String> {
     stack
         .pop()
         .ok_or_else(|| format!("stack underflow at byte {at}"))
 }
 
-fn pop_mark(stack: &mut Vec<Value>, at: usize) -> Result<Vec<Value>, String> {
+fn pop_mark(stack: &mut Vec<Node>, at: usize) -> Result<Vec<Node>, String> {
     let m = stack
         .iter()
-        .rposition(|v| matches!(v, Value::Mark))
+        .rposition(|n| matches!(n.v, Value::Mark))
         .ok_or_else(|| format!("no MARK before byte {at}"))?;
     let items = stack.split_off(m + 1);
     stack.pop();
     Ok(items)
+}
+
+/// Adds `items` to the dict or list on top of the stack.
+fn extend_top(stack: &mut [Node], items: Vec<Node>, at: usize, op: &str) -> Result<(), String> {
+    let Some(top) = stack.last_mut() else {
+        return Err(format!("{op} on an empty stack at byte {at}"));
+    };
+    let pairs = matches!(top.v, Value::Dict(_));
+    if pairs && !items.len().is_multiple_of(2) {
+        return Err(format!("odd {op} at byte {at}"));
+    }
+    for c in &items {
+        top.absorb(c);
+    }
+    check_depth(top, at)?;
+    let mut values = items.into_iter().map(|n| n.v);
+    match &mut top.v {
+        Value::Dict(d) => {
+            while let (Some(k), Some(v)) = (values.next(), values.next()) {
+                d.push((k, v));
+            }
+        }
+        Value::List(l) => l.extend(values),
+        _ => return Err(format!("{op} outside a dict or list at byte {at}")),
+    }
+    Ok(())
 }
 
 fn unpickle(bytes: &[u8]) -> Result<Value, String> {
@@ -248,35 +377,32 @@ fn unpickle(bytes: &[u8]) -> Result<Value, String> {
         );
     }
     let mut r = Reader { bytes, at: 0 };
-    let mut stack: Vec<Value> = Vec::new();
-    let mut memo: BTreeMap<usize, Value> = BTreeMap::new();
+    let mut stack: Vec<Node> = Vec::new();
+    let mut memo: BTreeMap<usize, Node> = BTreeMap::new();
+    let mut budget = Budget::default();
     loop {
         let at = r.at;
         let op = r.u8()?;
-        match op {
+        let leaf = match op {
             0x80 => {
                 r.u8()?;
+                continue;
             }
             0x95 => {
                 r.u64()?;
+                continue;
             }
-            b'.' => return pop(&mut stack, at),
-            b'(' => stack.push(Value::Mark),
-            b'}' => stack.push(Value::Dict(Vec::new())),
-            b']' => stack.push(Value::List(Vec::new())),
-            b')' => stack.push(Value::Tuple(Vec::new())),
-            b'N' => stack.push(Value::None),
-            0x88 => stack.push(Value::Bool(true)),
-            0x89 => stack.push(Value::Bool(false)),
-            b'K' => stack.push(Value::Int(r.u8()? as i64)),
-            b'M' => {
-                let v = u16::from_le_bytes(r.take(2)?.try_into().expect("2 bytes"));
-                stack.push(Value::Int(v as i64));
-            }
-            b'J' => {
-                let v = i32::from_le_bytes(r.take(4)?.try_into().expect("4 bytes"));
-                stack.push(Value::Int(v as i64));
-            }
+            b'.' => return pop(&mut stack, at).map(|n| n.v),
+            b'(' => Value::Mark,
+            b'}' => Value::Dict(Vec::new()),
+            b']' => Value::List(Vec::new()),
+            b')' => Value::Tuple(Vec::new()),
+            b'N' => Value::None,
+            0x88 => Value::Bool(true),
+            0x89 => Value::Bool(false),
+            b'K' => Value::Int(r.u8()? as i64),
+            b'M' => Value::Int(u16::from_le_bytes(r.take(2)?.try_into().expect("2 bytes")) as i64),
+            b'J' => Value::Int(i32::from_le_bytes(r.take(4)?.try_into().expect("4 bytes")) as i64),
             0x8a => {
                 let n = r.u8()? as usize;
                 let b = r.take(n)?;
@@ -290,52 +416,50 @@ fn unpickle(bytes: &[u8]) -> Result<Value, String> {
                 if n > 0 && n < 8 && b[n - 1] & 0x80 != 0 {
                     v -= 1i64 << (8 * n);
                 }
-                stack.push(Value::Int(v));
+                Value::Int(v)
             }
-            b'G' => {
-                let v = f64::from_be_bytes(r.take(8)?.try_into().expect("8 bytes"));
-                stack.push(Value::Float(v));
-            }
+            b'G' => Value::Float(f64::from_be_bytes(r.take(8)?.try_into().expect("8 bytes"))),
             0x8c => {
                 let n = r.u8()? as usize;
-                stack.push(Value::Str(r.utf8(n)?));
+                Value::Str(r.utf8(n)?)
             }
             b'X' => {
                 let n = r.u32()?;
-                stack.push(Value::Str(r.utf8(n)?));
+                Value::Str(r.utf8(n)?)
             }
             0x8d => {
                 let n = r.u64()?;
-                stack.push(Value::Str(r.utf8(n)?));
+                Value::Str(r.utf8(n)?)
             }
             b'C' => {
                 let n = r.u8()? as usize;
-                stack.push(Value::Bytes(r.take(n)?.to_vec()));
+                Value::Bytes(r.take(n)?.to_vec())
             }
             b'B' => {
                 let n = r.u32()?;
-                stack.push(Value::Bytes(r.take(n)?.to_vec()));
+                Value::Bytes(r.take(n)?.to_vec())
             }
             0x8e => {
                 let n = r.u64()?;
-                stack.push(Value::Bytes(r.take(n)?.to_vec()));
+                Value::Bytes(r.take(n)?.to_vec())
             }
-            0x94 => {
-                let top = stack
-                    .last()
-                    .ok_or_else(|| format!("MEMOIZE on empty stack at {at}"))?;
-                memo.insert(memo.len(), top.clone());
+            b'c' => {
+                let module = r.line()?;
+                let name = r.line()?;
+                Value::Global(format!("{module}.{name}"))
             }
-            b'q' | b'r' => {
-                let i = if op == b'q' {
-                    r.u8()? as usize
-                } else {
-                    r.u32()?
+            0x94 | b'q' | b'r' => {
+                let i = match op {
+                    0x94 => memo.len(),
+                    b'q' => r.u8()? as usize,
+                    _ => r.u32()?,
                 };
                 let top = stack
                     .last()
-                    .ok_or_else(|| format!("PUT on empty stack at {at}"))?;
+                    .ok_or_else(|| format!("MEMOIZE/PUT on an empty stack at byte {at}"))?;
+                budget.charge(top, at)?;
                 memo.insert(i, top.clone());
+                continue;
             }
             b'h' | b'j' => {
                 let i = if op == b'h' {
@@ -346,42 +470,42 @@ fn unpickle(bytes: &[u8]) -> Result<Value, String> {
                 let v = memo
                     .get(&i)
                     .ok_or_else(|| format!("unknown memo entry {i} at byte {at}"))?;
+                budget.charge(v, at)?;
                 stack.push(v.clone());
-            }
-            b'c' => {
-                let module = r.line()?;
-                let name = r.line()?;
-                stack.push(Value::Global(format!("{module}.{name}")));
+                continue;
             }
             0x93 => {
                 let name = pop(&mut stack, at)?;
                 let module = pop(&mut stack, at)?;
-                match (module, name) {
-                    (Value::Str(m), Value::Str(n)) => stack.push(Value::Global(format!("{m}.{n}"))),
+                match (module.v, name.v) {
+                    (Value::Str(m), Value::Str(n)) => Value::Global(format!("{m}.{n}")),
                     _ => return Err(format!("STACK_GLOBAL without names at byte {at}")),
                 }
             }
-            b't' => {
-                let items = pop_mark(&mut stack, at)?;
-                stack.push(Value::Tuple(items));
-            }
-            0x85..=0x87 => {
-                let n = (op - 0x84) as usize;
-                if stack.len() < n {
-                    return Err(format!("stack underflow at byte {at}"));
-                }
-                let items = stack.split_off(stack.len() - n);
-                stack.push(Value::Tuple(items));
+            b't' | 0x85..=0x87 => {
+                let items = if op == b't' {
+                    pop_mark(&mut stack, at)?
+                } else {
+                    let n = (op - 0x84) as usize;
+                    if stack.len() < n {
+                        return Err(format!("stack underflow at byte {at}"));
+                    }
+                    stack.split_off(stack.len() - n)
+                };
+                let node = Node::parent(items, Value::Tuple);
+                budget.charge_new(&node, at)?;
+                stack.push(node);
+                continue;
             }
             b'R' | 0x81 => {
                 let args = pop(&mut stack, at)?;
                 let callable = pop(&mut stack, at)?;
-                let Value::Tuple(args) = args else {
+                let Value::Tuple(arg_values) = &args.v else {
                     return Err(format!("call without an argument tuple at byte {at}"));
                 };
                 // protocol 2 writes bytes as `_codecs.encode(latin-1 text, 'latin1')`
-                if global_name(&callable) == Some("_codecs.encode")
-                    && let [Value::Str(text), Value::Str(codec)] = args.as_slice()
+                if global_name(&callable.v) == Some("_codecs.encode")
+                    && let [Value::Str(text), Value::Str(codec)] = arg_values.as_slice()
                     && matches!(codec.as_str(), "latin1" | "latin-1")
                 {
                     let bytes = text
@@ -389,81 +513,75 @@ fn unpickle(bytes: &[u8]) -> Result<Value, String> {
                         .map(|c| u8::try_from(c as u32))
                         .collect::<Result<Vec<u8>, _>>()
                         .map_err(|_| format!("not latin-1 text at byte {at}"))?;
-                    stack.push(Value::Bytes(bytes));
+                    Value::Bytes(bytes)
+                } else {
+                    let node = call(callable, args);
+                    budget.charge_new(&node, at)?;
+                    stack.push(node);
                     continue;
                 }
-                stack.push(Value::Object {
-                    callable: Box::new(callable),
-                    args,
-                    state: None,
-                });
             }
             b'b' => {
                 let state = pop(&mut stack, at)?;
-                let obj = pop(&mut stack, at)?;
-                let built = match obj {
-                    Value::Object { callable, .. }
-                        if global_name(&callable)
-                            .is_some_and(|n| n.ends_with("NumpyArrayWrapper")) =>
-                    {
-                        joblib_array(&mut r, &state)?
-                    }
-                    Value::Object { callable, .. }
-                        if global_name(&callable).is_some_and(|n| n.ends_with("._reconstruct")) =>
-                    {
-                        numpy_array(&state)?
-                    }
-                    Value::Object { callable, args, .. } => Value::Object {
-                        callable,
-                        args,
-                        state: Some(Box::new(state)),
-                    },
-                    other => return Err(format!("BUILD of {other:?} at byte {at}")),
+                let mut obj = pop(&mut stack, at)?;
+                let Value::Object {
+                    callable,
+                    state: slot,
+                    ..
+                } = &mut obj.v
+                else {
+                    return Err(format!("BUILD of {:?} at byte {at}", obj.v));
                 };
-                stack.push(built);
-            }
-            b's' => {
-                let v = pop(&mut stack, at)?;
-                let k = pop(&mut stack, at)?;
-                match stack.last_mut() {
-                    Some(Value::Dict(d)) => d.push((k, v)),
-                    _ => return Err(format!("SETITEM outside a dict at byte {at}")),
+                if global_name(callable).is_some_and(|n| n.ends_with("NumpyArrayWrapper")) {
+                    joblib_array(&mut r, &state.v)?
+                } else if global_name(callable).is_some_and(|n| n.ends_with("._reconstruct")) {
+                    numpy_array(&state.v)?
+                } else {
+                    *slot = Some(Box::new(state.v.clone()));
+                    obj.absorb(&state);
+                    check_depth(&obj, at)?;
+                    stack.push(obj);
+                    continue;
                 }
             }
-            b'u' => {
-                let items = pop_mark(&mut stack, at)?;
-                if items.len() % 2 != 0 {
-                    return Err(format!("odd SETITEMS at byte {at}"));
-                }
-                let Some(Value::Dict(d)) = stack.last_mut() else {
-                    return Err(format!("SETITEMS outside a dict at byte {at}"));
+            b's' | b'u' | b'a' | b'e' => {
+                let items = match op {
+                    b's' => {
+                        let v = pop(&mut stack, at)?;
+                        let k = pop(&mut stack, at)?;
+                        vec![k, v]
+                    }
+                    b'a' => vec![pop(&mut stack, at)?],
+                    _ => pop_mark(&mut stack, at)?,
                 };
-                let mut it = items.into_iter();
-                while let (Some(k), Some(v)) = (it.next(), it.next()) {
-                    d.push((k, v));
-                }
-            }
-            b'a' => {
-                let v = pop(&mut stack, at)?;
-                match stack.last_mut() {
-                    Some(Value::List(l)) => l.push(v),
-                    _ => return Err(format!("APPEND outside a list at byte {at}")),
-                }
-            }
-            b'e' => {
-                let items = pop_mark(&mut stack, at)?;
-                match stack.last_mut() {
-                    Some(Value::List(l)) => l.extend(items),
-                    _ => return Err(format!("APPENDS outside a list at byte {at}")),
-                }
+                extend_top(&mut stack, items, at, &format!("opcode {:?}", op as char))?;
+                continue;
             }
             other => {
                 return Err(format!(
                     "unsupported pickle opcode 0x{other:02x} at byte {at}"
                 ));
             }
-        }
+        };
+        let node = Node::leaf(leaf);
+        budget.charge(&node, at)?;
+        stack.push(node);
     }
+}
+
+/// `callable(*args)`, as one node.
+fn call(callable: Node, args: Node) -> Node {
+    Node::parent(vec![callable, args], |mut v| {
+        let args = match v.pop() {
+            Some(Value::Tuple(a)) => a,
+            _ => Vec::new(),
+        };
+        Value::Object {
+            callable: Box::new(v.pop().unwrap_or(Value::None)),
+            args,
+            state: None,
+        }
+    })
 }
 
 /// The arrays of a pickled dict of float arrays, by key.
@@ -511,5 +629,52 @@ mod tests {
         assert!(err.contains("compress"), "{err}");
         let err = pickled_arrays(b"\x80\x04\x95\x00\x00\x00\x00\x00\x00\x00\x00d.").unwrap_err();
         assert!(err.contains("opcode 0x64"), "{err}");
+    }
+
+    /// A megabyte of nested one-tuples: refused at the nesting limit, no stack overflow.
+    #[test]
+    fn deep_nesting_is_an_error() {
+        let mut b = vec![0x80, 4, b'N'];
+        b.extend(std::iter::repeat_n(0x85u8, 1 << 20));
+        b.push(b'.');
+        let err = pickled_arrays(&b).unwrap_err();
+        assert!(err.contains("nested deeper than 64"), "{err}");
+        // the same through lists and MARK/TUPLE
+        let mut b = vec![0x80, 4];
+        for _ in 0..100_000 {
+            b.extend([b']', b'(']);
+        }
+        let err = pickled_arrays(&b).unwrap_err();
+        assert!(err.contains("the file ends"), "{err}");
+        let mut b = vec![0x80, 4, b'N'];
+        for _ in 0..200 {
+            b.extend([b']', 0x94]);
+        }
+        b.extend(std::iter::repeat_n(b'a', 200));
+        let err = pickled_arrays(&b).unwrap_err();
+        assert!(err.contains("APPEND") || err.contains("nested"), "{err}");
+    }
+
+    /// A list built from its own memo entry, doubled 24 times (200 bytes that would make 16
+    /// million values): refused at the value limit.
+    #[test]
+    fn memo_bombs_are_errors() {
+        let mut b = vec![0x80, 4, b']', b'K', 1, b'a', 0x94];
+        for i in 0..24u8 {
+            // a new list holding two copies of the previous one: [prev, prev]
+            b.extend([b']', b'(', b'h', i, b'h', i, b'e', 0x94]);
+        }
+        b.push(b'.');
+        assert!(b.len() <= 200);
+        let err = pickled_arrays(&b).unwrap_err();
+        assert!(err.contains("memo bomb"), "{err}");
+        // big strings copied: refused by the byte limit, not the value count
+        let mut b = vec![0x80, 4, 0x8e];
+        b.extend((1u64 << 20).to_le_bytes());
+        b.extend(std::iter::repeat_n(b'x', 1 << 20));
+        b.push(0x94);
+        b.extend(std::iter::repeat_n([b'h', 0], 2000).flatten());
+        let err = pickled_arrays(&b).unwrap_err();
+        assert!(err.contains(crate::limits::MAX_FILE_MB_ENV), "{err}");
     }
 }

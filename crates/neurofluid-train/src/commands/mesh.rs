@@ -2,6 +2,7 @@
 //! (`particles/*.npz`) or an evaluation's rollouts (`eval/particles/*.ply`) — as OBJ or PLY
 //! meshes, for Blender or ParaView.
 
+use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
@@ -71,6 +72,40 @@ fn positions(path: &Path) -> anyhow::Result<Vec<[f32; 3]>> {
     }
 }
 
+/// The mesh of each file (`output/<stem>.<ext>`), checked before any is written: no mesh may
+/// replace an input file, and no two inputs may share a stem (one mesh would replace the other).
+fn output_paths(files: &[PathBuf], output: &Path, ext: &str) -> anyhow::Result<Vec<PathBuf>> {
+    let out_dir = output
+        .canonicalize()
+        .unwrap_or_else(|_| output.to_path_buf());
+    let inputs: HashSet<PathBuf> = files.iter().filter_map(|f| f.canonicalize().ok()).collect();
+    let mut seen: HashMap<PathBuf, &Path> = HashMap::new();
+    let mut paths = Vec::with_capacity(files.len());
+    for file in files {
+        let stem = file.file_stem().context("a file name")?.to_string_lossy();
+        let name = format!("{stem}.{ext}");
+        let path = output.join(&name);
+        let key = out_dir.join(&name);
+        anyhow::ensure!(
+            !inputs.contains(&key),
+            "the mesh of {} would replace the input file {}: choose another --output folder",
+            file.display(),
+            path.display()
+        );
+        if let Some(other) = seen.insert(key, file) {
+            anyhow::bail!(
+                "{} and {} have the same stem: both meshes would be {}; mesh them into \
+                 separate --output folders",
+                other.display(),
+                file.display(),
+                path.display()
+            );
+        }
+        paths.push(path);
+    }
+    Ok(paths)
+}
+
 /// Writes one mesh per particle file.
 pub fn run(args: Args) -> anyhow::Result<()> {
     let files = particle_files(&args.inputs)?;
@@ -78,13 +113,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         MeshFormat::Obj => "obj",
         MeshFormat::Ply => "ply",
     };
+    args.surface.check()?;
+    let outputs = output_paths(&files, &args.output, ext)?;
     let bar = indicatif::ProgressBar::new(files.len() as u64).with_prefix("mesh");
-    for file in &files {
+    for (file, output) in files.iter().zip(&outputs) {
         let pos = positions(file)?;
         let mesh = reconstruct(&pos, args.radius, &args.surface)
             .with_context(|| format!("meshing {}", file.display()))?;
-        let stem = file.file_stem().context("a file name")?.to_string_lossy();
-        mesh.write(&args.output.join(format!("{stem}.{ext}")))?;
+        mesh.write(output)?;
         bar.inc(1);
     }
     bar.finish_and_clear();

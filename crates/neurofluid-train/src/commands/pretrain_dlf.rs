@@ -93,6 +93,7 @@ impl EventSink for ExportWeights<'_> {
             let dir = crate::trainer::checkpoint::latest(self.checkpoints)
                 .with_context(|| format!("no checkpoint in {}", self.checkpoints.display()))?;
             let source = dir.join("dlf.bpk");
+            crate::trainer::checksums::verify_file(&source)?;
             let bytes =
                 std::fs::read(&source).with_context(|| format!("reading {}", source.display()))?;
             neurofluid_core::atomic::write_bytes(self.output, &bytes)
@@ -112,8 +113,44 @@ fn reset_checkpoints(dir: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Checks, before any training, that the weights can be written to `output`: a file name in
+/// an existing folder where a file can be created, not a folder.
+fn check_output(output: &Path) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        !output.is_dir(),
+        "--output {} is a folder; expected a weights file name (e.g. dlf.bpk)",
+        output.display()
+    );
+    anyhow::ensure!(
+        output.file_name().is_some(),
+        "--output {}: expected a weights file name (e.g. dlf.bpk)",
+        output.display()
+    );
+    let parent = output
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    anyhow::ensure!(
+        parent.is_dir(),
+        "--output {}: the folder {} does not exist",
+        output.display(),
+        parent.display()
+    );
+    let probe = parent.join(format!(".pretrain-dlf-probe.{}", std::process::id()));
+    std::fs::write(&probe, b"").with_context(|| {
+        format!(
+            "--output {}: cannot write in {}",
+            output.display(),
+            parent.display()
+        )
+    })?;
+    std::fs::remove_file(&probe).with_context(|| format!("removing {}", probe.display()))?;
+    Ok(())
+}
+
 /// Runs the training.
 pub fn run(args: Args) -> anyhow::Result<()> {
+    check_output(&args.output)?;
     let device = parse_device(&args.device)?.autodiff();
     let (train, up) = load_sequences(&args.data)?;
     let val = match &args.val {
@@ -174,6 +211,43 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// An output that cannot be written is refused before any training.
+    #[test]
+    fn the_output_is_checked_first() {
+        let dir = tempfile::tempdir().unwrap();
+        let err = check_output(dir.path()).unwrap_err().to_string();
+        assert!(err.contains("is a folder"), "{err}");
+        let missing = dir.path().join("no/such/folder/dlf.bpk");
+        let err = check_output(&missing).unwrap_err().to_string();
+        assert!(err.contains("does not exist"), "{err}");
+        check_output(&dir.path().join("dlf.bpk")).unwrap();
+        assert_eq!(
+            std::fs::read_dir(dir.path()).unwrap().count(),
+            0,
+            "the probe stays"
+        );
+        let args = Args {
+            data: dir.path().join("nothing"),
+            val: None,
+            init: None,
+            output: missing,
+            train: SupervisedConfig {
+                iterations: 1,
+                batch_size: 1,
+                lr: 1e-5,
+                validate_every: 1,
+                frame_skip: 1,
+                no_rotation: false,
+                seed: 1,
+            },
+            device: "cpu".into(),
+            fresh: false,
+        };
+        // the data is missing too, but the output is named first
+        let err = format!("{:#}", run(args).unwrap_err());
+        assert!(err.contains("--output"), "{err}");
+    }
     use neurofluid_dlf::records::{RecordFrame, write_record};
     use neurofluid_dlf::rollout::rollout;
     use neurofluid_dlf::scene::{block_in_box, dlf_wall_spacing};

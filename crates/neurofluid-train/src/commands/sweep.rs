@@ -32,8 +32,8 @@ pub struct Args {
     #[arg(long)]
     pub keep_going: bool,
     /// Run nothing: tabulate the reports the runs' folders already hold (a run whose joint stage
-    /// is unfinished or was trained under other settings, or that has no report, gets an empty
-    /// row marked with its state); needs no scheduler
+    /// is unfinished or was trained under other settings, or that has no report or one that
+    /// scored an earlier checkpoint, gets an empty row marked with its state); needs no scheduler
     #[arg(long, alias = "table-only", group = "mode")]
     pub table: bool,
     /// Run nothing: print each run's state (pending, running, stopped, done, failed and why)
@@ -204,9 +204,9 @@ fn table(sweep: &Sweep, device: Option<&str>) -> anyhow::Result<()> {
 fn saved_report(exp: &Experiment) -> anyhow::Result<EvalReport> {
     let run = Run::open_existing(exp.clone())?;
     crate::stages::preflight::check(&run, &[Stage::Eval], Start::Resume)?;
-    Ok(EvalReport::read_json(
-        &run.stage_dir(Stage::Eval.folder()).join(JSON_FILE),
-    )?)
+    let report = EvalReport::read_json(&run.stage_dir(Stage::Eval.folder()).join(JSON_FILE))?;
+    crate::stages::eval::check_current(&run, &report)?;
+    Ok(report)
 }
 
 /// Prints each run's recorded state.

@@ -226,6 +226,7 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
         &run.stage_dir(super::joint::STAGE).display().to_string(),
         Windows::from_lengths(train_len, test.len()),
     );
+    report.scored_seal = scored_seal(run)?;
     report.initial_from_images =
         run.exp.scene.initial == crate::config::InitialParticles::FromImages;
     report.nvs_baselines = super::baseline::read_all(run)?;
@@ -418,6 +419,32 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
     crate::plot::plot_distances(&report, &dir.join(DISTANCE_PLOT))?;
     log_images(run, &report)?;
     Ok(report)
+}
+
+/// The seal of the joint checkpoint an evaluation of `run` scores (its latest).
+fn scored_seal(run: &Run) -> anyhow::Result<Option<String>> {
+    let stage_dir = run.stage_dir(super::joint::STAGE);
+    match crate::trainer::checkpoint::latest(&stage_dir) {
+        Some(dir) => crate::trainer::checksums::seal_digest(&dir),
+        None => Ok(None),
+    }
+}
+
+/// Checks that `report` (read from `run`'s evaluation folder) scored the joint stage's current
+/// checkpoint: a report made before the stage went on describes another model.
+pub fn check_current(run: &Run, report: &EvalReport) -> anyhow::Result<()> {
+    let now = scored_seal(run)?;
+    anyhow::ensure!(
+        report.scored_seal.is_some() && report.scored_seal == now,
+        "the report in {} scored {} (seal {}), not the joint stage's current checkpoint \
+         (seal {}, step {}): it is stale; evaluate again",
+        run.stage_dir(STAGE).display(),
+        report.checkpoint,
+        report.scored_seal.as_deref().unwrap_or("unrecorded"),
+        now.as_deref().unwrap_or("none"),
+        crate::trainer::checkpoint::saved_step(&run.stage_dir(super::joint::STAGE))
+    );
+    Ok(())
 }
 
 /// The evaluation's image scores in the run's metrics log: one `eval-<view>` row per render

@@ -1,16 +1,18 @@
-//! Preflight: every input the stages of a run will read (weights, every image and particle file,
-//! the box, the views named in the config, the checkpoints a stage starts from) is read and
-//! checked before the first iteration, and every problem is listed at once, so a bad file is
+//! Preflight: every input the stages of a run will read (weights, every image, camera and
+//! particle file, the box, the views named in the config, the checkpoints a stage starts from)
+//! is read and checked before the first iteration, as is whether the images can supply the
+//! rays each stage asks for, and every problem is listed at once, so a bad file is
 //! not found hours into a run.
 
 use neurofluid_core::scene::{Role, Scene};
 
 use super::nerf::{NerfData, NerfKind};
 use super::run_folder::{Run, Start};
-use super::views::{check_sequence, load_particles, require_warmup_every_frame};
+use super::views::{check_sequence, load_particles, ray_share, require_warmup_every_frame};
 use super::{eval, initial, joint, warmup};
 use crate::config::InitialParticles;
 use crate::config::StageKind;
+use crate::sampler::Rng;
 use crate::trainer::checkpoint;
 
 /// The stages a command will run.
@@ -77,8 +79,29 @@ fn images(p: &mut Problems, scene: &Scene, role: Role, views: &[String], frames:
                 || format!("{role:?} view {view}, frame {t}"),
                 scene.image(role, view, t),
             );
+            p.check(
+                || format!("{role:?} view {view}, frame {t}"),
+                scene.camera(role, view, t),
+            );
         }
     }
+}
+
+/// `count` distinct rays can be drawn from a `size` image in the first steps' precrop window
+/// (`precrop`) and over the whole image: the sampler the stage uses answers.
+fn rays_fit(p: &mut Problems, what: &str, count: usize, size: (u32, u32), precrop: Option<f64>) {
+    for crop in [precrop, None] {
+        p.check(
+            || format!("{what} ({}×{} images)", size.0, size.1),
+            Rng::new(0).sample_pixels(count, size.0, size.1, crop),
+        );
+    }
+}
+
+/// The image size of `view` in `role`'s split, if the scene has it (a missing view is
+/// reported by [`images`]).
+fn image_size(scene: &Scene, role: Role, view: &str) -> Option<(u32, u32)> {
+    scene.view_split(role, view).ok().map(|v| v.image_size)
 }
 
 /// A finished stage another stage starts from: its checkpoint must exist, hold all of its steps
@@ -141,7 +164,19 @@ pub fn check(run: &Run, stages: &[Stage], start: Start) -> anyhow::Result<()> {
     ];
     for (stage, kind, needed) in nerfs {
         if stages.contains(&stage) && needed {
-            p.error(NerfData::load(scene, kind, &exp.warmup.views(scene), false).map(|_| ()));
+            match NerfData::load(scene, kind, &exp.warmup.views(scene), false) {
+                Ok(data) => {
+                    let cfg = &exp.nerf;
+                    let k = cfg.images_per_step.min(data.images.len()).max(1);
+                    for image in &data.images {
+                        let c = &image.view.camera;
+                        let count = ray_share(cfg.rays, k, 0).min((c.width * c.height) as usize);
+                        let what = format!("nerf.rays ({} per image)", count);
+                        rays_fit(&mut p, &what, count, (c.width, c.height), cfg.precrop_at(0));
+                    }
+                }
+                Err(e) => p.0.push(format!("{e:#}")),
+            }
         }
     }
     if from_images
@@ -164,6 +199,18 @@ pub fn check(run: &Run, stages: &[Stage], start: Start) -> anyhow::Result<()> {
         if let Some(v) = exp.warmup.preview_view(scene) {
             images(&mut p, scene, Role::Test, &[v], &[t0]);
         }
+        for view in exp.warmup.views(scene) {
+            if let Some(size) = image_size(scene, Role::Warmup, &view) {
+                let what = format!("warmup.rays (view {view})");
+                rays_fit(
+                    &mut p,
+                    &what,
+                    exp.warmup.rays,
+                    size,
+                    exp.warmup.precrop_at(0),
+                );
+            }
+        }
     }
     if stages.contains(&Stage::Joint) {
         let frames: Vec<usize> = scene.frames(Role::Train).collect();
@@ -172,6 +219,32 @@ pub fn check(run: &Run, stages: &[Stage], start: Start) -> anyhow::Result<()> {
                 "the training split has {} frame(s); joint training needs at least 2",
                 frames.len()
             ));
+        }
+        let joint_views = exp.joint.view(scene).map(|v| (Role::Train, v)).into_iter();
+        let joint_views: Vec<(Role, String)> = joint_views
+            .chain(
+                exp.joint
+                    .extra_views
+                    .iter()
+                    .map(|v| (Role::Warmup, v.clone())),
+            )
+            .collect();
+        for (i, (role, view)) in joint_views.iter().enumerate() {
+            if let Some(size) = image_size(scene, *role, view) {
+                let count = ray_share(exp.joint.rays, joint_views.len(), i);
+                let what = format!("joint.rays ({count} for view {view})");
+                rays_fit(&mut p, &what, count, size, exp.joint.precrop_at(0));
+                if i == 0 {
+                    // the diagnostics draw all of joint.rays from the training view
+                    rays_fit(
+                        &mut p,
+                        "joint.rays (diagnostics)",
+                        exp.joint.rays,
+                        size,
+                        None,
+                    );
+                }
+            }
         }
         match exp.joint.view(scene) {
             Some(v) => images(&mut p, scene, Role::Train, &[v], &frames),
@@ -225,6 +298,16 @@ pub fn check(run: &Run, stages: &[Stage], start: Start) -> anyhow::Result<()> {
         if !stages.contains(&Stage::Joint) {
             finished(&mut p, run, Stage::Joint, StageKind::Joint, joint_steps);
         }
+    }
+    // every stage logs to the run's metrics: a damaged log stops the run now, not after hours
+    // (the evaluation reads it for its curves after the renders)
+    let log = run.dir.join(crate::metrics_log::JSONL_FILE);
+    let log_removed = start == Start::Fresh && stages.contains(&Stage::ALL[0]);
+    if !log_removed && log.is_file() {
+        p.check(
+            || "the run's metrics log".to_string(),
+            crate::metrics_log::read_jsonl(&log),
+        );
     }
     p.0.dedup();
     if p.0.is_empty() {

@@ -72,6 +72,7 @@ impl Run {
     /// them left (nothing of a folder the tool did not make); writes the resolved config and
     /// appends any setting that changed since the previous session to `config.history`.
     pub fn prepare(exp: Experiment, start: Start, stages: &[Stage]) -> anyhow::Result<Self> {
+        check_ours(&exp.out_dir(), start)?;
         let lock = FolderLock::acquire(&exp.out_dir())?;
         Self::prepare_locked(exp, start, stages, lock)
     }
@@ -256,4 +257,37 @@ impl Run {
         }
         Ok(())
     }
+}
+
+/// Refuses a run folder this tool did not make before anything is written to it: one that
+/// holds files of other names and no resolved config (a user's folder given as `out_dir`), and,
+/// under `--fresh`, one that is a symbolic link (its removals would reach the link's target).
+fn check_ours(dir: &Path, start: Start) -> anyhow::Result<()> {
+    let Ok(meta) = std::fs::symlink_metadata(dir) else {
+        return Ok(());
+    };
+    anyhow::ensure!(
+        !(start == Start::Fresh && meta.file_type().is_symlink()),
+        "the run folder {} is a symbolic link: --fresh removes only from a real folder (give \
+         the link's target as the run folder)",
+        dir.display()
+    );
+    if dir.join(RESOLVED_FILE).is_file() {
+        return Ok(());
+    }
+    let entries = std::fs::read_dir(dir)
+        .with_context(|| format!("reading the run folder {}", dir.display()))?;
+    let foreign: Vec<String> = entries
+        .filter_map(Result::ok)
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n != crate::trainer::lock::LOCK_FILE && !RUN_CONTENTS.contains(&n.as_str()))
+        .collect();
+    anyhow::ensure!(
+        foreign.is_empty(),
+        "{} is not a run folder of this tool (no {RESOLVED_FILE}) and holds other files ({}): \
+         choose a new or empty folder as the run folder",
+        dir.display(),
+        foreign.join(", ")
+    );
+    Ok(())
 }

@@ -1,10 +1,10 @@
 //! Where an experiment's scene comes from: an existing folder, or a built-in scene generated on
 //! first use.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use neurofluid_core::scene::{MANIFEST_FILE, Role};
+use neurofluid_core::scene::{MANIFEST_FILE, Role, SceneManifest};
 use neurofluid_scenegen::{Preset, SceneConfig};
 
 use crate::config::Experiment;
@@ -58,6 +58,17 @@ pub fn generate_scene_if_missing(exp: &Experiment) -> anyhow::Result<PathBuf> {
                     seconds = report.simulate_s + report.render_s + report.write_s,
                     "scene generated"
                 );
+            } else if let Some(recorded) = recorded_generator(&dir)?
+                && let changes = preset.changes_from(&recorded)
+                && !changes.is_empty()
+            {
+                anyhow::bail!(
+                    "the scene in {} was generated with other settings ({}): the experiment's \
+                     [scene] / [scene.generate] settings no longer describe it. Put them back, \
+                     or move the folder away (or set scene.dir) to generate the scene anew",
+                    dir.display(),
+                    changes.join(", ")
+                );
             } else if cfg.warmup_every_frame == Some(true)
                 && neurofluid_core::scene::Scene::open(&dir)
                     .is_ok_and(|s| s.frames(Role::Warmup).len() < s.frames(Role::Train).len())
@@ -77,4 +88,11 @@ pub fn generate_scene_if_missing(exp: &Experiment) -> anyhow::Result<PathBuf> {
         }
     }
     Ok(dir)
+}
+
+/// The generator settings a generated scene's manifest records (`None` for a scene without).
+fn recorded_generator(dir: &Path) -> anyhow::Result<Option<serde_json::Value>> {
+    let path = dir.join(MANIFEST_FILE);
+    let manifest = SceneManifest::read(&path)?;
+    Ok(manifest.generator)
 }

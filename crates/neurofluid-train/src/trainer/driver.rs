@@ -109,6 +109,8 @@ impl<'s> Driver<'s> {
         };
         let state = checkpoint::load_matching(&dir, trainer.stage(), &self.settings)?;
         trainer.load(&dir, state.step, state.trainer)?;
+        // the files the stage read without its own check (carried particle state) too
+        super::checksums::verify(&dir)?;
         Ok((state.step, Some(dir)))
     }
 
@@ -173,16 +175,17 @@ impl<'s> Driver<'s> {
                 Err(e) => tracing::warn!("while discarding the suspect checkpoint: {e:#}"),
             }
         }
-        let last = checkpoint::latest(&self.stage_dir).map_or_else(
-            || "there is no checkpoint of this stage yet".to_string(),
-            |dir| {
-                format!(
+        let last = match checkpoint::latest(&self.stage_dir) {
+            None => "there is no checkpoint of this stage yet".to_string(),
+            Some(dir) => match super::checksums::verify(&dir) {
+                Ok(()) => format!(
                     "the last good checkpoint is {} (after {} steps)",
                     dir.display(),
                     checkpoint::saved_step(&self.stage_dir)
-                )
+                ),
+                Err(e) => format!("there is no good checkpoint: {e:#}"),
             },
-        );
+        };
         let message = format!(
             "{stage} stopped at step {step}: {what}; {last}{discarded}. Resuming replays the same \
              steps: change what diverged (a learning rate, an input) and rerun with --fresh"

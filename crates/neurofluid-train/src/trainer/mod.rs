@@ -9,6 +9,7 @@
 //! [`EventSink`]s, never code inside a loop.
 
 pub mod checkpoint;
+pub mod checksums;
 mod driver;
 mod events;
 pub mod guard;

@@ -1,0 +1,86 @@
+//! Names and paths that come from data files, checked before they are joined to a folder: a
+//! name that becomes a file or folder name must be exactly one path component, and a relative
+//! path must stay inside its dataset folder (no absolute paths, no `..` climbing out).
+//! The checks are lexical: they look at the text, not at what is on disk.
+
+use std::path::{Component, Path};
+
+/// Checks that `name` is exactly one ordinary path component: not empty, not `.` or `..`, and
+/// without `/`, `\` or NUL, so joining it to a folder names something inside that folder.
+pub fn one_component(name: &str) -> Result<(), String> {
+    let ok = !name.is_empty()
+        && name != "."
+        && name != ".."
+        && !name.contains(['/', '\\', '\0'])
+        && matches!(
+            Path::new(name).components().collect::<Vec<_>>().as_slice(),
+            [Component::Normal(_)]
+        );
+    if ok {
+        return Ok(());
+    }
+    Err(format!(
+        "a plain name (one path component, no `/`, `\\` or `..`), found {name:?}"
+    ))
+}
+
+/// Checks that `rel`, joined to a folder `depth` levels below the dataset folder, names
+/// something inside the dataset folder: relative, and its `..` never climb above it.
+pub fn confined(rel: &str, depth: usize) -> Result<(), String> {
+    let outside = || {
+        format!(
+            "a path inside the dataset folder (relative, not climbing out with `..`), found \
+             {rel:?}"
+        )
+    };
+    if rel.contains('\0') || rel.starts_with('\\') {
+        return Err(outside());
+    }
+    let mut level = depth;
+    for c in Path::new(rel).components() {
+        match c {
+            Component::Normal(_) => level += 1,
+            Component::CurDir => {}
+            Component::ParentDir => level = level.checked_sub(1).ok_or_else(outside)?,
+            Component::RootDir | Component::Prefix(_) => return Err(outside()),
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_are_one_component() {
+        for ok in ["view_1", "v5 x", "a.b", "..x"] {
+            assert!(one_component(ok).is_ok(), "{ok}");
+        }
+        for bad in [
+            "",
+            ".",
+            "..",
+            "a/b",
+            "../../tmp/evil",
+            "/tmp",
+            "a\\b",
+            "x/",
+            "a\0",
+        ] {
+            assert!(one_component(bad).is_err(), "{bad:?}");
+        }
+    }
+
+    #[test]
+    fn paths_stay_inside() {
+        assert!(confined("train/0001", 1).is_ok());
+        assert!(confined("./particles/0001.npz", 2).is_ok());
+        assert!(confined("../box.pt", 1).is_ok());
+        assert!(confined("../../view_2/train/particles/1.npz", 2).is_ok());
+        for bad in ["../box.pt", "/etc/passwd", "a/../../b", "\\\\host\\x"] {
+            assert!(confined(bad, 0).is_err(), "{bad}");
+        }
+        assert!(confined("../../../x", 2).is_err());
+    }
+}
