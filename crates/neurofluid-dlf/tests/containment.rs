@@ -111,8 +111,8 @@ fn the_clamps_gradient_matches_finite_differences() {
     let (pc, vc) = contain(p.clone(), v.clone(), &container, dt);
     let loss = (pc * points_tensor(&a, &device)).sum() + (vc * points_tensor(&b, &device)).sum();
     let grads = loss.backward();
-    let gp = tensor_points(&p.grad(&grads).unwrap().into());
-    let gv = tensor_points(&v.grad(&grads).unwrap().into());
+    let gp = tensor_points(&p.grad(&grads).unwrap());
+    let gv = tensor_points(&v.grad(&grads).unwrap());
     let h = 1e-2;
     for i in 0..3 {
         for k in 0..3 {

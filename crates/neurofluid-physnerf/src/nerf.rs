@@ -451,7 +451,7 @@ mod tests {
             .val()
             .grad(&grads)
             .unwrap();
-        g.into_data().to_vec::<f32>().unwrap()[0]
+        g.into_data().try_to_vec::<f32>().unwrap()[0]
     }
 
     #[test]

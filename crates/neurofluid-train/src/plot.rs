@@ -143,8 +143,10 @@ pub fn render_curves(rows: &[MetricsRow]) -> RgbImage {
     }
     // the quantities below loss and PSNR, each a row when some row logged it
     type Column = fn(&MetricsRow) -> Option<f64>;
+    /// A quantity drawn grey beside a row's own, with its name.
+    type Companion = Option<(&'static str, Column)>;
     // (title, the row's quantity, a grey companion drawn beside it)
-    let extra: Vec<(&str, Column, Option<(&str, Column)>)> = [
+    let extra: Vec<(&str, Column, Companion)> = [
         (
             "rollout d (training frames)",
             (|r: &MetricsRow| r.rollout_d) as Column,
