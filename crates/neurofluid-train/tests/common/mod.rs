@@ -105,12 +105,16 @@ pub fn metrics(run: &Path) -> Vec<(String, u64, String, String)> {
         .collect()
 }
 
-/// The evaluation's numbers (without the experiment's name and the checkpoint's description).
+/// The evaluation's numbers (without the experiment's name, the checkpoint's description and
+/// its seal).
 pub fn report(run: &Path) -> serde_json::Value {
     let text = std::fs::read_to_string(run.join("eval/report.json")).unwrap();
     let mut v: serde_json::Value = serde_json::from_str(&text).unwrap();
     let o = v.as_object_mut().unwrap();
     o.remove("experiment");
     o.remove("checkpoint");
+    // the seal names the checkpoint's bytes, and Burn writes a random id per parameter into
+    // each weights file: equal weights, another seal in every process
+    o.remove("scored_seal");
     v
 }
