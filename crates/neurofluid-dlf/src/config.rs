@@ -1,4 +1,6 @@
-//! Run-time settings of the DLF model: gravity, time step, frame, geometry mode.
+//! Run-time settings of the DLF model: gravity, time step, frame, geometry mode, container.
+
+use neurofluid_core::scene::Aabb;
 
 /// How the conv geometry (mapped coordinates, trilinear and window weights) enters autodiff.
 /// In files: `"constant"` or `"differentiable"`.
@@ -51,23 +53,6 @@ impl Frame {
     }
 }
 
-/// An axis-aligned container in the **scene** frame: the region every predicted particle is kept
-/// in when set ([`DlfConfig::container`]).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Container {
-    /// Lower corner (m).
-    pub min: [f32; 3],
-    /// Upper corner (m).
-    pub max: [f32; 3],
-}
-
-impl Container {
-    /// `p` moved to the nearest point of the container (each axis clamped).
-    pub fn clamp(&self, p: [f32; 3]) -> [f32; 3] {
-        std::array::from_fn(|a| p[a].clamp(self.min[a], self.max[a]))
-    }
-}
-
 /// Settings of a DLF model that are not weights.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DlfConfig {
@@ -83,10 +68,10 @@ pub struct DlfConfig {
     pub frame: Frame,
     /// Whether the conv geometry is differentiable.
     pub geometry: GeometryMode,
-    /// Keep every predicted particle inside this box (scene frame): a step that would carry a
+    /// Keep every predicted particle inside this box (scene frame, metres): a step that would carry a
     /// particle through a wall ends on the wall, its velocity the displacement it really made.
     /// `None` (the reference): the walls act only through the box particles' convolution.
-    pub container: Option<Container>,
+    pub container: Option<Aabb>,
 }
 
 impl Default for DlfConfig {

@@ -21,7 +21,7 @@ pub mod sparse;
 pub mod train;
 pub mod weights;
 
-pub use config::{Container, DlfConfig, Frame, GeometryMode};
+pub use config::{DlfConfig, Frame, GeometryMode};
 pub use conv::ContinuousConv;
 pub use geometry::{ConvGeometry, FILTER_EXTENT, HostGeometry, build_host_geometry};
 pub use loss::{dlf_step_loss, two_step_loss};

@@ -4,10 +4,11 @@ use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
 
-use crate::config::{Container, DlfConfig, GeometryMode};
+use crate::config::{DlfConfig, GeometryMode};
 use crate::conv::ContinuousConv;
 use crate::diff_geometry::differentiable_weights;
 use crate::geometry::{ConvGeometry, build_host_geometry};
+use neurofluid_core::scene::Aabb;
 
 /// Channel widths of the published model: layer 0 branches, layers 1, 2, 3.
 pub const LAYER_CHANNELS: [usize; 4] = [32, 64, 64, 3];
@@ -112,7 +113,7 @@ pub use neurofluid_core::tensors::{points_tensor, tensor_points};
 pub fn contain(
     pos: Tensor<2>,
     vel: Tensor<2>,
-    container: &Container,
+    container: &Aabb,
     dt: f32,
 ) -> (Tensor<2>, Tensor<2>) {
     let device = pos.device();

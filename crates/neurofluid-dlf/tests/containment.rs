@@ -6,17 +6,14 @@
 mod common;
 
 use common::{CaseScene, Scene, device, pretrained};
+use neurofluid_core::scene::Aabb;
+use neurofluid_dlf::DlfConfig;
 use neurofluid_dlf::net::{contain, points_tensor, tensor_points};
 use neurofluid_dlf::rollout::rollout;
-use neurofluid_dlf::{Container, DlfConfig};
-
-fn inside(p: [f32; 3], c: &Container) -> bool {
-    (0..3).all(|a| p[a] >= c.min[a] && p[a] <= c.max[a])
-}
 
 /// The stored falling-cube case with its lowest particles thrown down hard enough to pass the
 /// floor in one step.
-fn thrown_down() -> (Scene, Container) {
+fn thrown_down() -> (Scene, Aabb) {
     let mut scene = Scene::load("cubedrop2197_dlfwall");
     let floor = scene.pos.iter().map(|p| p[1]).fold(f32::INFINITY, f32::min);
     for (p, v) in scene.pos.iter().zip(scene.vel.iter_mut()) {
@@ -24,7 +21,7 @@ fn thrown_down() -> (Scene, Container) {
             v[1] = -40.0;
         }
     }
-    let c = Container {
+    let c = Aabb {
         min: scene.box_lo,
         max: scene.box_hi,
     };
@@ -51,7 +48,7 @@ fn a_contained_step_keeps_every_particle_inside_and_leaves_the_others_bit_identi
     };
     let (p_open, v_open) = step(&open);
     let (p_wall, v_wall) = step(&walled);
-    let escaped = p_open.iter().filter(|&&p| !inside(p, &container)).count();
+    let escaped = p_open.iter().filter(|&&p| !container.contains(p)).count();
     assert!(
         escaped > 0,
         "the thrown particles must pass the floor without the walls"
@@ -59,11 +56,11 @@ fn a_contained_step_keeps_every_particle_inside_and_leaves_the_others_bit_identi
     let dt = DlfConfig::default().dt;
     for i in 0..p_open.len() {
         assert!(
-            inside(p_wall[i], &container),
+            container.contains(p_wall[i]),
             "particle {i} at {:?}",
             p_wall[i]
         );
-        if inside(p_open[i], &container) {
+        if container.contains(p_open[i]) {
             assert_eq!(p_wall[i], p_open[i], "particle {i} moved though inside");
             assert_eq!(v_wall[i], v_open[i], "particle {i}'s velocity changed");
         } else {
@@ -83,7 +80,7 @@ fn a_contained_step_keeps_every_particle_inside_and_leaves_the_others_bit_identi
 #[test]
 fn the_clamps_gradient_matches_finite_differences() {
     let device = device().autodiff();
-    let container = Container {
+    let container = Aabb {
         min: [-1.0, 0.0, -1.0],
         max: [1.0, 2.0, 1.0],
     };
@@ -139,7 +136,7 @@ fn a_pretrained_rollout_stays_in_a_box_whose_floor_its_box_particles_do_not_hold
     let device = device();
     let scene = Scene::load("cubedrop2197_dlfwall");
     // the fluid falls onto the box particles' floor; this container's floor is 0.15 m higher
-    let mut container = Container {
+    let mut container = Aabb {
         min: scene.box_lo,
         max: scene.box_hi,
     };
@@ -166,7 +163,7 @@ fn a_pretrained_rollout_stays_in_a_box_whose_floor_its_box_particles_do_not_hold
     let r = rollout(&walled, &scene.pos, &scene.vel, &b, steps, |_| {});
     for (t, frame) in r.pos.iter().enumerate().skip(1) {
         for (i, &p) in frame.iter().enumerate() {
-            assert!(inside(p, &container), "step {t}: particle {i} at {p:?}");
+            assert!(container.contains(p), "step {t}: particle {i} at {p:?}");
             assert!(p.iter().all(|v| v.is_finite()));
         }
     }

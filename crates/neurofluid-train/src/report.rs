@@ -269,9 +269,7 @@ pub fn count_outside(
 ) -> usize {
     points
         .iter()
-        .filter(|p| {
-            (0..3).any(|a| p[a] < interior.min[a] - margin || p[a] > interior.max[a] + margin)
-        })
+        .filter(|&&p| !interior.within(p, margin))
         .count()
 }
 

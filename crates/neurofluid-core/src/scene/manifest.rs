@@ -92,7 +92,17 @@ pub struct Aabb {
 impl Aabb {
     /// True when `p` lies inside (boundary included).
     pub fn contains(&self, p: [f32; 3]) -> bool {
-        (0..3).all(|a| p[a] >= self.min[a] && p[a] <= self.max[a])
+        self.within(p, 0.0)
+    }
+
+    /// True when `p` lies no farther than `margin` outside the box on any axis.
+    pub fn within(&self, p: [f32; 3], margin: f32) -> bool {
+        (0..3).all(|a| p[a] >= self.min[a] - margin && p[a] <= self.max[a] + margin)
+    }
+
+    /// `p` moved to the nearest point of the box (each axis clamped).
+    pub fn clamp(&self, p: [f32; 3]) -> [f32; 3] {
+        std::array::from_fn(|a| p[a].clamp(self.min[a], self.max[a]))
     }
 
     /// The centre point.

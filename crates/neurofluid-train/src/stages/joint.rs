@@ -459,7 +459,7 @@ impl Trainer for JointTrainer {
             if !p.iter().all(|v| v.is_finite()) {
                 return Err(format!("predicted particle {i} is not finite ({p:?})"));
             }
-            if (0..3).any(|a| p[a] < b.min[a] - margin || p[a] > b.max[a] + margin) {
+            if !b.within(*p, margin) {
                 return Err(format!(
                     "predicted particle {i} left the box by more than its size (at {p:?}; the \
                      box interior is {:?}–{:?})",

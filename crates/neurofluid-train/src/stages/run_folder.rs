@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use burn::prelude::*;
 use neurofluid_core::scene::{Scene, UpAxis};
-use neurofluid_dlf::{Container, DlfConfig, DlfNet};
+use neurofluid_dlf::{DlfConfig, DlfNet};
 use neurofluid_physnerf::PhysNerfConfig;
 
 use super::nerf::NerfKind;
@@ -210,11 +210,7 @@ impl Run {
         cfg.dt = 1.0 / self.scene.manifest().fps;
         cfg.geometry = self.exp.dlf.geometry;
         if self.exp.dlf.containment == Containment::Box {
-            let b = self.scene.manifest().box_interior;
-            cfg.container = Some(Container {
-                min: b.min,
-                max: b.max,
-            });
+            cfg.container = Some(self.scene.manifest().box_interior);
         }
         cfg
     }
