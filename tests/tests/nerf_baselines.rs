@@ -171,7 +171,8 @@ fn particles_from_images_feed_every_stage() {
             ..data
         },
         run.exp.seed,
-    );
+    )
+    .unwrap();
     // the recovered particles are not the true ones: no alignment (it matches particles by
     // index), but a rollout d against the truth
     trainer.step(0).unwrap();

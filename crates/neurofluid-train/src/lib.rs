@@ -5,6 +5,7 @@ pub mod cli;
 pub mod commands;
 pub mod config;
 pub mod csv_text;
+pub mod density_prior;
 pub mod focus;
 pub mod mesh;
 pub mod metrics_log;

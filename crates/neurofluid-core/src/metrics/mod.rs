@@ -9,4 +9,5 @@ pub use image::{ImageError, RgbImage, psnr, ssim};
 pub use lpips::{Lpips, LpipsError};
 pub use particles::{
     ParticleDistance, gt_to_pred_distance, index_matched_distance, nearest_distances,
+    nearest_others,
 };

@@ -88,6 +88,34 @@ pub fn index_matched_distance(gt: &[[f32; 3]], pred: &[[f32; 3]]) -> ParticleDis
     summarise(d)
 }
 
+/// For every point, the indices of its `k` nearest other points, nearest first (all the others
+/// when there are at most `k`); `None` when a point is not finite.
+pub fn nearest_others(points: &[[f32; 3]], k: usize) -> Option<Vec<Vec<usize>>> {
+    if !points.iter().flatten().all(|v| v.is_finite()) {
+        return None;
+    }
+    let Some(want) = std::num::NonZero::new((k + 1).min(points.len())) else {
+        return Some(vec![Vec::new(); points.len()]);
+    };
+    let pts: Vec<[f64; 3]> = points.iter().map(|p| p.map(f64::from)).collect();
+    let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&pts);
+    Some(
+        pts.par_iter()
+            .enumerate()
+            .map(|(i, q)| {
+                let mut found: Vec<usize> = tree
+                    .nearest_n::<SquaredEuclidean>(q, want)
+                    .into_iter()
+                    .map(|n| n.item as usize)
+                    .filter(|&j| j != i)
+                    .collect();
+                found.truncate(k);
+                found
+            })
+            .collect(),
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -172,5 +200,33 @@ mod tests {
         assert!((gt_to_pred_distance(&gt, &pred).mean - 500.0).abs() < 1e-9);
         assert_eq!(gt_to_pred_distance(&pred, &gt).mean, 0.0);
         assert!(gt_to_pred_distance(&gt, &[]).mean.is_nan());
+    }
+    #[test]
+    fn nearest_others_match_brute_force() {
+        let mut rng = 7u64;
+        let mut next = || {
+            rng = rng
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (rng >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let pts: Vec<[f32; 3]> = (0..300).map(|_| [next(), next(), next()]).collect();
+        let k = 20;
+        let found = nearest_others(&pts, k).unwrap();
+        for (i, p) in pts.iter().enumerate() {
+            let d2 = |j: usize| (0..3).map(|a| (pts[j][a] - p[a]).powi(2)).sum::<f32>();
+            let mut brute: Vec<usize> = (0..pts.len()).filter(|&j| j != i).collect();
+            brute.sort_by(|&a, &b| d2(a).total_cmp(&d2(b)));
+            assert!(!found[i].contains(&i));
+            assert_eq!(found[i].len(), k);
+            // the same k distances (ties could swap indices)
+            let got: Vec<f32> = found[i].iter().map(|&j| d2(j)).collect();
+            let want: Vec<f32> = brute[..k].iter().map(|&j| d2(j)).collect();
+            assert_eq!(got, want, "point {i}");
+        }
+        // fewer points than k: every other point
+        let few = nearest_others(&pts[..4], k).unwrap();
+        assert!(few.iter().all(|f| f.len() == 3));
+        assert!(nearest_others(&[[f32::NAN, 0.0, 0.0]], 3).is_none());
     }
 }

@@ -298,6 +298,9 @@ impl Experiment {
         if !(j.silhouette_weight.is_finite() && j.silhouette_weight >= 0.0) {
             return bad("joint.silhouette_weight", "expected a finite weight ≥ 0");
         }
+        if !(j.density_weight.is_finite() && j.density_weight >= 0.0) {
+            return bad("joint.density_weight", "expected a finite weight ≥ 0");
+        }
         let n = &self.nerf;
         if let Some((field, msg)) = n.model.problem() {
             return bad(&format!("nerf.model.{field}"), &msg);
@@ -516,8 +519,13 @@ mod tests {
         assert_eq!(j.physnerf_optim, r.physnerf_optim);
         assert_eq!(j.dlf_optim, r.dlf_optim);
         assert_eq!(
-            (j.boundary_weight, j.foreground_rays, j.silhouette_weight),
-            (1.0, 0.0, 0.0)
+            (
+                j.boundary_weight,
+                j.foreground_rays,
+                j.silhouette_weight,
+                j.density_weight
+            ),
+            (1.0, 0.0, 0.0, 0.0)
         );
         assert!(j.extra_views.is_empty());
         // the budgets are the file's
@@ -615,6 +623,10 @@ mod tests {
             (
                 "[scene]\nbuiltin = \"watercube\"\n[joint]\nsilhouette_weight = -1.0\n",
                 "joint.silhouette_weight",
+            ),
+            (
+                "[scene]\nbuiltin = \"watercube\"\n[joint]\ndensity_weight = nan\n",
+                "joint.density_weight",
             ),
             (
                 "[scene]\nbuiltin = \"watercube\"\n[joint.physnerf_optim.schedule]\nkind = \"multi_step\"\nmilestones = [5, 3]\ngamma = 0.5\n",

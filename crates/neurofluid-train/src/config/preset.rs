@@ -57,6 +57,7 @@ pub fn apply(exp: &mut Experiment) -> Vec<Change> {
     j.boundary_weight = paper.boundary_weight;
     j.foreground_rays = paper.foreground_rays;
     j.silhouette_weight = paper.silhouette_weight;
+    j.density_weight = paper.density_weight;
     j.extra_views = paper.extra_views;
     Settings::all(exp).changes_since(&before)
 }

@@ -387,6 +387,10 @@ pub struct JointSection {
     /// projected particle covers (true, both sides); false keeps only its spray side (particles
     /// projected outside the fluid are pulled onto it).
     pub silhouette_cover: bool,
+    /// Weight of the density prior ([`crate::density_prior`]): every predicted particle pulled
+    /// back to the neighbourhood a fluid particle has, where the renderer's gate cannot see it.
+    /// 0 = the reference's image loss alone.
+    pub density_weight: f64,
     /// Training view; unset = the scene manifest's (view_1).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub view: Option<String>,
@@ -417,6 +421,7 @@ impl Default for JointSection {
             foreground_rays: 0.0,
             silhouette_weight: 0.0,
             silhouette_cover: true,
+            density_weight: 0.0,
             view: None,
             extra_views: Vec::new(),
             log_every: 49,

@@ -42,6 +42,7 @@ const ADDED_KEYS: &[(&str, &str)] = &[
     ("dlf.containment", "\"none\""),
     ("joint.silhouette_cover", "true"),
     ("nerf.model.density", "\"relu\""),
+    ("joint.density_weight", "0.0"),
 ];
 
 /// The stages whose state the settings shape.

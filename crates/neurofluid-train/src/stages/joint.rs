@@ -39,6 +39,7 @@ use super::views::{
 };
 use super::warmup;
 use crate::config::{JointSection, StageKind};
+use crate::density_prior::DensityPrior;
 use crate::focus::{image_foreground, mark_particles, sample_focused};
 use crate::metrics_log::{MetricsLog, psnr_from_mse};
 use crate::sampler::Rng;
@@ -284,6 +285,8 @@ pub struct JointTrainer {
     seed: u64,
     /// The target frame of the last step (what a preview shows).
     last_target: usize,
+    /// `joint.density_weight` > 0: the density prior.
+    density: Option<DensityPrior>,
 }
 
 impl JointTrainer {
@@ -295,11 +298,15 @@ impl JointTrainer {
         dlf: DlfNet,
         data: JointData,
         seed: u64,
-    ) -> Self {
+    ) -> anyhow::Result<Self> {
         let device = dlf.device();
         let boundary = dlf.boundary(&data.walls.0, &data.walls.1, &device);
         let state = initial_state(&data, &device);
-        Self {
+        // the gate's count: a particle with fewer close neighbours renders as nothing
+        let density = (cfg.density_weight > 0.0)
+            .then(|| DensityPrior::new(&data.initial.pos, physnerf.config.k, cfg.density_weight))
+            .transpose()?;
+        Ok(Self {
             opt_physnerf: cfg.physnerf_optim.adam(),
             opt_dlf: cfg.dlf_optim.adam(),
             rng: Rng::stream(seed, STAGE),
@@ -315,7 +322,8 @@ impl JointTrainer {
             alignment: (0.0, 0),
             seed,
             last_target: 1,
-        }
+            density,
+        })
     }
 
     /// The grounded models.
@@ -381,7 +389,13 @@ impl Trainer for JointTrainer {
                 None => g,
             });
         }
-        let surrogate = dlf_surrogate(&pred.pos, dx.as_deref()) + boundary;
+        let mut surrogate = dlf_surrogate(&pred.pos, dx.as_deref()) + boundary;
+        if let Some(prior) = &self.density
+            && let (Some(term), _) = prior.loss(&pred.pos)
+        {
+            self.pending_loss += scalar(&term);
+            surrogate = surrogate + term;
+        }
         if let Some(g) = &dx {
             self.record_alignment(t + 1, &pred.pos, g);
         }
@@ -677,7 +691,7 @@ pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::
     );
     let physnerf = warmup::load_trained(run)?;
     let dlf = run.load_dlf(&run.exp.dlf.weights)?;
-    let mut trainer = JointTrainer::new(cfg, physnerf, dlf, data, run.exp.seed);
+    let mut trainer = JointTrainer::new(cfg, physnerf, dlf, data, run.exp.seed)?;
     let cadence = Cadence {
         log_every: cfg.log_every,
         evaluate_every: cfg.preview_every,
