@@ -364,3 +364,51 @@ fn silhouette_term_joins_the_loss_and_moves_dlf() {
     // and its gradient reaches DLF
     assert!(params(&runs[0].grounded.dlf) != params(&runs[1].grounded.dlf));
 }
+
+#[test]
+fn anchor_costs_nothing_at_the_start_and_holds_dlf_near_the_pretrained_step() {
+    // two runs that differ only in the anchor's weight: the first window's loss is the same (the
+    // grounded DLF starts as the pretrained one, so the anchor term is exactly 0), and after
+    // training the anchored DLF's step from the first frame stays nearer the pretrained step
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let mut runs = Vec::new();
+    for weight in [0.0, 1.0] {
+        let mut e = tiny_experiment(tmp.path(), &format!("anchor{weight}"));
+        e.apply_overrides(&[format!("joint.anchor_weight={weight}")])
+            .unwrap();
+        runs.push(ground(e));
+    }
+    let first_loss = |g: &Grounding| rows_of(&g.jsonl, "joint")[0].loss;
+    assert_eq!(first_loss(&runs[0]), first_loss(&runs[1]));
+
+    let run = &runs[0].run;
+    let data = JointData::load(&run.scene, &run.exp.joint).unwrap();
+    let pretrained = run.load_dlf(&run.exp.dlf.weights).unwrap();
+    let device = pretrained.device();
+    let boundary = pretrained.boundary(&data.walls.0, &data.walls.1, &device);
+    let step = |net: &neurofluid_dlf::DlfNet| {
+        tensor_points(
+            &net.step(
+                points_tensor(&data.initial.pos, &device),
+                points_tensor(&data.initial.vel, &device),
+                &boundary,
+            )
+            .pos,
+        )
+    };
+    let reference = step(&pretrained);
+    let moved = |g: &Grounding| {
+        step(&g.grounded.dlf)
+            .iter()
+            .zip(&reference)
+            .map(|(a, b)| (0..3).map(|k| f64::from(a[k] - b[k]).powi(2)).sum::<f64>())
+            .sum::<f64>()
+    };
+    let (free, anchored) = (moved(&runs[0]), moved(&runs[1]));
+    assert!(free > 0.0, "the free DLF did not move");
+    assert!(
+        anchored < 0.5 * free,
+        "anchored step moved {anchored} vs {free} unanchored"
+    );
+}

@@ -301,6 +301,9 @@ impl Experiment {
         if !(j.density_weight.is_finite() && j.density_weight >= 0.0) {
             return bad("joint.density_weight", "expected a finite weight ≥ 0");
         }
+        if !(j.anchor_weight.is_finite() && j.anchor_weight >= 0.0) {
+            return bad("joint.anchor_weight", "expected a finite weight ≥ 0");
+        }
         let n = &self.nerf;
         if let Some((field, msg)) = n.model.problem() {
             return bad(&format!("nerf.model.{field}"), &msg);
@@ -523,9 +526,10 @@ mod tests {
                 j.boundary_weight,
                 j.foreground_rays,
                 j.silhouette_weight,
-                j.density_weight
+                j.density_weight,
+                j.anchor_weight
             ),
-            (1.0, 0.0, 0.0, 0.0)
+            (1.0, 0.0, 0.0, 0.0, 0.0)
         );
         assert!(j.extra_views.is_empty());
         // the budgets are the file's
@@ -627,6 +631,10 @@ mod tests {
             (
                 "[scene]\nbuiltin = \"watercube\"\n[joint]\ndensity_weight = nan\n",
                 "joint.density_weight",
+            ),
+            (
+                "[scene]\nbuiltin = \"watercube\"\n[joint]\nanchor_weight = -1.0\n",
+                "joint.anchor_weight",
             ),
             (
                 "[scene]\nbuiltin = \"watercube\"\n[joint.physnerf_optim.schedule]\nkind = \"multi_step\"\nmilestones = [5, 3]\ngamma = 0.5\n",

@@ -391,6 +391,10 @@ pub struct JointSection {
     /// back to the neighbourhood a fluid particle has, where the renderer's gate cannot see it.
     /// 0 = the reference's image loss alone.
     pub density_weight: f64,
+    /// Weight of the anchor term ([`crate::stages::joint::anchor_penalty`]): each grounded step
+    /// kept near the pretrained DLF's step from the same state, in particle radii², where the
+    /// images do not ask for a change. 0 = the reference's image loss alone.
+    pub anchor_weight: f64,
     /// Training view; unset = the scene manifest's (view_1).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub view: Option<String>,
@@ -422,6 +426,7 @@ impl Default for JointSection {
             silhouette_weight: 0.0,
             silhouette_cover: true,
             density_weight: 0.0,
+            anchor_weight: 0.0,
             view: None,
             extra_views: Vec::new(),
             log_every: 49,

@@ -43,6 +43,7 @@ const ADDED_KEYS: &[(&str, &str)] = &[
     ("joint.silhouette_cover", "true"),
     ("nerf.model.density", "\"relu\""),
     ("joint.density_weight", "0.0"),
+    ("joint.anchor_weight", "0.0"),
 ];
 
 /// The stages whose state the settings shape.

@@ -70,6 +70,24 @@ pub fn boundary_penalty(pos: Tensor<2>, interior: &Aabb) -> Tensor<1> {
     (below + above).mean()
 }
 
+/// The anchor term (`joint.anchor_weight`): the mean over particles of the squared distance
+/// between the grounded step's positions `pred` and the pretrained DLF's step `anchor` from the
+/// same state (a constant), in particle radii².
+///
+/// One view cannot tell where along its rays the fluid is, nor see where it is not: the image
+/// loss leaves DLF free to move mass there, and a grounded DLF does (the spray of the test bed:
+/// dense fluid where the truth has none, BENCHMARKS.md "Issue 34"). The anchor keeps each step
+/// near the pretrained physics wherever the images do not ask for a change: a trust region on
+/// DLF's step.
+pub fn anchor_penalty(pred: Tensor<2>, anchor: Tensor<2>, radius: f32) -> Tensor<1> {
+    let n = pred.dims()[0].max(1) as f64;
+    let r2 = f64::from(radius) * f64::from(radius);
+    (pred - anchor)
+        .powi_scalar(2)
+        .sum()
+        .mul_scalar(1.0 / (n * r2))
+}
+
 /// What the joint stage trains on: the training view at every training frame, the true state of
 /// the first training frame, and the box.
 #[derive(Debug, Clone)]
@@ -287,6 +305,8 @@ pub struct JointTrainer {
     last_target: usize,
     /// `joint.density_weight` > 0: the density prior.
     density: Option<DensityPrior>,
+    /// `joint.anchor_weight` > 0: the pretrained DLF (frozen), whose step anchors DLF's.
+    anchor: Option<DlfNet>,
 }
 
 impl JointTrainer {
@@ -306,6 +326,8 @@ impl JointTrainer {
         let density = (cfg.density_weight > 0.0)
             .then(|| DensityPrior::new(&data.initial.pos, physnerf.config.k, cfg.density_weight))
             .transpose()?;
+        // `dlf` is the pretrained model here (a resumed run loads its own weights later)
+        let anchor = (cfg.anchor_weight > 0.0).then(|| dlf.clone().no_grad());
         Ok(Self {
             opt_physnerf: cfg.physnerf_optim.adam(),
             opt_dlf: cfg.dlf_optim.adam(),
@@ -323,6 +345,7 @@ impl JointTrainer {
             seed,
             last_target: 1,
             density,
+            anchor,
         })
     }
 
@@ -390,6 +413,14 @@ impl Trainer for JointTrainer {
             });
         }
         let mut surrogate = dlf_surrogate(&pred.pos, dx.as_deref()) + boundary;
+        if let Some(anchor) = &self.anchor {
+            let (x, v) = (self.state.0.clone().detach(), self.state.1.clone().detach());
+            let target = anchor.step(x, v, &self.boundary).pos.detach();
+            let term = anchor_penalty(pred.pos.clone(), target, self.data.radius)
+                .mul_scalar(self.cfg.anchor_weight);
+            self.pending_loss += scalar(&term);
+            surrogate = surrogate + term;
+        }
         if let Some(prior) = &self.density
             && let (Some(term), _) = prior.loss(&pred.pos)
         {
