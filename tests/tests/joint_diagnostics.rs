@@ -412,3 +412,46 @@ fn anchor_costs_nothing_at_the_start_and_holds_dlf_near_the_pretrained_step() {
         "anchored step moved {anchored} vs {free} unanchored"
     );
 }
+
+#[test]
+fn replay_keeps_the_renderer_rendering_the_warmup_views() {
+    // two runs that differ only in the replayed warm-up rays: the renderer grounded with the
+    // replay renders the warm-up's views of the first frame closer to their images
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let mut runs = Vec::new();
+    for replay in [0, 256] {
+        let mut e = tiny_experiment(tmp.path(), &format!("replay{replay}"));
+        e.apply_overrides(&[
+            format!("joint.replay_rays={replay}"),
+            "joint.epochs=10".into(),
+            "joint.physnerf_optim.lr=1e-3".into(),
+        ])
+        .unwrap();
+        runs.push(ground(e));
+    }
+    let run = &runs[0].run;
+    let data = warmup::warmup_data(run).unwrap();
+    let particles = points_tensor(&data.particles, &run.device);
+    let psnr = |g: &Grounding| {
+        data.views
+            .iter()
+            .map(|v| {
+                neurofluid_train::stages::views::render_beside_truth(
+                    &g.grounded.physnerf,
+                    v,
+                    &particles,
+                )
+                .unwrap()
+                .psnr
+                .unwrap()
+            })
+            .sum::<f64>()
+            / data.views.len() as f64
+    };
+    let (without, with) = (psnr(&runs[0]), psnr(&runs[1]));
+    assert!(
+        with > without + 0.1,
+        "warm-up views: {with:.2} dB with the replay, {without:.2} without"
+    );
+}

@@ -527,9 +527,10 @@ mod tests {
                 j.foreground_rays,
                 j.silhouette_weight,
                 j.density_weight,
-                j.anchor_weight
+                j.anchor_weight,
+                j.replay_rays as f64
             ),
-            (1.0, 0.0, 0.0, 0.0, 0.0)
+            (1.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         );
         assert!(j.extra_views.is_empty());
         // the budgets are the file's

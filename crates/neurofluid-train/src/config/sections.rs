@@ -395,6 +395,10 @@ pub struct JointSection {
     /// kept near the pretrained DLF's step from the same state, in particle radii², where the
     /// images do not ask for a change. 0 = the reference's image loss alone.
     pub anchor_weight: f64,
+    /// Rays per iteration replayed from the warm-up (its views in turn, rendered from its
+    /// particles: PhysNeRF's gradients only), so that the renderer grounded on the training view
+    /// keeps rendering the others. 0 = the reference's training view alone.
+    pub replay_rays: usize,
     /// Training view; unset = the scene manifest's (view_1).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub view: Option<String>,
@@ -427,6 +431,7 @@ impl Default for JointSection {
             silhouette_cover: true,
             density_weight: 0.0,
             anchor_weight: 0.0,
+            replay_rays: 0,
             view: None,
             extra_views: Vec::new(),
             log_every: 49,

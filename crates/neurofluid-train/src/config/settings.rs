@@ -44,6 +44,7 @@ const ADDED_KEYS: &[(&str, &str)] = &[
     ("nerf.model.density", "\"relu\""),
     ("joint.density_weight", "0.0"),
     ("joint.anchor_weight", "0.0"),
+    ("joint.replay_rays", "0"),
 ];
 
 /// The stages whose state the settings shape.

@@ -37,7 +37,7 @@ use super::views::{
     ViewFrame, batch_of, check_sequence, load_particles, points_tensor, ray_share,
     render_beside_truth, require_warmup_every_frame, scalar, tensor_points,
 };
-use super::warmup;
+use super::warmup::{self, WarmupData};
 use crate::config::{JointSection, StageKind};
 use crate::density_prior::DensityPrior;
 use crate::focus::{image_foreground, mark_particles, sample_focused};
@@ -108,6 +108,9 @@ pub struct JointData {
     pub foreground: Vec<Vec<Vec<bool>>>,
     /// The particle radius (the projected footprint of a particle).
     pub radius: f32,
+    /// `joint.replay_rays` > 0: the warm-up's views and particles, which PhysNeRF keeps
+    /// rendering while it is grounded.
+    pub replay: Option<WarmupData>,
 }
 
 impl JointData {
@@ -157,6 +160,7 @@ impl JointData {
             truth: truth.map(|seq| seq.into_iter().map(|p| p.pos).collect()),
             foreground,
             radius: scene.manifest().particle_radius,
+            replay: None,
         })
     }
 
@@ -398,6 +402,13 @@ impl Trainer for JointTrainer {
         if let Some(g) = split.physnerf_grads {
             self.physnerf_grads.accumulate(&self.physnerf, g);
         }
+        if self.data.replay.is_some() {
+            let (loss, grads) = self.replay_step(step)?;
+            self.pending_loss += loss;
+            if let Some(g) = grads {
+                self.physnerf_grads.accumulate(&self.physnerf, g);
+            }
+        }
         let psnr = split.psnr;
         let mut dx = split.dx;
         if self.cfg.silhouette_weight > 0.0 {
@@ -566,6 +577,32 @@ impl Trainer for JointTrainer {
 }
 
 impl JointTrainer {
+    /// The replayed warm-up loss of iteration `step` (`joint.replay_rays` rays from one warm-up
+    /// view in turn, rendered from the warm-up's particles) and PhysNeRF's gradients of it.
+    fn replay_step(&mut self, step: u64) -> anyhow::Result<(f64, Option<GradientsParams>)> {
+        let device = self.dlf.device();
+        let replay = self.data.replay.as_ref().context("no warm-up to replay")?;
+        let view = &replay.views[(step % replay.views.len() as u64) as usize];
+        let pixels = self.rng.sample_pixels(
+            self.cfg.replay_rays,
+            view.camera.width,
+            view.camera.height,
+            None,
+        )?;
+        let (rays, colours) = view.batch(&pixels, &device);
+        let particles = points_tensor(&replay.particles, &device);
+        let jitter: Option<&mut dyn rand::RngCore> = if self.physnerf.config.stratified {
+            Some(&mut self.rng)
+        } else {
+            None
+        };
+        let out = self.physnerf.render_rays(&particles, &rays, jitter)?;
+        let loss = self.physnerf.loss(&out, colours).total;
+        let value = scalar(&loss);
+        let grads = guard::backward(loss).map(|g| GradientsParams::from_grads(g, &self.physnerf));
+        Ok((value, grads))
+    }
+
     /// The rays and target colours of a step predicting training frame `t` (its positions
     /// `pred`): `joint.rays` shared among the views, each view's drawn uniformly (the
     /// reference) or partly from where the fluid is (`joint.foreground_rays`).
@@ -720,6 +757,9 @@ pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::
         bptt_steps = cfg.bptt_steps,
         "joint grounding"
     );
+    if cfg.replay_rays > 0 {
+        data.replay = Some(warmup::warmup_data(run)?);
+    }
     let physnerf = warmup::load_trained(run)?;
     let dlf = run.load_dlf(&run.exp.dlf.weights)?;
     let mut trainer = JointTrainer::new(cfg, physnerf, dlf, data, run.exp.seed)?;

@@ -194,10 +194,7 @@ pub fn run(run: &Run, log: &mut MetricsLog) -> anyhow::Result<PhysNerf> {
 /// there, so a long warm-up can run in pieces.
 pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::Result<PhysNerf> {
     let cfg = &run.exp.warmup;
-    let mut data = WarmupData::load(&run.scene, cfg)?;
-    let t0 = run.scene.frames(Role::Warmup).start;
-    data.particles =
-        super::initial::starting_particles(run, Role::Warmup, t0, "warm-up particles")?.pos;
+    let data = warmup_data(run)?;
     tracing::info!(
         views = data.views.len(),
         iters = cfg.iters,
@@ -213,6 +210,15 @@ pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::
     };
     super::drive(run, log, &mut trainer, StageKind::Warmup, cadence, stop)?;
     Ok(trainer.into_physnerf())
+}
+
+/// The warm-up's views and particles in `run` (the starting particles of its first frame).
+pub fn warmup_data(run: &Run) -> anyhow::Result<WarmupData> {
+    let mut data = WarmupData::load(&run.scene, &run.exp.warmup)?;
+    let t0 = run.scene.frames(Role::Warmup).start;
+    data.particles =
+        super::initial::starting_particles(run, Role::Warmup, t0, "warm-up particles")?.pos;
+    Ok(data)
 }
 
 /// PhysNeRF of a finished warm-up (its last checkpoint).
