@@ -38,16 +38,17 @@ use super::views::{
     render_beside_truth, require_warmup_every_frame, scalar, tensor_points,
 };
 use super::warmup;
-use crate::config::{JointSection, StageKind};
+use crate::config::JointSection;
 use crate::focus::{image_foreground, mark_particles, sample_focused};
 use crate::metrics_log::{MetricsLog, psnr_from_mse};
 use crate::sampler::Rng;
 use crate::silhouette::{projected_radius, silhouette_loss};
-use crate::trainer::checkpoint::{self, first_existing};
+use crate::stage::{Stage, files};
+use crate::trainer::checkpoint;
 use crate::trainer::{Cadence, Evaluation, StageState, StepStats, Trainer, guard};
 
 /// Folder of the stage inside the run folder.
-pub const STAGE: &str = "joint";
+pub const STAGE: Stage = Stage::Joint;
 
 /// The models the joint stage trains.
 #[derive(Debug, Clone)]
@@ -302,7 +303,7 @@ impl JointTrainer {
         Self {
             opt_physnerf: cfg.physnerf_optim.adam(),
             opt_dlf: cfg.dlf_optim.adam(),
-            rng: Rng::stream(seed, STAGE),
+            rng: Rng::stream(seed, STAGE.folder()),
             cfg: cfg.clone(),
             physnerf,
             dlf,
@@ -336,7 +337,7 @@ fn initial_state(data: &JointData, device: &Device) -> State {
 
 impl Trainer for JointTrainer {
     fn stage(&self) -> &'static str {
-        STAGE
+        STAGE.folder()
     }
 
     fn total_steps(&self) -> u64 {
@@ -480,10 +481,13 @@ impl Trainer for JointTrainer {
     }
 
     fn save(&self, dir: &Path) -> anyhow::Result<StageState> {
-        checkpoint::save_module(&self.physnerf, &dir.join("physnerf.bpk"))?;
-        checkpoint::save_module(&self.dlf, &dir.join("dlf.bpk"))?;
-        checkpoint::save_optimizer(&self.opt_physnerf, &dir.join("optim_physnerf.bpk"))?;
-        checkpoint::save_optimizer(&self.opt_dlf, &dir.join("optim_dlf.bpk"))?;
+        checkpoint::save_module(&self.physnerf, &files::PHYSNERF.save_path(dir))?;
+        checkpoint::save_module(&self.dlf, &files::DLF.save_path(dir))?;
+        checkpoint::save_optimizer(
+            &self.opt_physnerf,
+            &files::JOINT_PHYSNERF_ADAM.save_path(dir),
+        )?;
+        checkpoint::save_optimizer(&self.opt_dlf, &files::JOINT_DLF_ADAM.save_path(dir))?;
         let mut w = NpzWriter::new();
         w.add_points("pos", &tensor_points(&self.state.0));
         w.add_points("vel", &tensor_points(&self.state.1));
@@ -493,20 +497,18 @@ impl Trainer for JointTrainer {
 
     fn load(&mut self, dir: &Path, done: u64, state: StageState) -> anyhow::Result<()> {
         let device = self.dlf.device();
-        self.physnerf = checkpoint::load_module(
-            self.physnerf.clone(),
-            &first_existing(dir, &["physnerf.bpk", "renderer.bpk"]),
-        )?;
-        self.dlf = checkpoint::load_module(self.dlf.clone(), &dir.join("dlf.bpk"))?;
+        self.physnerf =
+            checkpoint::load_module(self.physnerf.clone(), &files::PHYSNERF.load_path(dir))?;
+        self.dlf = checkpoint::load_module(self.dlf.clone(), &files::DLF.load_path(dir))?;
         self.opt_physnerf = checkpoint::load_optimizer(
             self.cfg.physnerf_optim.adam(),
             &self.physnerf,
-            &first_existing(dir, &["optim_physnerf.bpk", "optim_renderer.bpk"]),
+            &files::JOINT_PHYSNERF_ADAM.load_path(dir),
         )?;
         self.opt_dlf = checkpoint::load_optimizer(
             self.cfg.dlf_optim.adam(),
             &self.dlf,
-            &first_existing(dir, &["optim_dlf.bpk", "optim_transition.bpk"]),
+            &files::JOINT_DLF_ADAM.load_path(dir),
         )?;
         self.rng = Rng::from_stage_state(&state, dir)?;
         if !done.is_multiple_of(self.data.transitions()) {
@@ -683,7 +685,7 @@ pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::
         evaluate_every: cfg.preview_every,
         checkpoint_every: cfg.ckpt_every,
     };
-    super::drive(run, log, &mut trainer, StageKind::Joint, cadence, stop)?;
+    super::drive::drive(run, log, &mut trainer, STAGE, cadence, stop)?;
     Ok(trainer.into_models())
 }
 
@@ -697,11 +699,8 @@ pub fn load_trained(run: &Run) -> anyhow::Result<Grounded> {
         )
     })?;
     let physnerf = PhysNerf::new(run.physnerf_config(), &run.device)?;
-    let physnerf = checkpoint::load_module(
-        physnerf,
-        &first_existing(&ckpt, &["physnerf.bpk", "renderer.bpk"]),
-    )?;
+    let physnerf = checkpoint::load_module(physnerf, &files::PHYSNERF.load_path(&ckpt))?;
     let dlf = run.load_dlf(&run.exp.dlf.weights)?;
-    let dlf = checkpoint::load_module(dlf, &ckpt.join("dlf.bpk"))?;
+    let dlf = checkpoint::load_module(dlf, &files::DLF.load_path(&ckpt))?;
     Ok(Grounded { physnerf, dlf })
 }

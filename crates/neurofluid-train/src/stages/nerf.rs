@@ -16,9 +16,10 @@ use super::run_folder::Run;
 use super::views::{
     ViewFrame, batch_of, ray_share, require_warmup_every_frame, scalar, side_by_side,
 };
-use crate::config::{NerfSection, StageKind};
+use crate::config::NerfSection;
 use crate::metrics_log::{MetricsLog, psnr_from_mse};
 use crate::sampler::Rng;
+use crate::stage::{Stage, files};
 use crate::trainer::checkpoint;
 use crate::trainer::{Cadence, Evaluation, StageState, StepStats, Trainer, guard};
 
@@ -33,20 +34,17 @@ pub enum NerfKind {
 }
 
 impl NerfKind {
-    /// The stage's folder and metrics rows.
-    pub fn stage(self) -> &'static str {
+    /// The stage that trains it.
+    pub const fn stage(self) -> Stage {
         match self {
-            NerfKind::Nerf => "nerf",
-            NerfKind::NerfT => "nerf-t",
+            NerfKind::Nerf => Stage::Nerf,
+            NerfKind::NerfT => Stage::NerfT,
         }
     }
 
     /// The name in tables.
-    pub fn label(self) -> &'static str {
-        match self {
-            NerfKind::Nerf => "NeRF",
-            NerfKind::NerfT => "NeRF-T",
-        }
+    pub const fn label(self) -> &'static str {
+        self.stage().label()
     }
 }
 
@@ -140,7 +138,7 @@ impl NerfTrainer {
         Self {
             kind,
             opt: cfg.optim.adam(),
-            rng: Rng::stream(seed, kind.stage()),
+            rng: Rng::stream(seed, kind.stage().folder()),
             cfg: cfg.clone(),
             nerf,
             data,
@@ -155,7 +153,7 @@ impl NerfTrainer {
 
 impl Trainer for NerfTrainer {
     fn stage(&self) -> &'static str {
-        self.kind.stage()
+        self.kind.stage().folder()
     }
 
     fn total_steps(&self) -> u64 {
@@ -242,17 +240,17 @@ impl Trainer for NerfTrainer {
     }
 
     fn save(&self, dir: &Path) -> anyhow::Result<StageState> {
-        checkpoint::save_module(&self.nerf, &dir.join("nerf.bpk"))?;
-        checkpoint::save_optimizer(&self.opt, &dir.join("optim_nerf.bpk"))?;
+        checkpoint::save_module(&self.nerf, &files::NERF.save_path(dir))?;
+        checkpoint::save_optimizer(&self.opt, &files::NERF_ADAM.save_path(dir))?;
         Ok(self.rng.to_state())
     }
 
     fn load(&mut self, dir: &Path, _done: u64, state: StageState) -> anyhow::Result<()> {
-        self.nerf = checkpoint::load_module(self.nerf.clone(), &dir.join("nerf.bpk"))?;
+        self.nerf = checkpoint::load_module(self.nerf.clone(), &files::NERF.load_path(dir))?;
         self.opt = checkpoint::load_optimizer(
             self.cfg.optim.adam(),
             &self.nerf,
-            &dir.join("optim_nerf.bpk"),
+            &files::NERF_ADAM.load_path(dir),
         )?;
         self.rng = Rng::from_stage_state(&state, dir)?;
         Ok(())
@@ -302,6 +300,6 @@ pub fn train(run: &Run, log: &mut MetricsLog, kind: NerfKind) -> anyhow::Result<
         evaluate_every: cfg.preview_every,
         checkpoint_every: cfg.ckpt_every,
     };
-    super::drive(run, log, &mut trainer, StageKind::Nerf, cadence, None)?;
+    super::drive::drive(run, log, &mut trainer, kind.stage(), cadence, None)?;
     Ok(trainer.into_nerf())
 }

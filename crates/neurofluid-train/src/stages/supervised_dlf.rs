@@ -15,11 +15,12 @@ use serde::Serialize;
 
 use crate::optim::{OptimConfig, OptimDefaults, Schedule};
 use crate::sampler::Rng;
+use crate::stage::{Stage, files};
 use crate::trainer::checkpoint;
 use crate::trainer::{Evaluation, StageState, StepStats, Trainer, guard};
 
 /// Folder of the stage.
-pub const STAGE: &str = "pretrain-dlf";
+pub const STAGE: Stage = Stage::PretrainDlf;
 
 /// Settings of supervised training; the command-line flags of `pretrain-dlf`, with DLF's
 /// published settings as defaults.
@@ -90,8 +91,8 @@ impl SupervisedConfig {
 /// DLF, its Adam and the sample stream, trained on ground-truth sequences.
 pub struct SupervisedDlfTrainer {
     cfg: SupervisedConfig,
-    optim: OptimConfig<SupervisedDlfGroup>,
     net: DlfNet,
+    optim: OptimConfig<SupervisedDlfGroup>,
     opt: ModuleOptimizer,
     rng: Rng,
     train: Vec<TrainingSequence>,
@@ -130,7 +131,7 @@ impl SupervisedDlfTrainer {
         Ok(Self {
             opt: optim.adam(),
             optim,
-            rng: Rng::stream(cfg.seed, STAGE),
+            rng: Rng::stream(cfg.seed, STAGE.folder()),
             cfg: cfg.clone(),
             net,
             train,
@@ -147,7 +148,7 @@ impl SupervisedDlfTrainer {
 
 impl Trainer for SupervisedDlfTrainer {
     fn stage(&self) -> &'static str {
-        STAGE
+        STAGE.folder()
     }
 
     fn total_steps(&self) -> u64 {
@@ -202,15 +203,18 @@ impl Trainer for SupervisedDlfTrainer {
     }
 
     fn save(&self, dir: &Path) -> anyhow::Result<StageState> {
-        checkpoint::save_module(&self.net, &dir.join("dlf.bpk"))?;
-        checkpoint::save_optimizer(&self.opt, &dir.join("optim_dlf.bpk"))?;
+        checkpoint::save_module(&self.net, &files::DLF.save_path(dir))?;
+        checkpoint::save_optimizer(&self.opt, &files::SUPERVISED_DLF_ADAM.save_path(dir))?;
         Ok(self.rng.to_state())
     }
 
     fn load(&mut self, dir: &Path, _done: u64, state: StageState) -> anyhow::Result<()> {
-        self.net = checkpoint::load_module(self.net.clone(), &dir.join("dlf.bpk"))?;
-        self.opt =
-            checkpoint::load_optimizer(self.optim.adam(), &self.net, &dir.join("optim_dlf.bpk"))?;
+        self.net = checkpoint::load_module(self.net.clone(), &files::DLF.load_path(dir))?;
+        self.opt = checkpoint::load_optimizer(
+            self.optim.adam(),
+            &self.net,
+            &files::SUPERVISED_DLF_ADAM.load_path(dir),
+        )?;
         self.rng = Rng::from_stage_state(&state, dir)?;
         Ok(())
     }

@@ -13,14 +13,15 @@ use neurofluid_physnerf::PhysNerf;
 
 use super::run_folder::Run;
 use super::views::{ViewFrame, load_particles, points_tensor, render_beside_truth, scalar};
-use crate::config::{StageKind, WarmupSection};
+use crate::config::WarmupSection;
 use crate::metrics_log::{MetricsLog, psnr_from_mse};
 use crate::sampler::Rng;
-use crate::trainer::checkpoint::{self, first_existing};
+use crate::stage::{Stage, files};
+use crate::trainer::checkpoint;
 use crate::trainer::{Cadence, Evaluation, StageState, StepStats, Trainer, guard};
 
 /// Folder of the stage inside the run folder.
-pub const STAGE: &str = "warmup";
+pub const STAGE: Stage = Stage::Warmup;
 
 /// What the warm-up trains on: the warm-up views of frame 0, the particles of frame 0 and the
 /// held-out view of the same frame for previews.
@@ -77,7 +78,7 @@ impl WarmupTrainer {
             .expect("a module has a device");
         Self {
             opt: cfg.optim.adam(),
-            rng: Rng::stream(seed, STAGE),
+            rng: Rng::stream(seed, STAGE.folder()),
             particles: points_tensor(&data.particles, &device),
             cfg: cfg.clone(),
             physnerf,
@@ -93,7 +94,7 @@ impl WarmupTrainer {
 
 impl Trainer for WarmupTrainer {
     fn stage(&self) -> &'static str {
-        STAGE
+        STAGE.folder()
     }
 
     fn total_steps(&self) -> u64 {
@@ -156,20 +157,18 @@ impl Trainer for WarmupTrainer {
     }
 
     fn save(&self, dir: &Path) -> anyhow::Result<StageState> {
-        checkpoint::save_module(&self.physnerf, &dir.join("physnerf.bpk"))?;
-        checkpoint::save_optimizer(&self.opt, &dir.join("optim_physnerf.bpk"))?;
+        checkpoint::save_module(&self.physnerf, &files::PHYSNERF.save_path(dir))?;
+        checkpoint::save_optimizer(&self.opt, &files::WARMUP_PHYSNERF_ADAM.save_path(dir))?;
         Ok(self.rng.to_state())
     }
 
     fn load(&mut self, dir: &Path, _done: u64, state: StageState) -> anyhow::Result<()> {
-        self.physnerf = checkpoint::load_module(
-            self.physnerf.clone(),
-            &first_existing(dir, &["physnerf.bpk", "renderer.bpk"]),
-        )?;
+        self.physnerf =
+            checkpoint::load_module(self.physnerf.clone(), &files::PHYSNERF.load_path(dir))?;
         self.opt = checkpoint::load_optimizer(
             self.cfg.optim.adam(),
             &self.physnerf,
-            &first_existing(dir, &["optim_physnerf.bpk", "optim.bpk"]),
+            &files::WARMUP_PHYSNERF_ADAM.load_path(dir),
         )?;
         self.rng = Rng::from_stage_state(&state, dir)?;
         Ok(())
@@ -211,7 +210,7 @@ pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::
         evaluate_every: cfg.preview_every,
         checkpoint_every: cfg.ckpt_every,
     };
-    super::drive(run, log, &mut trainer, StageKind::Warmup, cadence, stop)?;
+    super::drive::drive(run, log, &mut trainer, STAGE, cadence, stop)?;
     Ok(trainer.into_physnerf())
 }
 
@@ -225,8 +224,5 @@ pub fn load_trained(run: &Run) -> anyhow::Result<PhysNerf> {
         )
     })?;
     let model = PhysNerf::new(run.physnerf_config(), &run.device)?;
-    checkpoint::load_module(
-        model,
-        &first_existing(&ckpt, &["physnerf.bpk", "renderer.bpk"]),
-    )
+    checkpoint::load_module(model, &files::PHYSNERF.load_path(&ckpt))
 }

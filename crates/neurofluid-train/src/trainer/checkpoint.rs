@@ -117,16 +117,6 @@ pub fn roll_back(stage_dir: &Path) -> anyhow::Result<Option<PathBuf>> {
     Ok(latest(stage_dir))
 }
 
-/// The first of `names` that exists in `dir` (files of an earlier release keep loading), or the
-/// first name when none does (so the error names the current file).
-pub fn first_existing(dir: &Path, names: &[&str]) -> PathBuf {
-    names
-        .iter()
-        .map(|n| dir.join(n))
-        .find(|p| p.is_file())
-        .unwrap_or_else(|| dir.join(names[0]))
-}
-
 /// Removes temporary checkpoint folders a killed process left in `stage_dir` (the caller owns
 /// the folder: its run folder is locked).
 pub fn remove_orphans(stage_dir: &Path) -> anyhow::Result<()> {
