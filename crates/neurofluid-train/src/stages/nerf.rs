@@ -7,7 +7,7 @@
 use std::path::Path;
 
 use anyhow::Context;
-use burn::optim::{GradientsParams, ModuleOptimizer};
+use burn::optim::GradientsParams;
 use neurofluid_core::metrics::{RgbImage, psnr};
 use neurofluid_core::scene::{Role, Scene};
 use neurofluid_physnerf::{Nerf, NerfConfig};
@@ -18,6 +18,7 @@ use super::views::{
 };
 use crate::config::NerfSection;
 use crate::metrics_log::{MetricsLog, psnr_from_mse};
+use crate::optim::{Group, NerfGroup};
 use crate::sampler::Rng;
 use crate::stage::{Stage, files};
 use crate::trainer::checkpoint;
@@ -127,7 +128,7 @@ pub struct NerfTrainer {
     kind: NerfKind,
     cfg: NerfSection,
     nerf: Nerf,
-    opt: ModuleOptimizer,
+    opt: Group<NerfGroup>,
     rng: Rng,
     data: NerfData,
 }
@@ -137,7 +138,7 @@ impl NerfTrainer {
     pub fn new(kind: NerfKind, cfg: &NerfSection, nerf: Nerf, data: NerfData, seed: u64) -> Self {
         Self {
             kind,
-            opt: cfg.optim.adam(),
+            opt: cfg.optim.group(),
             rng: Rng::stream(seed, kind.stage().folder()),
             cfg: cfg.clone(),
             nerf,
@@ -161,7 +162,7 @@ impl Trainer for NerfTrainer {
     }
 
     fn step(&mut self, step: u64) -> anyhow::Result<StepStats> {
-        let lr = self.cfg.optim.lr_at(step);
+        let lr = self.opt.lr();
         let device = self.nerf.device();
         let n = self.data.images.len();
         let k = self.cfg.images_per_step.min(n);
@@ -205,7 +206,7 @@ impl Trainer for NerfTrainer {
             let grads = GradientsParams::from_grads(grads, &self.nerf);
             grad_norm = guard::grad_norm(&grads, &self.nerf);
             if grad_norm.is_finite() {
-                self.nerf = self.opt.step(lr, self.nerf.clone(), grads);
+                self.nerf = self.opt.step(self.nerf.clone(), grads);
             }
         }
         Ok(StepStats {
@@ -241,17 +242,21 @@ impl Trainer for NerfTrainer {
 
     fn save(&self, dir: &Path) -> anyhow::Result<StageState> {
         checkpoint::save_module(&self.nerf, &files::NERF.save_path(dir))?;
-        checkpoint::save_optimizer(&self.opt, &files::NERF_ADAM.save_path(dir))?;
-        Ok(self.rng.to_state())
+        let mut state = self.rng.to_state();
+        checkpoint::save_group(
+            &self.opt,
+            &files::NERF_ADAM.save_path(dir),
+            "nerf",
+            &mut state,
+        )?;
+        Ok(state)
     }
 
-    fn load(&mut self, dir: &Path, _done: u64, state: StageState) -> anyhow::Result<()> {
+    fn load(&mut self, dir: &Path, done: u64, state: StageState) -> anyhow::Result<()> {
         self.nerf = checkpoint::load_module(self.nerf.clone(), &files::NERF.load_path(dir))?;
-        self.opt = checkpoint::load_optimizer(
-            self.cfg.optim.adam(),
-            &self.nerf,
-            &files::NERF_ADAM.load_path(dir),
-        )?;
+        let adam = files::NERF_ADAM.load_path(dir);
+        // every step updates
+        checkpoint::load_group(&mut self.opt, &self.nerf, &adam, "nerf", &state, || done)?;
         self.rng = Rng::from_stage_state(&state, dir)?;
         Ok(())
     }

@@ -6,7 +6,7 @@
 use std::path::Path;
 
 use anyhow::Context;
-use burn::optim::{GradientsParams, ModuleOptimizer};
+use burn::optim::GradientsParams;
 use burn::prelude::*;
 use neurofluid_core::scene::{Role, Scene};
 use neurofluid_physnerf::PhysNerf;
@@ -15,6 +15,7 @@ use super::run_folder::Run;
 use super::views::{ViewFrame, load_particles, points_tensor, render_beside_truth, scalar};
 use crate::config::WarmupSection;
 use crate::metrics_log::{MetricsLog, psnr_from_mse};
+use crate::optim::{Group, WarmupGroup};
 use crate::sampler::Rng;
 use crate::stage::{Stage, files};
 use crate::trainer::checkpoint;
@@ -62,7 +63,7 @@ impl WarmupData {
 pub struct WarmupTrainer {
     cfg: WarmupSection,
     physnerf: PhysNerf,
-    opt: ModuleOptimizer,
+    opt: Group<WarmupGroup>,
     rng: Rng,
     data: WarmupData,
     particles: Tensor<2>,
@@ -77,7 +78,7 @@ impl WarmupTrainer {
             .next()
             .expect("a module has a device");
         Self {
-            opt: cfg.optim.adam(),
+            opt: cfg.optim.group(),
             rng: Rng::stream(seed, STAGE.folder()),
             particles: points_tensor(&data.particles, &device),
             cfg: cfg.clone(),
@@ -102,7 +103,7 @@ impl Trainer for WarmupTrainer {
     }
 
     fn step(&mut self, step: u64) -> anyhow::Result<StepStats> {
-        let lr = self.cfg.optim.lr_at(step);
+        let lr = self.opt.lr();
         let device = self.particles.device();
         let mut total: Option<Tensor<1>> = None;
         let mut fine_mse = 0.0;
@@ -135,7 +136,7 @@ impl Trainer for WarmupTrainer {
             let grads = GradientsParams::from_grads(grads, &self.physnerf);
             grad_norm = guard::grad_norm(&grads, &self.physnerf);
             if grad_norm.is_finite() {
-                self.physnerf = self.opt.step(lr, self.physnerf.clone(), grads);
+                self.physnerf = self.opt.step(self.physnerf.clone(), grads);
             }
         }
         Ok(StepStats {
@@ -158,17 +159,24 @@ impl Trainer for WarmupTrainer {
 
     fn save(&self, dir: &Path) -> anyhow::Result<StageState> {
         checkpoint::save_module(&self.physnerf, &files::PHYSNERF.save_path(dir))?;
-        checkpoint::save_optimizer(&self.opt, &files::WARMUP_PHYSNERF_ADAM.save_path(dir))?;
-        Ok(self.rng.to_state())
+        let mut state = self.rng.to_state();
+        let adam = files::WARMUP_PHYSNERF_ADAM.save_path(dir);
+        checkpoint::save_group(&self.opt, &adam, "physnerf", &mut state)?;
+        Ok(state)
     }
 
-    fn load(&mut self, dir: &Path, _done: u64, state: StageState) -> anyhow::Result<()> {
+    fn load(&mut self, dir: &Path, done: u64, state: StageState) -> anyhow::Result<()> {
         self.physnerf =
             checkpoint::load_module(self.physnerf.clone(), &files::PHYSNERF.load_path(dir))?;
-        self.opt = checkpoint::load_optimizer(
-            self.cfg.optim.adam(),
+        let adam = files::WARMUP_PHYSNERF_ADAM.load_path(dir);
+        // every step updates
+        checkpoint::load_group(
+            &mut self.opt,
             &self.physnerf,
-            &files::WARMUP_PHYSNERF_ADAM.load_path(dir),
+            &adam,
+            "physnerf",
+            &state,
+            || done,
         )?;
         self.rng = Rng::from_stage_state(&state, dir)?;
         Ok(())
