@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use neurofluid_core::scene::{BoxParticles, Particles, Role, write_png_rgba};
 use neurofluid_tests::{seeded_turn, tiny_experiment};
 use neurofluid_train::config::Experiment;
-use neurofluid_train::stages::preflight::Stage;
+use neurofluid_train::stage::Stage;
 use neurofluid_train::stages::{Run, Start, joint, warmup};
 
 /// The tiny experiment with its scene generated.

@@ -5,7 +5,7 @@
 
 use neurofluid_core::scene::{Role, Scene, TransformsFile, transforms_path};
 use neurofluid_tests::{seeded_turn, tiny_experiment};
-use neurofluid_train::stages::preflight::Stage;
+use neurofluid_train::stage::Stage;
 use neurofluid_train::stages::{Run, Start};
 
 #[test]

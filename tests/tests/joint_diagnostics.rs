@@ -18,8 +18,8 @@ use neurofluid_train::config::Experiment;
 use neurofluid_train::metrics_log::{MetricsLog, MetricsRow, read_jsonl};
 use neurofluid_train::sampler::Rng;
 use neurofluid_train::silhouette::{projected_radius, silhouette_loss};
+use neurofluid_train::stage::Stage;
 use neurofluid_train::stages::joint::{self, JointData, dlf_surrogate, split_image_loss};
-use neurofluid_train::stages::preflight::Stage;
 use neurofluid_train::stages::{Run, Start, warmup};
 
 /// Every parameter's gradient in `grads`, in the module's order (empty where it has none).

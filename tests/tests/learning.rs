@@ -5,7 +5,7 @@
 
 use neurofluid_core::scene::Role;
 use neurofluid_tests::{params, seeded_turn, tiny_experiment};
-use neurofluid_train::stages::preflight::Stage;
+use neurofluid_train::stage::Stage;
 use neurofluid_train::stages::views::{ViewFrame, points_tensor, render_beside_truth};
 use neurofluid_train::stages::{Run, Start, eval, joint, warmup};
 

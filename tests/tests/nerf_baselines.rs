@@ -9,9 +9,9 @@ use neurofluid_core::scene::{Particles, Role};
 use neurofluid_tests::{params, seeded_turn, tiny_experiment};
 use neurofluid_train::config::Experiment;
 use neurofluid_train::metrics_log::MetricsLog;
+use neurofluid_train::stage::Stage;
 use neurofluid_train::stages::joint::{JointData, JointTrainer};
 use neurofluid_train::stages::nerf::{self, NerfKind};
-use neurofluid_train::stages::preflight::Stage;
 use neurofluid_train::stages::{Run, Start, baseline, eval, initial, run_all, warmup};
 use neurofluid_train::trainer::Trainer;
 

@@ -7,7 +7,7 @@ use std::path::Path;
 use neurofluid_tests::{params, seeded_turn, tiny_experiment};
 use neurofluid_train::config::Experiment;
 use neurofluid_train::metrics_log::MetricsLog;
-use neurofluid_train::stages::preflight::Stage;
+use neurofluid_train::stage::Stage;
 use neurofluid_train::stages::{Run, Start, eval, joint, warmup};
 
 fn experiment(tmp: &Path, name: &str) -> Experiment {
@@ -164,7 +164,7 @@ fn resume_refuses_changed_settings_and_records_safe_changes() {
     let mut log = run4.open_log().unwrap();
     warmup::run(&run4, &mut log).unwrap();
     drop(log);
-    std::fs::create_dir_all(run4.stage_dir("eval")).unwrap();
+    std::fs::create_dir_all(run4.stage_dir(Stage::Eval)).unwrap();
     drop(run4);
     let run5 = Run::prepare(
         experiment(tmp.path(), "guard"),
@@ -172,8 +172,8 @@ fn resume_refuses_changed_settings_and_records_safe_changes() {
         &[Stage::Joint],
     )
     .unwrap();
-    assert!(run5.stage_dir("warmup").join("checkpoint").is_dir());
-    assert!(!run5.stage_dir("eval").exists());
+    assert!(run5.stage_dir(Stage::Warmup).join("checkpoint").is_dir());
+    assert!(!run5.stage_dir(Stage::Eval).exists());
     drop(run5);
     let foreign = tmp.path().join("foreign");
     std::fs::create_dir_all(foreign.join("warmup")).unwrap();

@@ -6,7 +6,7 @@
 use neurofluid_tests::{params, seeded_turn, tiny_experiment, workspace_root};
 use neurofluid_train::commands::sweep;
 use neurofluid_train::metrics_log::MetricsLog;
-use neurofluid_train::stages::preflight::Stage;
+use neurofluid_train::stage::Stage;
 use neurofluid_train::stages::{Run, Start, joint, warmup};
 
 #[test]

@@ -16,6 +16,7 @@ pub mod ply;
 pub mod report;
 pub mod sampler;
 pub mod silhouette;
+pub mod stage;
 pub mod stages;
 pub mod sweep;
 pub mod trainer;

@@ -1,8 +1,10 @@
 //! One parameter group's optimiser: Adam with its learning rate, ε and a schedule that is a pure
 //! function of the step, so a resumed run is exact.
 //!
-//! `step` is the number of optimiser steps already taken (0 for the first iteration), which is
-//! PyTorch's `last_epoch` when the scheduler is stepped once after every optimiser step.
+//! A schedule reads one number: the updates its group has taken before this one (0 for the
+//! group's first update), which is PyTorch's `last_epoch` when the scheduler is stepped once after
+//! every optimiser step. Each [`Group`] counts its own: in the joint stage with `bptt_steps` = 4,
+//! DLF is updated once per window, so its milestones count windows, not iterations.
 //!
 //! Each group has its defaults written once, in its [`OptimDefaults`] marker; a table that sets
 //! only some keys (`[joint.dlf_optim] lr = 1e-4`) keeps the group's other defaults.
@@ -10,7 +12,8 @@
 use std::fmt::Debug;
 use std::marker::PhantomData;
 
-use burn::optim::{AdamConfig, ModuleOptimizer};
+use burn::module::Module;
+use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use serde::{Deserialize, Serialize};
 
 /// The factor a learning rate is multiplied by at a given step.
@@ -54,6 +57,22 @@ impl Schedule {
                 .map(|b: &f64| (b * scale).floor() as u64)
                 .collect(),
             factors: vec![0.5, 0.25, 0.125, 0.0625, 0.03125],
+        }
+    }
+
+    /// [`Schedule::dlf`] over the updates taken: DLF's reference steps its scheduler before each
+    /// update, so an update's factor is `dlf`'s at one more than the updates taken before it;
+    /// here every boundary is one lower (one at 0, in a run of a single step, stays at 0).
+    pub fn dlf_per_update(iterations: u64) -> Self {
+        match Self::dlf(iterations) {
+            Schedule::Piecewise {
+                boundaries,
+                factors,
+            } => Schedule::Piecewise {
+                boundaries: boundaries.iter().map(|b| b.saturating_sub(1)).collect(),
+                factors,
+            },
+            _ => unreachable!("DLF's schedule is piecewise"),
         }
     }
 
@@ -151,9 +170,18 @@ impl<G: OptimDefaults> Default for OptimConfig<G> {
 }
 
 impl<G: OptimDefaults> OptimConfig<G> {
-    /// The learning rate for the optimiser step taken at `step` (0-based).
-    pub fn lr_at(&self, step: u64) -> f64 {
-        self.lr * self.schedule.factor_at(step)
+    /// The learning rate of the update taken after `updates` earlier ones.
+    pub fn lr_at(&self, updates: u64) -> f64 {
+        self.lr * self.schedule.factor_at(updates)
+    }
+
+    /// The group in training: a fresh Adam that has taken no update.
+    pub fn group(&self) -> Group<G> {
+        Group {
+            cfg: self.clone(),
+            adam: self.adam(),
+            updates: 0,
+        }
     }
 
     /// A fresh Adam with this ε.
@@ -170,6 +198,49 @@ impl<G: OptimDefaults> OptimConfig<G> {
             return Some(("epsilon", "expected a positive ε"));
         }
         self.schedule.problem().map(|p| ("schedule", p))
+    }
+}
+
+/// One parameter group in training: its settings, its Adam and the number of updates it has
+/// taken, which its schedule reads.
+pub struct Group<G: OptimDefaults> {
+    cfg: OptimConfig<G>,
+    adam: ModuleOptimizer,
+    updates: u64,
+}
+
+impl<G: OptimDefaults> Group<G> {
+    /// The learning rate of the next update.
+    pub fn lr(&self) -> f64 {
+        self.cfg.lr_at(self.updates)
+    }
+
+    /// The updates taken.
+    pub fn updates(&self) -> u64 {
+        self.updates
+    }
+
+    /// Updates `module` with `grads` at [`Group::lr`] and counts the update.
+    pub fn step<M: Module>(&mut self, module: M, grads: GradientsParams) -> M {
+        let lr = self.lr();
+        self.updates += 1;
+        self.adam.step(lr, module, grads)
+    }
+
+    /// The Adam (its moments, to save).
+    pub fn adam(&self) -> &ModuleOptimizer {
+        &self.adam
+    }
+
+    /// A fresh Adam of the group's settings (to load saved moments into).
+    pub fn fresh_adam(&self) -> ModuleOptimizer {
+        self.cfg.adam()
+    }
+
+    /// Puts back a saved Adam and update count.
+    pub fn restore(&mut self, adam: ModuleOptimizer, updates: u64) {
+        self.adam = adam;
+        self.updates = updates;
     }
 }
 
@@ -316,6 +387,24 @@ mod tests {
         assert_eq!(short.factor_at(50), 1.0);
         assert_eq!(short.factor_at(51), 0.5);
         assert_eq!(short.factor_at(91), 0.03125);
+    }
+
+    #[test]
+    fn dlf_per_update_is_dlf_one_update_later() {
+        // the supervised trainer's rates before groups counted updates: `lr_at(step + 1)`
+        for iterations in [2, 3, 7, 100, 1234, 50_000] {
+            let (reference, per_update) = (
+                Schedule::dlf(iterations),
+                Schedule::dlf_per_update(iterations),
+            );
+            for n in 0..iterations {
+                assert_eq!(
+                    per_update.factor_at(n),
+                    reference.factor_at(n + 1),
+                    "{iterations} iterations, update {n}"
+                );
+            }
+        }
     }
 
     #[test]

@@ -160,3 +160,54 @@ fn generator_settings_are_accepted_by_the_scene_generator() {
         assert_eq!(cfg.out_dir(), e.scene.scene_dir());
     }
 }
+
+/// The quick configs' learning rates per update are the ones they had when their milestones
+/// counted iterations (`[147, 221]`): DLF's milestones now count its own updates, one per window
+/// of `bptt_steps` transitions and one at every epoch's end, and were converted to `[39, 57]`.
+#[test]
+fn the_quick_configs_keep_their_learning_rate_per_update() {
+    use neurofluid_train::optim::Schedule;
+    use neurofluid_train::stages::joint::{updates_after, updates_before};
+    // 50 training frames in every quick scene and every test-bed scene
+    const TRANSITIONS: u64 = 49;
+    let iteration_milestones = Schedule::MultiStep {
+        milestones: vec![147, 221],
+        gamma: 0.5,
+    };
+    let mut files: Vec<PathBuf> = Vec::new();
+    for dir in [experiments_dir(), experiments_dir().join("bed")] {
+        for entry in std::fs::read_dir(dir).unwrap() {
+            let path = entry.unwrap().path();
+            let name = path.file_name().unwrap().to_string_lossy().into_owned();
+            if name.starts_with("quick-") || path.parent().unwrap().ends_with("bed") {
+                files.push(path);
+            }
+        }
+    }
+    files.retain(|p| p.extension().is_some_and(|e| e == "toml"));
+    assert!(files.len() >= 10, "{files:?}");
+    for path in files {
+        let exp = Experiment::load(&path).unwrap_or_else(|e| panic!("{e}"));
+        let j = &exp.joint;
+        let total = j.epochs * TRANSITIONS;
+        let (mut physnerf, mut dlf) = (0, 0);
+        for step in 0..total {
+            let u = updates_after(j, TRANSITIONS, total, step);
+            if u.physnerf {
+                // PhysNeRF's milestones (the paper's, 10k and later) are never reached
+                let before = j.physnerf_optim.lr_at(step);
+                assert_eq!(j.physnerf_optim.lr_at(physnerf), before, "{path:?} {step}");
+                physnerf += 1;
+            }
+            if u.dlf {
+                let before = j.dlf_optim.lr * iteration_milestones.factor_at(step);
+                assert_eq!(j.dlf_optim.lr_at(dlf), before, "{path:?} step {step}");
+                dlf += 1;
+            }
+        }
+        assert_eq!((physnerf, dlf), (78, 78), "{path:?}");
+        // what a checkpoint written before the groups counted their updates is resumed with
+        assert_eq!(updates_before(j, TRANSITIONS, total, 148), (40, 40));
+        assert_eq!(updates_before(j, TRANSITIONS, total, total), (78, 78));
+    }
+}

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 
 use crate::config::Experiment;
-use crate::stages::preflight::Stage;
+use crate::stage::Stage;
 use crate::stages::{Run, Start};
 
 /// An experiment file plus command-line overrides.

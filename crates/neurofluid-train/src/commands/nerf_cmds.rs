@@ -2,8 +2,8 @@
 //! (NeRF and NeRF-T, the paper's novel-view baselines).
 
 use crate::report::EvalReport;
+use crate::stage::Stage;
 use crate::stages::nerf::{self, NerfKind};
-use crate::stages::preflight::Stage;
 use crate::stages::{baseline, eval, initial};
 
 use super::experiment_args::ExperimentArgs;
@@ -41,11 +41,7 @@ pub struct BaselineArgs {
 /// Trains (or resumes) a baseline, scores it on the test views and prints the novel-view table
 /// beside NeuroFluid's evaluation when the run has one.
 pub fn run_baseline(args: BaselineArgs) -> anyhow::Result<()> {
-    let stage = match args.kind {
-        NerfKind::Nerf => Stage::Nerf,
-        NerfKind::NerfT => Stage::NerfT,
-    };
-    let run = args.exp.prepare(&[stage])?;
+    let run = args.exp.prepare(&[args.kind.stage()])?;
     let mut log = run.open_log()?;
     let model = nerf::train(&run, &mut log, args.kind)?;
     let scores = baseline::evaluate(&run, &model, args.kind)?;

@@ -185,7 +185,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         && let Some(e) = trainer.evaluate(0)?
     {
         bars.on_event(&Event::Evaluated {
-            stage: STAGE,
+            stage: STAGE.folder(),
             done: 0,
             time_s: 0.0,
             evaluation: &e,

@@ -2,7 +2,7 @@
 //! particles from images when asked for, warm-up, joint grounding, evaluation — then the summary
 //! table.
 
-use crate::stages::preflight::Stage;
+use crate::stage::Stage;
 use crate::stages::run_all;
 
 use super::experiment_args::ExperimentArgs;

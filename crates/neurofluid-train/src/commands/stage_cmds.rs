@@ -1,6 +1,6 @@
 //! `warmup`, `joint` and `eval`: the stages of `run`, one at a time.
 
-use crate::stages::preflight::Stage;
+use crate::stage::Stage;
 use crate::stages::{eval, joint, warmup};
 
 use super::experiment_args::ExperimentArgs;

@@ -10,7 +10,7 @@ use anyhow::Context;
 
 use crate::config::Experiment;
 use crate::report::{EvalReport, JSON_FILE};
-use crate::stages::preflight::Stage;
+use crate::stage::Stage;
 use crate::stages::{Run, Start, run_all};
 use crate::sweep::slurm::{self, ArrayScript, SlurmOptions};
 use crate::sweep::state::{self, Phase, RunState};
@@ -204,7 +204,7 @@ fn table(sweep: &Sweep, device: Option<&str>) -> anyhow::Result<()> {
 fn saved_report(exp: &Experiment) -> anyhow::Result<EvalReport> {
     let run = Run::open_existing(exp.clone())?;
     crate::stages::preflight::check(&run, &[Stage::Eval], Start::Resume)?;
-    let report = EvalReport::read_json(&run.stage_dir(Stage::Eval.folder()).join(JSON_FILE))?;
+    let report = EvalReport::read_json(&run.stage_dir(Stage::Eval).join(JSON_FILE))?;
     crate::stages::eval::check_current(&run, &report)?;
     Ok(report)
 }

@@ -41,7 +41,7 @@ pub use sections::{
     JointSection, NerfSection, PlyEncoding, SceneScale, SceneSection, SurfaceThreshold,
     WarmupSection,
 };
-pub use settings::{Settings, StageKind};
+pub use settings::Settings;
 
 #[cfg(doc)]
 use crate::optim::OptimConfig;

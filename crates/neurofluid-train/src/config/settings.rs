@@ -10,6 +10,7 @@ use std::collections::BTreeMap;
 use serde::{Deserialize, Serialize};
 
 use super::Experiment;
+use crate::stage::Stage;
 
 /// Keys that never shape a training state (prefix match on whole key segments).
 const FREE: &[&str] = &[
@@ -30,6 +31,12 @@ const FREE: &[&str] = &[
     "nerf.model.chunk",
 ];
 
+/// Whether `key` is [`FREE`] or under a free key.
+fn is_free(key: &str) -> bool {
+    FREE.iter()
+        .any(|p| key == *p || key.starts_with(&format!("{p}.")))
+}
+
 /// Keys added after a release, with the value that keeps the earlier behaviour: a checkpoint
 /// that does not record such a key was made with that value, so it is not a change.
 const ADDED_KEYS: &[(&str, &str)] = &[
@@ -46,39 +53,6 @@ const ADDED_KEYS: &[(&str, &str)] = &[
     ("joint.anchor_weight", "0.0"),
     ("joint.replay_rays", "0"),
 ];
-
-/// The stages whose state the settings shape.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum StageKind {
-    /// PhysNeRF's warm-up: seed, scene, PhysNeRF, warm-up (not where it stops).
-    Warmup,
-    /// Joint grounding: everything the warm-up's state depends on and how long it ran, DLF and
-    /// the joint settings (not where it stops).
-    Joint,
-    /// A NeRF or NeRF-T: seed, scene and `[nerf]` (not where it stops).
-    Nerf,
-}
-
-impl StageKind {
-    fn covers(self, key: &str) -> bool {
-        let under = |prefix: &str| key == prefix || key.starts_with(&format!("{prefix}."));
-        if FREE.iter().any(|p| under(p)) {
-            return false;
-        }
-        let warmup = ["seed", "scene", "physnerf", "warmup", "nerf", "initial"]
-            .iter()
-            .any(|p| under(p));
-        match self {
-            StageKind::Nerf => {
-                ["seed", "scene", "nerf"].iter().any(|p| under(p)) && !under("nerf.iters")
-            }
-            StageKind::Warmup => warmup && !under("warmup.iters"),
-            StageKind::Joint => {
-                (warmup || under("dlf") || under("joint")) && !under("joint.epochs")
-            }
-        }
-    }
-}
 
 /// Flat settings with a digest.
 #[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -142,12 +116,12 @@ impl Settings {
 
     /// The settings that shape `stage`'s state. The NeRF and `[initial]` shape the warm-up and
     /// the joint stage only when the initial particles come from images.
-    pub fn of_stage(exp: &Experiment, stage: StageKind) -> Self {
+    pub fn of_stage(exp: &Experiment, stage: Stage) -> Self {
         let from_images = exp.scene.initial == super::InitialParticles::FromImages;
         let mut all = Self::all(exp);
         all.0.retain(|k, _| {
             let nerf = k.starts_with("nerf.") || k.starts_with("initial.");
-            stage.covers(k) && (stage == StageKind::Nerf || !nerf || from_images)
+            !is_free(k) && stage.shaped_by(k) && (stage.is_nerf() || !nerf || from_images)
         });
         all
     }
@@ -202,8 +176,8 @@ mod tests {
 
     #[test]
     fn state_shaping_keys_change_the_digest_and_are_named() {
-        let base = Settings::of_stage(&exp(&[]), StageKind::Joint);
-        let lr = Settings::of_stage(&exp(&["joint.dlf_optim.lr=1e-4"]), StageKind::Joint);
+        let base = Settings::of_stage(&exp(&[]), Stage::Joint);
+        let lr = Settings::of_stage(&exp(&["joint.dlf_optim.lr=1e-4"]), Stage::Joint);
         assert_ne!(base.digest(), lr.digest());
         let changes = lr.changes_since(&base);
         assert_eq!(changes.len(), 1);
@@ -214,15 +188,15 @@ mod tests {
         );
         // the renderer's width shapes both stages; the DLF learning rate only the joint one
         let wide = exp(&["physnerf.width=64"]);
-        for stage in [StageKind::Warmup, StageKind::Joint] {
+        for stage in [Stage::Warmup, Stage::Joint] {
             let s = Settings::of_stage(&wide, stage);
             assert_eq!(
                 s.changes_since(&Settings::of_stage(&exp(&[]), stage)).len(),
                 1
             );
         }
-        let w = Settings::of_stage(&exp(&["joint.dlf_optim.lr=1e-4"]), StageKind::Warmup);
-        assert_eq!(w, Settings::of_stage(&exp(&[]), StageKind::Warmup));
+        let w = Settings::of_stage(&exp(&["joint.dlf_optim.lr=1e-4"]), Stage::Warmup);
+        assert_eq!(w, Settings::of_stage(&exp(&[]), Stage::Warmup));
     }
 
     #[test]
@@ -238,12 +212,12 @@ mod tests {
             "warmup.iters=9",
         ]);
         assert_eq!(
-            Settings::of_stage(&free, StageKind::Warmup),
-            Settings::of_stage(&base, StageKind::Warmup)
+            Settings::of_stage(&free, Stage::Warmup),
+            Settings::of_stage(&base, Stage::Warmup)
         );
         // how long the warm-up ran shapes the joint stage that starts from it
-        let joint = Settings::of_stage(&free, StageKind::Joint)
-            .changes_since(&Settings::of_stage(&base, StageKind::Joint));
+        let joint = Settings::of_stage(&free, Stage::Joint)
+            .changes_since(&Settings::of_stage(&base, Stage::Joint));
         let keys: Vec<&str> = changes_keys(&joint);
         assert_eq!(keys, ["warmup.iters"]);
     }
@@ -252,14 +226,14 @@ mod tests {
     /// (the behaviour it was made with), and not with softplus.
     #[test]
     fn a_key_added_later_with_the_old_behaviour_is_no_change() {
-        let now = Settings::of_stage(&exp(&[]), StageKind::Warmup);
+        let now = Settings::of_stage(&exp(&[]), Stage::Warmup);
         let mut older = now.clone();
         assert_eq!(
             older.0.remove("physnerf.density").as_deref(),
             Some("\"relu\"")
         );
         assert!(now.changes_since(&older).is_empty());
-        let softplus = Settings::of_stage(&exp(&["physnerf.density=softplus"]), StageKind::Warmup);
+        let softplus = Settings::of_stage(&exp(&["physnerf.density=softplus"]), Stage::Warmup);
         assert_eq!(
             changes_keys(&softplus.changes_since(&older)),
             ["physnerf.density"]
@@ -272,10 +246,10 @@ mod tests {
     fn the_nerf_shapes_the_training_stages_only_from_images() {
         let base = exp(&[]);
         let wide = exp(&["nerf.model.width=64", "initial.opacity=0.7"]);
-        let nerf = Settings::of_stage(&wide, StageKind::Nerf)
-            .changes_since(&Settings::of_stage(&base, StageKind::Nerf));
+        let nerf = Settings::of_stage(&wide, Stage::Nerf)
+            .changes_since(&Settings::of_stage(&base, Stage::Nerf));
         assert_eq!(changes_keys(&nerf), ["nerf.model.width"]);
-        for stage in [StageKind::Warmup, StageKind::Joint] {
+        for stage in [Stage::Warmup, Stage::Joint] {
             assert_eq!(
                 Settings::of_stage(&wide, stage),
                 Settings::of_stage(&base, stage)
@@ -284,7 +258,7 @@ mod tests {
         let from = |o: &[&str]| {
             let mut all = vec!["scene.initial=from_images"];
             all.extend_from_slice(o);
-            Settings::of_stage(&exp(&all), StageKind::Warmup)
+            Settings::of_stage(&exp(&all), Stage::Warmup)
         };
         let changed =
             from(&["nerf.model.width=64", "initial.opacity=0.7"]).changes_since(&from(&[]));
@@ -296,8 +270,8 @@ mod tests {
         // warm-up starts from
         let longer = exp(&["nerf.iters=5"]);
         assert_eq!(
-            Settings::of_stage(&longer, StageKind::Nerf),
-            Settings::of_stage(&base, StageKind::Nerf)
+            Settings::of_stage(&longer, Stage::Nerf),
+            Settings::of_stage(&base, Stage::Nerf)
         );
         let longer = from(&["nerf.iters=5"]).changes_since(&from(&[]));
         assert_eq!(changes_keys(&longer), ["nerf.iters"]);

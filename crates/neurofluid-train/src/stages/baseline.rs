@@ -10,9 +10,9 @@ use neurofluid_core::metrics::Lpips;
 use neurofluid_core::scene::Role;
 use neurofluid_physnerf::{Nerf, save_png};
 
-use super::eval::{as_image, rendered_steps, scaled_view, score};
 use super::nerf::{NerfKind, time_of};
 use super::run_folder::Run;
+use super::scoring::{as_image, rendered_steps, scaled_view, score};
 use super::views::{ViewFrame, side_by_side};
 use crate::report::BaselineScores;
 

@@ -12,16 +12,17 @@ use neurofluid_core::metrics::gt_to_pred_distance;
 use neurofluid_core::scene::{Particles, Role};
 use serde::{Deserialize, Serialize};
 
-use super::eval::{at_least_wide, particle_row};
 use super::nerf::{self, NerfKind};
 use super::run_folder::Run;
+use super::scoring::{at_least_wide, particle_row};
 use super::views::load_particles;
-use crate::config::{InitialParticles, Settings, StageKind};
+use crate::config::{InitialParticles, Settings};
 use crate::metrics_log::MetricsLog;
+use crate::stage::Stage;
 use crate::volume_fill::{DensityGrid, FillSettings, surface_and_fill};
 
 /// Folder of the recovered initial state inside the run folder.
-pub const STAGE: &str = "initial";
+pub const STAGE: Stage = Stage::Initial;
 /// The recovered frame-0 particles.
 pub const PARTICLES_FILE: &str = "particles.npz";
 /// What was recovered and how far it is from the truth.
@@ -100,7 +101,7 @@ pub fn starting_particles(
 
 /// The digest of what the recovery depends on: the NeRF's settings and `[initial]`.
 fn settings_digest(run: &Run) -> String {
-    let mut s = run.settings(StageKind::Nerf);
+    let mut s = run.settings(Stage::Nerf);
     s.0.extend(
         Settings::all(&run.exp)
             .0

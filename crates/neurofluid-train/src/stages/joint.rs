@@ -23,7 +23,7 @@
 use std::path::Path;
 
 use anyhow::Context;
-use burn::optim::{GradientsAccumulator, GradientsParams, ModuleOptimizer};
+use burn::optim::{GradientsAccumulator, GradientsParams};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
 use neurofluid_core::metrics::gt_to_pred_distance;
@@ -38,17 +38,19 @@ use super::views::{
     render_beside_truth, require_warmup_every_frame, scalar, tensor_points,
 };
 use super::warmup::{self, WarmupData};
-use crate::config::{JointSection, StageKind};
+use crate::config::JointSection;
 use crate::density_prior::DensityPrior;
 use crate::focus::{image_foreground, mark_particles, sample_focused};
 use crate::metrics_log::{MetricsLog, psnr_from_mse};
+use crate::optim::{Group, JointDlfGroup, JointPhysNerfGroup};
 use crate::sampler::Rng;
 use crate::silhouette::{projected_radius, silhouette_loss};
-use crate::trainer::checkpoint::{self, first_existing};
+use crate::stage::{Stage, files};
+use crate::trainer::checkpoint;
 use crate::trainer::{Cadence, Evaluation, StageState, StepStats, Trainer, guard};
 
 /// Folder of the stage inside the run folder.
-pub const STAGE: &str = "joint";
+pub const STAGE: Stage = Stage::Joint;
 
 /// The models the joint stage trains.
 #[derive(Debug, Clone)]
@@ -282,6 +284,38 @@ pub fn dlf_surrogate(pred: &Tensor<2>, dx: Option<&[[f32; 3]]>) -> Tensor<1> {
     }
 }
 
+/// Which parameter groups a step of the joint stage updates.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Updates {
+    /// PhysNeRF: at the end of every window of `bptt_steps` transitions and of every epoch.
+    pub physnerf: bool,
+    /// DLF: at the end of every `dlf_every`-th window and of every epoch.
+    pub dlf: bool,
+}
+
+/// The groups updated after iteration `step` (0-based) of a joint stage of `total` iterations
+/// over `transitions` per epoch.
+pub fn updates_after(cfg: &JointSection, transitions: u64, total: u64, step: u64) -> Updates {
+    let done = step + 1;
+    let edge = done.is_multiple_of(transitions) || done == total;
+    let window = cfg.bptt_steps.max(1) as u64;
+    let window_end = edge || done.is_multiple_of(window);
+    Updates {
+        physnerf: window_end,
+        dlf: window_end && (edge || done.is_multiple_of(window * cfg.dlf_every.max(1) as u64)),
+    }
+}
+
+/// The updates (PhysNeRF's, DLF's) of the first `done` iterations: the counts of a checkpoint
+/// written before the groups counted their own.
+pub fn updates_before(cfg: &JointSection, transitions: u64, total: u64, done: u64) -> (u64, u64) {
+    (0..done)
+        .map(|step| updates_after(cfg, transitions, total, step))
+        .fold((0, 0), |(p, d), u| {
+            (p + u64::from(u.physnerf), d + u64::from(u.dlf))
+        })
+}
+
 /// Every this many training frames the renderer is scored on the true particles.
 const PSNR_TRUE_EVERY: usize = 7;
 
@@ -290,8 +324,8 @@ pub struct JointTrainer {
     cfg: JointSection,
     physnerf: PhysNerf,
     dlf: DlfNet,
-    opt_physnerf: ModuleOptimizer,
-    opt_dlf: ModuleOptimizer,
+    opt_physnerf: Group<JointPhysNerfGroup>,
+    opt_dlf: Group<JointDlfGroup>,
     rng: Rng,
     data: JointData,
     boundary: Boundary,
@@ -333,9 +367,9 @@ impl JointTrainer {
         // `dlf` is the pretrained model here (a resumed run loads its own weights later)
         let anchor = (cfg.anchor_weight > 0.0).then(|| dlf.clone().no_grad());
         Ok(Self {
-            opt_physnerf: cfg.physnerf_optim.adam(),
-            opt_dlf: cfg.dlf_optim.adam(),
-            rng: Rng::stream(seed, STAGE),
+            opt_physnerf: cfg.physnerf_optim.group(),
+            opt_dlf: cfg.dlf_optim.group(),
+            rng: Rng::stream(seed, STAGE.folder()),
             cfg: cfg.clone(),
             physnerf,
             dlf,
@@ -371,7 +405,7 @@ fn initial_state(data: &JointData, device: &Device) -> State {
 
 impl Trainer for JointTrainer {
     fn stage(&self) -> &'static str {
-        STAGE
+        STAGE.folder()
     }
 
     fn total_steps(&self) -> u64 {
@@ -446,13 +480,10 @@ impl Trainer for JointTrainer {
             Some(p) => p + surrogate,
         });
         self.state = (pred.pos, pred.vel);
-        let done = step + 1;
-        let edge = (t + 1) as u64 == transitions || done == self.total_steps();
-        let window = self.cfg.bptt_steps.max(1) as u64;
-        let window_end = edge || done.is_multiple_of(window);
-        // DLF steps at the end of every `dlf_every`-th window (and of every epoch)
-        let dlf_end =
-            window_end && (edge || done.is_multiple_of(window * self.cfg.dlf_every.max(1) as u64));
+        let Updates {
+            physnerf: window_end,
+            dlf: dlf_end,
+        } = updates_after(&self.cfg, transitions, self.total_steps(), step);
         let mut stats = StepStats {
             psnr: Some(psnr),
             rays: self.cfg.rays,
@@ -467,10 +498,7 @@ impl Trainer for JointTrainer {
         if !stats.loss.is_finite() {
             return Ok(stats);
         }
-        let (lr_p, lr_d) = (
-            self.cfg.physnerf_optim.lr_at(step),
-            self.cfg.dlf_optim.lr_at(step),
-        );
+        let (lr_p, lr_d) = (self.opt_physnerf.lr(), self.opt_dlf.lr());
         let norm_p = guard::grad_norm(&g_physnerf, &self.physnerf);
         let g_dlf = if dlf_end {
             let surrogate = self.pending.take().context("no loss to optimise")?;
@@ -483,11 +511,9 @@ impl Trainer for JointTrainer {
         };
         let norm_d = g_dlf.as_ref().map(|g| guard::grad_norm(g, &self.dlf));
         if norm_p.is_finite() && norm_d.is_none_or(f64::is_finite) {
-            self.physnerf = self
-                .opt_physnerf
-                .step(lr_p, self.physnerf.clone(), g_physnerf);
+            self.physnerf = self.opt_physnerf.step(self.physnerf.clone(), g_physnerf);
             if let Some(g) = g_dlf {
-                self.dlf = self.opt_dlf.step(lr_d, self.dlf.clone(), g);
+                self.dlf = self.opt_dlf.step(self.dlf.clone(), g);
             }
         }
         // the carried state leaves the graph: truncated backpropagation through time (DLF's
@@ -536,34 +562,31 @@ impl Trainer for JointTrainer {
     }
 
     fn save(&self, dir: &Path) -> anyhow::Result<StageState> {
-        checkpoint::save_module(&self.physnerf, &dir.join("physnerf.bpk"))?;
-        checkpoint::save_module(&self.dlf, &dir.join("dlf.bpk"))?;
-        checkpoint::save_optimizer(&self.opt_physnerf, &dir.join("optim_physnerf.bpk"))?;
-        checkpoint::save_optimizer(&self.opt_dlf, &dir.join("optim_dlf.bpk"))?;
+        checkpoint::save_module(&self.physnerf, &files::PHYSNERF.save_path(dir))?;
+        checkpoint::save_module(&self.dlf, &files::DLF.save_path(dir))?;
+        let mut own = self.rng.to_state();
+        let adam = files::JOINT_PHYSNERF_ADAM.save_path(dir);
+        checkpoint::save_group(&self.opt_physnerf, &adam, "physnerf", &mut own)?;
+        let adam = files::JOINT_DLF_ADAM.save_path(dir);
+        checkpoint::save_group(&self.opt_dlf, &adam, "dlf", &mut own)?;
         let mut w = NpzWriter::new();
         w.add_points("pos", &tensor_points(&self.state.0));
         w.add_points("vel", &tensor_points(&self.state.1));
         w.write(dir.join("carried_state.npz"))?;
-        Ok(self.rng.to_state())
+        Ok(own)
     }
 
     fn load(&mut self, dir: &Path, done: u64, state: StageState) -> anyhow::Result<()> {
         let device = self.dlf.device();
-        self.physnerf = checkpoint::load_module(
-            self.physnerf.clone(),
-            &first_existing(dir, &["physnerf.bpk", "renderer.bpk"]),
-        )?;
-        self.dlf = checkpoint::load_module(self.dlf.clone(), &dir.join("dlf.bpk"))?;
-        self.opt_physnerf = checkpoint::load_optimizer(
-            self.cfg.physnerf_optim.adam(),
-            &self.physnerf,
-            &first_existing(dir, &["optim_physnerf.bpk", "optim_renderer.bpk"]),
-        )?;
-        self.opt_dlf = checkpoint::load_optimizer(
-            self.cfg.dlf_optim.adam(),
-            &self.dlf,
-            &first_existing(dir, &["optim_dlf.bpk", "optim_transition.bpk"]),
-        )?;
+        self.physnerf =
+            checkpoint::load_module(self.physnerf.clone(), &files::PHYSNERF.load_path(dir))?;
+        self.dlf = checkpoint::load_module(self.dlf.clone(), &files::DLF.load_path(dir))?;
+        let implied = updates_before(&self.cfg, self.data.transitions(), self.total_steps(), done);
+        let adam = files::JOINT_PHYSNERF_ADAM.load_path(dir);
+        let (p, d) = (&mut self.opt_physnerf, &mut self.opt_dlf);
+        checkpoint::load_group(p, &self.physnerf, &adam, "physnerf", &state, || implied.0)?;
+        let adam = files::JOINT_DLF_ADAM.load_path(dir);
+        checkpoint::load_group(d, &self.dlf, &adam, "dlf", &state, || implied.1)?;
         self.rng = Rng::from_stage_state(&state, dir)?;
         if !done.is_multiple_of(self.data.transitions()) {
             let mut r = NpzReader::open(dir.join("carried_state.npz"))?;
@@ -768,7 +791,7 @@ pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::
         evaluate_every: cfg.preview_every,
         checkpoint_every: cfg.ckpt_every,
     };
-    super::drive(run, log, &mut trainer, StageKind::Joint, cadence, stop)?;
+    super::drive::drive(run, log, &mut trainer, STAGE, cadence, stop)?;
     Ok(trainer.into_models())
 }
 
@@ -782,11 +805,8 @@ pub fn load_trained(run: &Run) -> anyhow::Result<Grounded> {
         )
     })?;
     let physnerf = PhysNerf::new(run.physnerf_config(), &run.device)?;
-    let physnerf = checkpoint::load_module(
-        physnerf,
-        &first_existing(&ckpt, &["physnerf.bpk", "renderer.bpk"]),
-    )?;
+    let physnerf = checkpoint::load_module(physnerf, &files::PHYSNERF.load_path(&ckpt))?;
     let dlf = run.load_dlf(&run.exp.dlf.weights)?;
-    let dlf = checkpoint::load_module(dlf, &ckpt.join("dlf.bpk"))?;
+    let dlf = checkpoint::load_module(dlf, &files::DLF.load_path(&ckpt))?;
     Ok(Grounded { physnerf, dlf })
 }

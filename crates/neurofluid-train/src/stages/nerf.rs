@@ -7,7 +7,7 @@
 use std::path::Path;
 
 use anyhow::Context;
-use burn::optim::{GradientsParams, ModuleOptimizer};
+use burn::optim::GradientsParams;
 use neurofluid_core::metrics::{RgbImage, psnr};
 use neurofluid_core::scene::{Role, Scene};
 use neurofluid_physnerf::{Nerf, NerfConfig};
@@ -16,9 +16,11 @@ use super::run_folder::Run;
 use super::views::{
     ViewFrame, batch_of, ray_share, require_warmup_every_frame, scalar, side_by_side,
 };
-use crate::config::{NerfSection, StageKind};
+use crate::config::NerfSection;
 use crate::metrics_log::{MetricsLog, psnr_from_mse};
+use crate::optim::{Group, NerfGroup};
 use crate::sampler::Rng;
+use crate::stage::{Stage, files};
 use crate::trainer::checkpoint;
 use crate::trainer::{Cadence, Evaluation, StageState, StepStats, Trainer, guard};
 
@@ -33,20 +35,17 @@ pub enum NerfKind {
 }
 
 impl NerfKind {
-    /// The stage's folder and metrics rows.
-    pub fn stage(self) -> &'static str {
+    /// The stage that trains it.
+    pub const fn stage(self) -> Stage {
         match self {
-            NerfKind::Nerf => "nerf",
-            NerfKind::NerfT => "nerf-t",
+            NerfKind::Nerf => Stage::Nerf,
+            NerfKind::NerfT => Stage::NerfT,
         }
     }
 
     /// The name in tables.
-    pub fn label(self) -> &'static str {
-        match self {
-            NerfKind::Nerf => "NeRF",
-            NerfKind::NerfT => "NeRF-T",
-        }
+    pub const fn label(self) -> &'static str {
+        self.stage().label()
     }
 }
 
@@ -129,7 +128,7 @@ pub struct NerfTrainer {
     kind: NerfKind,
     cfg: NerfSection,
     nerf: Nerf,
-    opt: ModuleOptimizer,
+    opt: Group<NerfGroup>,
     rng: Rng,
     data: NerfData,
 }
@@ -139,8 +138,8 @@ impl NerfTrainer {
     pub fn new(kind: NerfKind, cfg: &NerfSection, nerf: Nerf, data: NerfData, seed: u64) -> Self {
         Self {
             kind,
-            opt: cfg.optim.adam(),
-            rng: Rng::stream(seed, kind.stage()),
+            opt: cfg.optim.group(),
+            rng: Rng::stream(seed, kind.stage().folder()),
             cfg: cfg.clone(),
             nerf,
             data,
@@ -155,7 +154,7 @@ impl NerfTrainer {
 
 impl Trainer for NerfTrainer {
     fn stage(&self) -> &'static str {
-        self.kind.stage()
+        self.kind.stage().folder()
     }
 
     fn total_steps(&self) -> u64 {
@@ -163,7 +162,7 @@ impl Trainer for NerfTrainer {
     }
 
     fn step(&mut self, step: u64) -> anyhow::Result<StepStats> {
-        let lr = self.cfg.optim.lr_at(step);
+        let lr = self.opt.lr();
         let device = self.nerf.device();
         let n = self.data.images.len();
         let k = self.cfg.images_per_step.min(n);
@@ -207,7 +206,7 @@ impl Trainer for NerfTrainer {
             let grads = GradientsParams::from_grads(grads, &self.nerf);
             grad_norm = guard::grad_norm(&grads, &self.nerf);
             if grad_norm.is_finite() {
-                self.nerf = self.opt.step(lr, self.nerf.clone(), grads);
+                self.nerf = self.opt.step(self.nerf.clone(), grads);
             }
         }
         Ok(StepStats {
@@ -242,18 +241,22 @@ impl Trainer for NerfTrainer {
     }
 
     fn save(&self, dir: &Path) -> anyhow::Result<StageState> {
-        checkpoint::save_module(&self.nerf, &dir.join("nerf.bpk"))?;
-        checkpoint::save_optimizer(&self.opt, &dir.join("optim_nerf.bpk"))?;
-        Ok(self.rng.to_state())
+        checkpoint::save_module(&self.nerf, &files::NERF.save_path(dir))?;
+        let mut state = self.rng.to_state();
+        checkpoint::save_group(
+            &self.opt,
+            &files::NERF_ADAM.save_path(dir),
+            "nerf",
+            &mut state,
+        )?;
+        Ok(state)
     }
 
-    fn load(&mut self, dir: &Path, _done: u64, state: StageState) -> anyhow::Result<()> {
-        self.nerf = checkpoint::load_module(self.nerf.clone(), &dir.join("nerf.bpk"))?;
-        self.opt = checkpoint::load_optimizer(
-            self.cfg.optim.adam(),
-            &self.nerf,
-            &dir.join("optim_nerf.bpk"),
-        )?;
+    fn load(&mut self, dir: &Path, done: u64, state: StageState) -> anyhow::Result<()> {
+        self.nerf = checkpoint::load_module(self.nerf.clone(), &files::NERF.load_path(dir))?;
+        let adam = files::NERF_ADAM.load_path(dir);
+        // every step updates
+        checkpoint::load_group(&mut self.opt, &self.nerf, &adam, "nerf", &state, || done)?;
         self.rng = Rng::from_stage_state(&state, dir)?;
         Ok(())
     }
@@ -302,6 +305,6 @@ pub fn train(run: &Run, log: &mut MetricsLog, kind: NerfKind) -> anyhow::Result<
         evaluate_every: cfg.preview_every,
         checkpoint_every: cfg.ckpt_every,
     };
-    super::drive(run, log, &mut trainer, StageKind::Nerf, cadence, None)?;
+    super::drive::drive(run, log, &mut trainer, kind.stage(), cadence, None)?;
     Ok(trainer.into_nerf())
 }

@@ -6,48 +6,14 @@
 
 use neurofluid_core::scene::{Role, Scene};
 
+use super::initial;
 use super::nerf::{NerfData, NerfKind};
 use super::run_folder::{Run, Start};
 use super::views::{check_sequence, load_particles, ray_share, require_warmup_every_frame};
-use super::{eval, initial, joint, warmup};
 use crate::config::InitialParticles;
-use crate::config::StageKind;
 use crate::sampler::Rng;
+use crate::stage::Stage;
 use crate::trainer::checkpoint;
-
-/// The stages a command will run.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Stage {
-    /// Initial particles from images (only when `scene.initial = "from_images"`).
-    Initial,
-    /// The warm-up.
-    Warmup,
-    /// Joint grounding.
-    Joint,
-    /// Evaluation.
-    Eval,
-    /// The NeRF baseline (also the NeRF of the initial particles).
-    Nerf,
-    /// The NeRF-T baseline.
-    NerfT,
-}
-
-impl Stage {
-    /// Every stage of `run`, in the order they run (the baselines stand apart).
-    pub const ALL: [Stage; 4] = [Stage::Initial, Stage::Warmup, Stage::Joint, Stage::Eval];
-
-    /// The stage's folder in the run folder.
-    pub fn folder(self) -> &'static str {
-        match self {
-            Stage::Initial => initial::STAGE,
-            Stage::Warmup => warmup::STAGE,
-            Stage::Joint => joint::STAGE,
-            Stage::Eval => eval::STAGE,
-            Stage::Nerf => NerfKind::Nerf.stage(),
-            Stage::NerfT => NerfKind::NerfT.stage(),
-        }
-    }
-}
 
 /// Problems found so far.
 #[derive(Default)]
@@ -106,8 +72,8 @@ fn image_size(scene: &Scene, role: Role, view: &str) -> Option<(u32, u32)> {
 
 /// A finished stage another stage starts from: its checkpoint must exist, hold all of its steps
 /// and match the current settings.
-fn finished(p: &mut Problems, run: &Run, stage: Stage, kind: StageKind, steps: u64) {
-    let dir = run.stage_dir(stage.folder());
+fn finished(p: &mut Problems, run: &Run, stage: Stage, steps: u64) {
+    let dir = run.stage_dir(stage);
     let Some(ckpt) = checkpoint::latest(&dir) else {
         p.0.push(format!(
             "no {} checkpoint in {}: run the `{}` stage first",
@@ -117,7 +83,7 @@ fn finished(p: &mut Problems, run: &Run, stage: Stage, kind: StageKind, steps: u
         ));
         return;
     };
-    match checkpoint::load_matching(&ckpt, stage.folder(), &run.settings(kind)) {
+    match checkpoint::load_matching(&ckpt, stage.folder(), &run.settings(stage)) {
         Ok(state) if state.step < steps => p.0.push(format!(
             "the {} checkpoint in {} holds {} of its {steps} steps: finish the `{}` stage first",
             stage.folder(),
@@ -143,14 +109,11 @@ pub fn check(run: &Run, stages: &[Stage], start: Start) -> anyhow::Result<()> {
         }
     };
     if start == Start::Resume {
-        for (stage, kind) in [
-            (Stage::Warmup, StageKind::Warmup),
-            (Stage::Joint, StageKind::Joint),
-        ] {
+        for stage in [Stage::Warmup, Stage::Joint] {
             if stages.contains(&stage)
-                && let Some(ckpt) = checkpoint::latest(&run.stage_dir(stage.folder()))
+                && let Some(ckpt) = checkpoint::latest(&run.stage_dir(stage))
                 && let Err(e) =
-                    checkpoint::load_matching(&ckpt, stage.folder(), &run.settings(kind))
+                    checkpoint::load_matching(&ckpt, stage.folder(), &run.settings(stage))
             {
                 p.0.push(format!("{e:#}"));
             }
@@ -264,13 +227,7 @@ pub fn check(run: &Run, stages: &[Stage], start: Start) -> anyhow::Result<()> {
         p.check(|| "the box".to_string(), scene.boundary());
         check_dlf(&mut p);
         if !stages.contains(&Stage::Warmup) {
-            finished(
-                &mut p,
-                run,
-                Stage::Warmup,
-                StageKind::Warmup,
-                exp.warmup.iters,
-            );
+            finished(&mut p, run, Stage::Warmup, exp.warmup.iters);
         }
     }
     if stages.contains(&Stage::Eval) {
@@ -289,14 +246,15 @@ pub fn check(run: &Run, stages: &[Stage], start: Start) -> anyhow::Result<()> {
             p.check(|| "eval.supervised_dlf".to_string(), run.load_dlf(path));
         }
         if exp.eval.render {
-            let frames: Vec<usize> = eval::rendered_steps(test.len(), exp.eval.render_every)
-                .into_iter()
-                .map(|t| test.start + t)
-                .collect();
+            let frames: Vec<usize> =
+                super::scoring::rendered_steps(test.len(), exp.eval.render_every)
+                    .into_iter()
+                    .map(|t| test.start + t)
+                    .collect();
             images(&mut p, scene, Role::Test, &exp.eval.views(scene), &frames);
         }
         if !stages.contains(&Stage::Joint) {
-            finished(&mut p, run, Stage::Joint, StageKind::Joint, joint_steps);
+            finished(&mut p, run, Stage::Joint, joint_steps);
         }
     }
     // every stage logs to the run's metrics: a damaged log stops the run now, not after hours

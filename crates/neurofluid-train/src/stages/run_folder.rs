@@ -1,6 +1,6 @@
 //! A run: the resolved experiment, its run folder, the device and the opened scene.
 //!
-//! Side effects have their own names: [`Run::prepare`] (before the stages run: locks the run
+//! Side effects have their own names: [`Run::prepare`] (in `prepare.rs`; before the stages run: locks the run
 //! folder, may generate the scene, checks every input of the stages, then for [`Start::Fresh`]
 //! removes what those stages and the ones after them left, and writes the resolved config) and
 //! [`Run::open_existing`] (reads only).
@@ -14,28 +14,29 @@ use neurofluid_core::scene::{Scene, UpAxis};
 use neurofluid_dlf::{DlfConfig, DlfNet};
 use neurofluid_physnerf::PhysNerfConfig;
 
-use super::nerf::NerfKind;
-use super::preflight::{self, Stage};
-use super::scene_source::generate_scene_if_missing;
-use crate::config::{Containment, Experiment, RESOLVED_FILE, Settings, StageKind};
+use crate::config::{Containment, Experiment, RESOLVED_FILE, Settings};
 use crate::metrics_log::{CSV_FILE, JSONL_FILE, MetricsLog};
+use crate::stage::Stage;
 use crate::trainer::checkpoint;
 use crate::trainer::lock::FolderLock;
+
+/// The loss and PSNR curves inside a run folder.
+pub const CURVES_FILE: &str = "curves.png";
 
 /// File in the run folder that records each setting changed between sessions.
 pub const HISTORY_FILE: &str = "config.history";
 
 /// What a run folder holds (and `--fresh` removes): stage folders and run-level files.
 const RUN_CONTENTS: &[&str] = &[
-    super::initial::STAGE,
-    "nerf",
-    "nerf-t",
-    super::warmup::STAGE,
-    super::joint::STAGE,
-    super::eval::STAGE,
+    Stage::Initial.folder(),
+    Stage::Nerf.folder(),
+    Stage::NerfT.folder(),
+    Stage::Warmup.folder(),
+    Stage::Joint.folder(),
+    Stage::Eval.folder(),
     CSV_FILE,
     JSONL_FILE,
-    super::CURVES_FILE,
+    CURVES_FILE,
     RESOLVED_FILE,
     HISTORY_FILE,
 ];
@@ -61,42 +62,10 @@ pub struct Run {
     /// The scene the experiment trains on.
     pub scene: Scene,
     /// The run folder's lock, once taken.
-    lock: Option<FolderLock>,
+    pub(super) lock: Option<FolderLock>,
 }
 
 impl Run {
-    /// Everything before `stages` run: locks the run folder (one process per folder),
-    /// generates the built-in scene if its folder holds none (for the training stages; an
-    /// evaluation never simulates), checks every input of the stages
-    /// ([`preflight`]); for [`Start::Fresh`] then removes what those stages and the ones after
-    /// them left (nothing of a folder the tool did not make); writes the resolved config and
-    /// appends any setting that changed since the previous session to `config.history`.
-    pub fn prepare(exp: Experiment, start: Start, stages: &[Stage]) -> anyhow::Result<Self> {
-        check_ours(&exp.out_dir(), start)?;
-        let lock = FolderLock::acquire(&exp.out_dir())?;
-        Self::prepare_locked(exp, start, stages, lock)
-    }
-
-    /// [`Run::prepare`] with the run folder's lock already held (`lock`, on `exp`'s folder).
-    pub fn prepare_locked(
-        exp: Experiment,
-        start: Start,
-        stages: &[Stage],
-        lock: FolderLock,
-    ) -> anyhow::Result<Self> {
-        if stages.iter().any(|s| *s != Stage::Eval) {
-            generate_scene_if_missing(&exp)?;
-        }
-        let mut run = Self::open_existing(exp)?;
-        run.lock = Some(lock);
-        preflight::check(&run, stages, start)?;
-        if start == Start::Fresh {
-            run.reset(stages)?;
-        }
-        run.record_config()?;
-        Ok(run)
-    }
-
     /// For evaluation and inspection: the scene must exist; nothing is written.
     pub fn open_existing(mut exp: Experiment) -> anyhow::Result<Self> {
         let device = neurofluid_core::device::parse_device(&exp.device)
@@ -127,7 +96,7 @@ impl Run {
 
     /// Writes the resolved config; settings that differ from the previous session's go to
     /// `config.history` with the time (seconds since the Unix epoch).
-    fn record_config(&self) -> anyhow::Result<()> {
+    pub(super) fn record_config(&self) -> anyhow::Result<()> {
         let path = self.dir.join(RESOLVED_FILE);
         if path.is_file() {
             match Experiment::load(&path) {
@@ -161,29 +130,25 @@ impl Run {
     /// The run's metrics log, without the rows a resumed stage will log again (those after its
     /// latest checkpoint), so an interrupted run leaves no duplicate steps.
     pub fn open_log(&self) -> anyhow::Result<MetricsLog> {
-        let warmup = checkpoint::saved_step(&self.stage_dir(super::warmup::STAGE));
-        let joint = checkpoint::saved_step(&self.stage_dir(super::joint::STAGE));
-        let nerf = checkpoint::saved_step(&self.stage_dir(NerfKind::Nerf.stage()));
-        let nerf_t = checkpoint::saved_step(&self.stage_dir(NerfKind::NerfT.stage()));
+        let resumed = [Stage::Warmup, Stage::Joint, Stage::Nerf, Stage::NerfT]
+            .map(|s| (s, checkpoint::saved_step(&self.stage_dir(s))));
         let log = MetricsLog::open_resumed(&self.dir, |row| {
-            match row.stage.trim_end_matches("-preview") {
-                s if s == super::warmup::STAGE => row.step <= warmup,
-                s if s == super::joint::STAGE => row.step <= joint,
-                s if s == NerfKind::Nerf.stage() => row.step <= nerf,
-                s if s == NerfKind::NerfT.stage() => row.step <= nerf_t,
-                _ => true,
-            }
+            let stage = Stage::of_folder(row.stage.trim_end_matches("-preview"));
+            resumed
+                .iter()
+                .find(|(s, _)| Some(*s) == stage)
+                .is_none_or(|(_, saved)| row.step <= *saved)
         })?;
         Ok(log)
     }
 
     /// The folder of one stage inside the run folder.
-    pub fn stage_dir(&self, stage: &str) -> PathBuf {
-        self.dir.join(stage)
+    pub fn stage_dir(&self, stage: Stage) -> PathBuf {
+        self.dir.join(stage.folder())
     }
 
     /// The settings that shape a stage's state (checked when a checkpoint is resumed).
-    pub fn settings(&self, stage: StageKind) -> Settings {
+    pub fn settings(&self, stage: Stage) -> Settings {
         Settings::of_stage(&self.exp, stage)
     }
 
@@ -226,7 +191,7 @@ impl Run {
     /// Removes what `stages` and the stages after them left in the run folder (all of it when
     /// the warm-up starts over), and only from a folder this tool made (one holding its resolved
     /// config).
-    fn reset(&self, stages: &[Stage]) -> anyhow::Result<()> {
+    pub(super) fn reset(&self, stages: &[Stage]) -> anyhow::Result<()> {
         if !self.dir.join(RESOLVED_FILE).is_file() {
             return Ok(());
         }
@@ -238,7 +203,7 @@ impl Run {
         };
         // a baseline starts over alone
         names.extend(
-            [Stage::Nerf, Stage::NerfT]
+            Stage::BASELINES
                 .into_iter()
                 .filter(|s| stages.contains(s))
                 .map(Stage::folder),
@@ -258,7 +223,7 @@ impl Run {
 /// Refuses a run folder this tool did not make before anything is written to it: one that
 /// holds files of other names and no resolved config (a user's folder given as `out_dir`), and,
 /// under `--fresh`, one that is a symbolic link (its removals would reach the link's target).
-fn check_ours(dir: &Path, start: Start) -> anyhow::Result<()> {
+pub(super) fn check_ours(dir: &Path, start: Start) -> anyhow::Result<()> {
     let Ok(meta) = std::fs::symlink_metadata(dir) else {
         return Ok(());
     };

@@ -5,7 +5,7 @@
 
 use std::path::Path;
 
-use burn::optim::{GradientsAccumulator, GradientsParams, ModuleOptimizer};
+use burn::optim::{GradientsAccumulator, GradientsParams};
 use burn::prelude::*;
 use neurofluid_dlf::DlfNet;
 use neurofluid_dlf::loss::LOSS_SCALE;
@@ -13,13 +13,14 @@ use neurofluid_dlf::train::{TrainingSequence, rotation_about, supervised_loss, v
 use rand::Rng as _;
 use serde::Serialize;
 
-use crate::optim::{OptimConfig, OptimDefaults, Schedule};
+use crate::optim::{Group, OptimConfig, OptimDefaults, Schedule};
 use crate::sampler::Rng;
+use crate::stage::{Stage, files};
 use crate::trainer::checkpoint;
 use crate::trainer::{Evaluation, StageState, StepStats, Trainer, guard};
 
 /// Folder of the stage.
-pub const STAGE: &str = "pretrain-dlf";
+pub const STAGE: Stage = Stage::PretrainDlf;
 
 /// Settings of supervised training; the command-line flags of `pretrain-dlf`, with DLF's
 /// published settings as defaults.
@@ -73,7 +74,7 @@ impl OptimDefaults for SupervisedDlfGroup {
     const LR: f64 = 1e-3;
     const EPSILON: f64 = 1e-6;
     fn schedule() -> Schedule {
-        Schedule::dlf(50_000)
+        Schedule::dlf_per_update(50_000)
     }
 }
 
@@ -82,7 +83,7 @@ impl SupervisedConfig {
     pub fn optim(&self) -> OptimConfig<SupervisedDlfGroup> {
         let mut optim = OptimConfig::default();
         optim.lr = self.lr;
-        optim.schedule = Schedule::dlf(self.iterations);
+        optim.schedule = Schedule::dlf_per_update(self.iterations);
         optim
     }
 }
@@ -90,9 +91,8 @@ impl SupervisedConfig {
 /// DLF, its Adam and the sample stream, trained on ground-truth sequences.
 pub struct SupervisedDlfTrainer {
     cfg: SupervisedConfig,
-    optim: OptimConfig<SupervisedDlfGroup>,
     net: DlfNet,
-    opt: ModuleOptimizer,
+    opt: Group<SupervisedDlfGroup>,
     rng: Rng,
     train: Vec<TrainingSequence>,
     val: Vec<TrainingSequence>,
@@ -126,11 +126,9 @@ impl SupervisedDlfTrainer {
             samples.len(),
             samples.len()
         );
-        let optim = cfg.optim();
         Ok(Self {
-            opt: optim.adam(),
-            optim,
-            rng: Rng::stream(cfg.seed, STAGE),
+            opt: cfg.optim().group(),
+            rng: Rng::stream(cfg.seed, STAGE.folder()),
             cfg: cfg.clone(),
             net,
             train,
@@ -147,16 +145,15 @@ impl SupervisedDlfTrainer {
 
 impl Trainer for SupervisedDlfTrainer {
     fn stage(&self) -> &'static str {
-        STAGE
+        STAGE.folder()
     }
 
     fn total_steps(&self) -> u64 {
         self.cfg.iterations
     }
 
-    fn step(&mut self, step: u64) -> anyhow::Result<StepStats> {
-        // DLF's LambdaLR counts from 1 here: the factor of the step being taken
-        let lr = self.optim.lr_at(step + 1);
+    fn step(&mut self, _step: u64) -> anyhow::Result<StepStats> {
+        let lr = self.opt.lr();
         let batch = self.cfg.batch_size.max(1);
         let gravity = self.net.config.gravity;
         let mut accum = GradientsAccumulator::<DlfNet>::new();
@@ -175,7 +172,7 @@ impl Trainer for SupervisedDlfTrainer {
         let grads = accum.grads();
         let grad_norm = guard::grad_norm(&grads, &self.net);
         if batch_loss.is_finite() && grad_norm.is_finite() {
-            self.net = self.opt.step(lr, self.net.clone(), grads);
+            self.net = self.opt.step(self.net.clone(), grads);
         }
         Ok(StepStats {
             loss: batch_loss,
@@ -202,15 +199,18 @@ impl Trainer for SupervisedDlfTrainer {
     }
 
     fn save(&self, dir: &Path) -> anyhow::Result<StageState> {
-        checkpoint::save_module(&self.net, &dir.join("dlf.bpk"))?;
-        checkpoint::save_optimizer(&self.opt, &dir.join("optim_dlf.bpk"))?;
-        Ok(self.rng.to_state())
+        checkpoint::save_module(&self.net, &files::DLF.save_path(dir))?;
+        let mut state = self.rng.to_state();
+        let adam = files::SUPERVISED_DLF_ADAM.save_path(dir);
+        checkpoint::save_group(&self.opt, &adam, "dlf", &mut state)?;
+        Ok(state)
     }
 
-    fn load(&mut self, dir: &Path, _done: u64, state: StageState) -> anyhow::Result<()> {
-        self.net = checkpoint::load_module(self.net.clone(), &dir.join("dlf.bpk"))?;
-        self.opt =
-            checkpoint::load_optimizer(self.optim.adam(), &self.net, &dir.join("optim_dlf.bpk"))?;
+    fn load(&mut self, dir: &Path, done: u64, state: StageState) -> anyhow::Result<()> {
+        self.net = checkpoint::load_module(self.net.clone(), &files::DLF.load_path(dir))?;
+        let adam = files::SUPERVISED_DLF_ADAM.load_path(dir);
+        // every step updates
+        checkpoint::load_group(&mut self.opt, &self.net, &adam, "dlf", &state, || done)?;
         self.rng = Rng::from_stage_state(&state, dir)?;
         Ok(())
     }

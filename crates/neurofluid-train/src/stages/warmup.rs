@@ -6,21 +6,23 @@
 use std::path::Path;
 
 use anyhow::Context;
-use burn::optim::{GradientsParams, ModuleOptimizer};
+use burn::optim::GradientsParams;
 use burn::prelude::*;
 use neurofluid_core::scene::{Role, Scene};
 use neurofluid_physnerf::PhysNerf;
 
 use super::run_folder::Run;
 use super::views::{ViewFrame, load_particles, points_tensor, render_beside_truth, scalar};
-use crate::config::{StageKind, WarmupSection};
+use crate::config::WarmupSection;
 use crate::metrics_log::{MetricsLog, psnr_from_mse};
+use crate::optim::{Group, WarmupGroup};
 use crate::sampler::Rng;
-use crate::trainer::checkpoint::{self, first_existing};
+use crate::stage::{Stage, files};
+use crate::trainer::checkpoint;
 use crate::trainer::{Cadence, Evaluation, StageState, StepStats, Trainer, guard};
 
 /// Folder of the stage inside the run folder.
-pub const STAGE: &str = "warmup";
+pub const STAGE: Stage = Stage::Warmup;
 
 /// What the warm-up trains on: the warm-up views of frame 0, the particles of frame 0 and the
 /// held-out view of the same frame for previews.
@@ -61,7 +63,7 @@ impl WarmupData {
 pub struct WarmupTrainer {
     cfg: WarmupSection,
     physnerf: PhysNerf,
-    opt: ModuleOptimizer,
+    opt: Group<WarmupGroup>,
     rng: Rng,
     data: WarmupData,
     particles: Tensor<2>,
@@ -76,8 +78,8 @@ impl WarmupTrainer {
             .next()
             .expect("a module has a device");
         Self {
-            opt: cfg.optim.adam(),
-            rng: Rng::stream(seed, STAGE),
+            opt: cfg.optim.group(),
+            rng: Rng::stream(seed, STAGE.folder()),
             particles: points_tensor(&data.particles, &device),
             cfg: cfg.clone(),
             physnerf,
@@ -93,7 +95,7 @@ impl WarmupTrainer {
 
 impl Trainer for WarmupTrainer {
     fn stage(&self) -> &'static str {
-        STAGE
+        STAGE.folder()
     }
 
     fn total_steps(&self) -> u64 {
@@ -101,7 +103,7 @@ impl Trainer for WarmupTrainer {
     }
 
     fn step(&mut self, step: u64) -> anyhow::Result<StepStats> {
-        let lr = self.cfg.optim.lr_at(step);
+        let lr = self.opt.lr();
         let device = self.particles.device();
         let mut total: Option<Tensor<1>> = None;
         let mut fine_mse = 0.0;
@@ -134,7 +136,7 @@ impl Trainer for WarmupTrainer {
             let grads = GradientsParams::from_grads(grads, &self.physnerf);
             grad_norm = guard::grad_norm(&grads, &self.physnerf);
             if grad_norm.is_finite() {
-                self.physnerf = self.opt.step(lr, self.physnerf.clone(), grads);
+                self.physnerf = self.opt.step(self.physnerf.clone(), grads);
             }
         }
         Ok(StepStats {
@@ -156,20 +158,25 @@ impl Trainer for WarmupTrainer {
     }
 
     fn save(&self, dir: &Path) -> anyhow::Result<StageState> {
-        checkpoint::save_module(&self.physnerf, &dir.join("physnerf.bpk"))?;
-        checkpoint::save_optimizer(&self.opt, &dir.join("optim_physnerf.bpk"))?;
-        Ok(self.rng.to_state())
+        checkpoint::save_module(&self.physnerf, &files::PHYSNERF.save_path(dir))?;
+        let mut state = self.rng.to_state();
+        let adam = files::WARMUP_PHYSNERF_ADAM.save_path(dir);
+        checkpoint::save_group(&self.opt, &adam, "physnerf", &mut state)?;
+        Ok(state)
     }
 
-    fn load(&mut self, dir: &Path, _done: u64, state: StageState) -> anyhow::Result<()> {
-        self.physnerf = checkpoint::load_module(
-            self.physnerf.clone(),
-            &first_existing(dir, &["physnerf.bpk", "renderer.bpk"]),
-        )?;
-        self.opt = checkpoint::load_optimizer(
-            self.cfg.optim.adam(),
+    fn load(&mut self, dir: &Path, done: u64, state: StageState) -> anyhow::Result<()> {
+        self.physnerf =
+            checkpoint::load_module(self.physnerf.clone(), &files::PHYSNERF.load_path(dir))?;
+        let adam = files::WARMUP_PHYSNERF_ADAM.load_path(dir);
+        // every step updates
+        checkpoint::load_group(
+            &mut self.opt,
             &self.physnerf,
-            &first_existing(dir, &["optim_physnerf.bpk", "optim.bpk"]),
+            &adam,
+            "physnerf",
+            &state,
+            || done,
         )?;
         self.rng = Rng::from_stage_state(&state, dir)?;
         Ok(())
@@ -208,7 +215,7 @@ pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::
         evaluate_every: cfg.preview_every,
         checkpoint_every: cfg.ckpt_every,
     };
-    super::drive(run, log, &mut trainer, StageKind::Warmup, cadence, stop)?;
+    super::drive::drive(run, log, &mut trainer, STAGE, cadence, stop)?;
     Ok(trainer.into_physnerf())
 }
 
@@ -231,8 +238,5 @@ pub fn load_trained(run: &Run) -> anyhow::Result<PhysNerf> {
         )
     })?;
     let model = PhysNerf::new(run.physnerf_config(), &run.device)?;
-    checkpoint::load_module(
-        model,
-        &first_existing(&ckpt, &["physnerf.bpk", "renderer.bpk"]),
-    )
+    checkpoint::load_module(model, &files::PHYSNERF.load_path(&ckpt))
 }

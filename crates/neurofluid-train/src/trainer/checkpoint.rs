@@ -15,6 +15,7 @@ use burn::optim::ModuleOptimizer;
 use serde::{Deserialize, Serialize, de::DeserializeOwned};
 
 use crate::config::Settings;
+use crate::optim::{Group, OptimDefaults};
 
 /// What `state.json` holds.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -117,16 +118,6 @@ pub fn roll_back(stage_dir: &Path) -> anyhow::Result<Option<PathBuf>> {
     Ok(latest(stage_dir))
 }
 
-/// The first of `names` that exists in `dir` (files of an earlier release keep loading), or the
-/// first name when none does (so the error names the current file).
-pub fn first_existing(dir: &Path, names: &[&str]) -> PathBuf {
-    names
-        .iter()
-        .map(|n| dir.join(n))
-        .find(|p| p.is_file())
-        .unwrap_or_else(|| dir.join(names[0]))
-}
-
 /// Removes temporary checkpoint folders a killed process left in `stage_dir` (the caller owns
 /// the folder: its run folder is locked).
 pub fn remove_orphans(stage_dir: &Path) -> anyhow::Result<()> {
@@ -194,6 +185,47 @@ pub fn load_module<M: Module>(module: M, path: &Path) -> anyhow::Result<M> {
         );
     }
     Ok(loaded)
+}
+
+/// Where a stage's `state.json` keeps its groups' update counts.
+const UPDATES_KEY: &str = "updates";
+
+/// Saves `group`'s Adam to `path` and its update count as `name` in the stage's `state`.
+pub fn save_group<G: OptimDefaults>(
+    group: &Group<G>,
+    path: &Path,
+    name: &str,
+    state: &mut super::StageState,
+) -> anyhow::Result<()> {
+    save_optimizer(group.adam(), path)?;
+    let counts = state
+        .entry(UPDATES_KEY)
+        .or_insert_with(|| serde_json::Value::Object(Default::default()));
+    if let serde_json::Value::Object(counts) = counts {
+        counts.insert(name.into(), group.updates().into());
+    }
+    Ok(())
+}
+
+/// Loads the Adam of `owner`'s `group` from `path` and its update count `name` from `state`;
+/// for a checkpoint written before groups counted their updates, `implied` gives the count its
+/// steps imply.
+pub fn load_group<G: OptimDefaults, M: Module>(
+    group: &mut Group<G>,
+    owner: &M,
+    path: &Path,
+    name: &str,
+    state: &super::StageState,
+    implied: impl FnOnce() -> u64,
+) -> anyhow::Result<()> {
+    let adam = load_optimizer(group.fresh_adam(), owner, path)?;
+    let updates = state
+        .get(UPDATES_KEY)
+        .and_then(|c| c.get(name))
+        .and_then(serde_json::Value::as_u64)
+        .unwrap_or_else(implied);
+    group.restore(adam, updates);
+    Ok(())
 }
 
 /// Saves an optimiser's state (Adam moments and step counts).

@@ -1,0 +1,280 @@
+//! What the evaluation writes to `eval/`: the predicted particles (PLY), the renders beside the
+//! truth (scored as they are made), the animations and particle pictures, the viewer page, the
+//! report with its d(t) plot, and the image scores in the run's metrics log.
+
+use std::path::Path;
+
+use anyhow::Context;
+use burn::module::Module;
+use neurofluid_core::camera::Camera;
+use neurofluid_core::metrics::{Lpips, RgbImage};
+use neurofluid_core::scene::Role;
+use neurofluid_physnerf::{PhysNerf, render_image, save_png};
+
+use super::rollouts::Rollouts;
+use crate::config::PlyEncoding;
+use crate::metrics_log::{MetricsLog, MetricsRow};
+use crate::pictures::{column_of, row_of, write_apng};
+use crate::ply::{PlyFormat, write_ply};
+use crate::report::{EvalReport, ImageScore, Rollout};
+use crate::stages::run_folder::Run;
+use crate::stages::scoring::{
+    as_image, at_least_wide, particle_row, rendered_steps, scaled_view, score,
+};
+use crate::stages::views::{ViewFrame, points_tensor, side_by_side};
+use crate::stages::{joint, warmup};
+use crate::trainer::Picture;
+use crate::viewer::{Recording, TrackInput};
+
+/// The d(t) curves of the rollouts inside `eval/`.
+pub const DISTANCE_PLOT: &str = "distance.png";
+
+/// Folder of the animations and particle pictures inside `eval/`.
+pub const ANIMATIONS: &str = "animations";
+
+/// The viewer page inside `eval/`.
+pub const VIEWER_FILE: &str = "viewer.html";
+
+/// The smallest width (pixels) of a particle picture's panels.
+const PARTICLE_PICTURE_WIDTH: u32 = 240;
+
+/// The frames the particle pictures show: the first predicted one, the last of the grounding
+/// window and the last of the prediction window.
+pub fn picture_frames(train_frames: usize, steps: usize) -> Vec<usize> {
+    let mut t = vec![1, train_frames.saturating_sub(1), steps];
+    t.retain(|&t| (1..=steps).contains(&t));
+    t.dedup();
+    t
+}
+
+/// NeuroFluid's and DLF's particles of every frame as `particles/<model>_<t>.ply`.
+pub fn write_particles(
+    dir: &Path,
+    rollouts: &Rollouts,
+    encoding: PlyEncoding,
+) -> anyhow::Result<()> {
+    let format = match encoding {
+        PlyEncoding::Binary => PlyFormat::BinaryLittleEndian,
+        PlyEncoding::Ascii => PlyFormat::Ascii,
+    };
+    for (t, pos) in rollouts.grounded.iter().enumerate() {
+        let path = dir.join(format!("particles/neurofluid_{t:04}.ply"));
+        write_ply(&path, pos, None, format)?;
+        if let Some(b) = &rollouts.baseline {
+            write_ply(
+                &dir.join(format!("particles/dlf_{t:04}.ply")),
+                &b[t],
+                None,
+                format,
+            )?;
+        }
+    }
+    Ok(())
+}
+
+/// Renders NeuroFluid's particles from every evaluated view at the rendered steps, writes each
+/// beside the truth (and, with `eval.animate`, the animation and the particle pictures of the
+/// view) and returns the renders' scores.
+pub fn render_views(
+    run: &Run,
+    physnerf: &PhysNerf,
+    rollouts: &Rollouts,
+    dir: &Path,
+) -> anyhow::Result<Vec<ImageScore>> {
+    let scene = &run.scene;
+    let cfg = &run.exp.eval;
+    let test = scene.frames(Role::Test);
+    let train_len = scene.frames(Role::Train).len();
+    let radius = scene.manifest().particle_radius;
+    let frames = rendered_steps(test.len(), cfg.render_every);
+    let lpips = Lpips::new(&neurofluid_core::device::cpu())?;
+    let mut scores = Vec::new();
+    for view in &cfg.views(scene) {
+        let bar =
+            indicatif::ProgressBar::new(frames.len() as u64).with_prefix(format!("render {view}"));
+        let mut animation = Vec::new();
+        for &t in &frames {
+            let vf = ViewFrame::load(scene, Role::Test, view, test.start + t)?;
+            let (cam, gt_rgb) = scaled_view(&vf, cfg.image_scale);
+            let truth = as_image(cam.width, cam.height, &gt_rgb)?;
+            let pred = render(physnerf, &cam, &rollouts.grounded[t])?;
+            let side = side_by_side(&pred, &truth);
+            let png = dir.join(format!("renders/{view}/t{t:04}.png"));
+            save_png(&png, side.width, side.height, &side.rgb)?;
+            scores.push(score(view, t, &pred, &truth, &lpips)?);
+            if cfg.animate {
+                let mut panels = vec![("truth", picture(&truth))];
+                if let Some(b) = &rollouts.baseline {
+                    panels.push(("DLF", picture(&render(physnerf, &cam, &b[t])?)));
+                }
+                panels.push(("NeuroFluid", picture(&pred)));
+                let labelled: Vec<(&str, &Picture)> = panels.iter().map(|(l, p)| (*l, p)).collect();
+                animation.push(row_of(&labelled));
+            }
+            bar.inc(1);
+        }
+        bar.finish_and_clear();
+        if cfg.animate {
+            write_apng(
+                &dir.join(format!("{ANIMATIONS}/{view}.png")),
+                &animation,
+                // half speed: two frame intervals per rendered step
+                (2000.0 * cfg.render_every.max(1) as f64 / f64::from(scene.manifest().fps))
+                    .round()
+                    .clamp(20.0, 5000.0) as u16,
+            )?;
+            let rows: Vec<Picture> = picture_frames(train_len, rollouts.steps())
+                .into_iter()
+                .map(|t| -> anyhow::Result<Picture> {
+                    let cam = scene.camera(Role::Test, view, test.start + t)?;
+                    let cam = at_least_wide(&cam, PARTICLE_PICTURE_WIDTH);
+                    let mut predictions: Vec<(&str, &[[f32; 3]])> = Vec::new();
+                    if let Some(b) = &rollouts.baseline {
+                        predictions.push(("DLF", &b[t]));
+                    }
+                    predictions.push(("NeuroFluid", &rollouts.grounded[t]));
+                    Ok(particle_row(
+                        &cam,
+                        radius,
+                        t,
+                        &rollouts.truth[t].pos,
+                        &predictions,
+                    ))
+                })
+                .collect::<anyhow::Result<_>>()?;
+            let grid = column_of(&rows);
+            save_png(
+                dir.join(format!("{ANIMATIONS}/{view}_particles.png")),
+                grid.width,
+                grid.height,
+                &grid.rgb,
+            )?;
+        }
+    }
+    Ok(scores)
+}
+
+/// Renders `particles` with PhysNeRF from `camera` (8-bit quantised, as saved PNGs are).
+fn render(
+    physnerf: &PhysNerf,
+    camera: &Camera,
+    particles: &[[f32; 3]],
+) -> anyhow::Result<RgbImage> {
+    let device = physnerf
+        .devices()
+        .into_iter()
+        .next()
+        .context("PhysNeRF has no device")?;
+    let image = render_image(
+        physnerf,
+        camera,
+        &points_tensor(particles, &device),
+        physnerf.config.chunk,
+        &mut |_, _| {},
+    )?;
+    as_image(camera.width, camera.height, image.best())
+}
+
+fn picture(image: &RgbImage) -> Picture {
+    Picture {
+        width: image.width as u32,
+        height: image.height as u32,
+        rgb: image.data.clone(),
+    }
+}
+
+/// The viewer page: the rollouts on a timeline, the test cameras with their renders, the d
+/// curves of `report` and the training loss curves of the run's metrics log.
+pub fn write_viewer(
+    run: &Run,
+    rollouts: &Rollouts,
+    report: &EvalReport,
+    dir: &Path,
+) -> anyhow::Result<()> {
+    let scene = &run.scene;
+    let cfg = &run.exp.eval;
+    let test = scene.frames(Role::Test);
+    let truth: Vec<Vec<[f32; 3]>> = rollouts.truth.iter().map(|f| f.pos.clone()).collect();
+    let mut sets: Vec<TrackInput<'_>> = vec![("truth", "#3a6fc4", &truth)];
+    if let Some(b) = &rollouts.baseline {
+        sets.push(("DLF", "#d9822b", b));
+    }
+    sets.push(("NeuroFluid", "#2e9e5b", &rollouts.grounded));
+    let title = format!("{}: {}", run.exp.name, scene.manifest().name);
+    let mut rec = Recording::new(&title, scene.manifest().particle_radius, &sets)?;
+    let rendered: Vec<usize> = if cfg.render {
+        rendered_steps(test.len(), cfg.render_every)
+    } else {
+        Vec::new()
+    };
+    let views = cfg.views(scene);
+    for view in &views {
+        let cam = scene.camera(Role::Test, view, test.start)?;
+        let renders = rendered
+            .iter()
+            .map(|&t| (t, format!("renders/{view}/t{t:04}.png")))
+            .collect();
+        rec = rec.with_camera(view, &cam, renders);
+    }
+    rec = rec.with_curve(
+        "NeuroFluid d",
+        "#2e9e5b",
+        report.frames.iter().map(|f| (f.t, f.neurofluid)).collect(),
+    );
+    for (model, colour) in [
+        (Rollout::Dlf, "#d9822b"),
+        (Rollout::SupervisedDlf, "#803caa"),
+    ] {
+        let points: Vec<(usize, f64)> = report
+            .frames
+            .iter()
+            .filter_map(|f| model.of(f).map(|d| (f.t, d)))
+            .collect();
+        if !points.is_empty() {
+            rec = rec.with_curve(&format!("{} d", model.label()), colour, points);
+        }
+    }
+    let jsonl = run.dir.join(crate::metrics_log::JSONL_FILE);
+    if jsonl.is_file() {
+        let rows = crate::metrics_log::read_jsonl(&jsonl)?;
+        for (stage, colour) in [(warmup::STAGE, "#3a6fc4"), (joint::STAGE, "#c0392b")] {
+            let points: Vec<(usize, f64)> = rows
+                .iter()
+                .filter(|r| r.stage == stage.folder() && r.loss.is_finite())
+                .map(|r| (r.step as usize, r.loss))
+                .collect();
+            if !points.is_empty() {
+                rec = rec.with_training_curve(&format!("{stage} loss"), colour, points);
+            }
+        }
+    }
+    rec.write(&dir.join(VIEWER_FILE))
+}
+
+/// The report (`report.{md,json}`, `frames.csv`), its d(t) plot, and its image scores in the
+/// run's metrics log.
+pub fn write_report(run: &Run, report: &EvalReport, dir: &Path) -> anyhow::Result<()> {
+    report.write_all(dir)?;
+    crate::plot::plot_distances(report, &dir.join(DISTANCE_PLOT))?;
+    log_images(run, report)
+}
+
+/// The evaluation's image scores in the run's metrics log: one `eval-<view>` row per render
+/// (step = rollout step; loss = the MSE that the PSNR stands for), replacing an earlier
+/// evaluation's rows.
+fn log_images(run: &Run, report: &EvalReport) -> anyhow::Result<()> {
+    let mut log = MetricsLog::open_resumed(&run.dir, |r| !r.stage.starts_with("eval-"))?;
+    for i in &report.images {
+        let mut row = MetricsRow::new(
+            &format!("eval-{}", i.view),
+            i.t as u64,
+            10f64.powf(-i.psnr / 10.0),
+            0.0,
+        );
+        row.psnr = Some(i.psnr);
+        row.ssim = Some(i.ssim).filter(|v| v.is_finite());
+        row.lpips = i.lpips;
+        log.append(&row)?;
+    }
+    Ok(())
+}

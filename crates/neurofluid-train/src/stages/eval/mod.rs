@@ -1,0 +1,94 @@
+//! Evaluation (spec §6): from the ground-truth state of the first test frame, roll the grounded
+//! transition model and the DLF it started from (the baseline) out without feedback, and report
+//! the particle distance d (GT→prediction nearest neighbour, ×1000) per frame, its mean over the
+//! grounding window (t = 1 … T_train−1) and the prediction window (t = T_train … T_test−1),
+//! PSNR/SSIM/LPIPS of the renders of the held-out views, renders beside ground truth (PNG) and the
+//! predicted particles of every frame (PLY).
+//!
+//! Its rooms: [`rollouts`] (the models' rollouts and their distances), [`super::scoring`]
+//! (images and particle sets against the truth, shared with the baselines) and [`artifacts`]
+//! (what is written). Imports go one way: this module → rollouts, artifacts → scoring.
+
+pub mod artifacts;
+pub mod rollouts;
+
+use anyhow::Context;
+use burn::module::Module;
+use neurofluid_core::scene::Role;
+
+pub use super::scoring::rendered_steps;
+pub use artifacts::{ANIMATIONS, DISTANCE_PLOT, VIEWER_FILE, picture_frames};
+use rollouts::Rollouts;
+
+use super::joint::Grounded;
+use super::run_folder::Run;
+use crate::report::{EvalReport, Windows};
+use crate::stage::Stage;
+
+/// Folder of the stage inside the run folder.
+pub const STAGE: Stage = Stage::Eval;
+
+/// Runs the evaluation, writes `eval/` and returns the report.
+pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
+    let scene = &run.scene;
+    let cfg = &run.exp.eval;
+    let test = scene.frames(Role::Test);
+    let train_len = scene.frames(Role::Train).len();
+    let rollouts = Rollouts::of(run, models)?;
+    let mut report = EvalReport::new(
+        &run.exp.name,
+        &scene.manifest().name,
+        &run.stage_dir(super::joint::STAGE).display().to_string(),
+        Windows::from_lengths(train_len, test.len()),
+    );
+    report.scored_seal = scored_seal(run)?;
+    report.initial_from_images =
+        run.exp.scene.initial == crate::config::InitialParticles::FromImages;
+    report.nvs_baselines = super::baseline::read_all(run)?;
+    report.frames = rollouts.frame_distances();
+    report.escaped = rollouts.escaped(
+        &scene.manifest().box_interior,
+        scene.manifest().particle_radius,
+    );
+
+    let dir = run.stage_dir(STAGE);
+    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    if cfg.write_ply {
+        artifacts::write_particles(&dir, &rollouts, cfg.ply_format)?;
+    }
+    if cfg.render {
+        let physnerf = models.physnerf.valid();
+        report.images = artifacts::render_views(run, &physnerf, &rollouts, &dir)?;
+    }
+    if cfg.viewer {
+        artifacts::write_viewer(run, &rollouts, &report, &dir)?;
+    }
+    artifacts::write_report(run, &report, &dir)?;
+    Ok(report)
+}
+
+/// The seal of the joint checkpoint an evaluation of `run` scores (its latest).
+fn scored_seal(run: &Run) -> anyhow::Result<Option<String>> {
+    let stage_dir = run.stage_dir(super::joint::STAGE);
+    match crate::trainer::checkpoint::latest(&stage_dir) {
+        Some(dir) => crate::trainer::checksums::seal_digest(&dir),
+        None => Ok(None),
+    }
+}
+
+/// Checks that `report` (read from `run`'s evaluation folder) scored the joint stage's current
+/// checkpoint: a report made before the stage went on describes another model.
+pub fn check_current(run: &Run, report: &EvalReport) -> anyhow::Result<()> {
+    let now = scored_seal(run)?;
+    anyhow::ensure!(
+        report.scored_seal.is_some() && report.scored_seal == now,
+        "the report in {} scored {} (seal {}), not the joint stage's current checkpoint \
+         (seal {}, step {}): it is stale; evaluate again",
+        run.stage_dir(STAGE).display(),
+        report.checkpoint,
+        report.scored_seal.as_deref().unwrap_or("unrecorded"),
+        now.as_deref().unwrap_or("none"),
+        crate::trainer::checkpoint::saved_step(&run.stage_dir(super::joint::STAGE))
+    );
+    Ok(())
+}

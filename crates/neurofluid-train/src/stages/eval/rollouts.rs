@@ -1,0 +1,138 @@
+//! The evaluation's rollouts: from the same starting state (the truth of the first test frame,
+//! or the particles from images), the grounded transition model, the DLF it started from and
+//! DLF† roll out without feedback; what they are measured by (d per frame both ways, particles
+//! through the walls).
+
+use anyhow::Context;
+use burn::module::Module;
+use neurofluid_core::metrics::gt_to_pred_distance;
+use neurofluid_core::scene::{Aabb, Particles, Role};
+use neurofluid_dlf::DlfNet;
+use neurofluid_dlf::rollout::rollout;
+
+use crate::report::{FrameDistance, Reverse, Rollout, count_outside};
+use crate::stages::initial::starting_particles;
+use crate::stages::joint::Grounded;
+use crate::stages::run_folder::Run;
+use crate::stages::views::check_sequence;
+
+/// Particle positions per rollout step (step 0 the starting state).
+pub type Positions = Vec<Vec<[f32; 3]>>;
+
+/// The true test frames and every model's rollout over them.
+pub struct Rollouts {
+    /// The true particles of the test split.
+    pub truth: Vec<Particles>,
+    /// The grounded transition model (NeuroFluid).
+    pub grounded: Positions,
+    /// The pretrained DLF it started from (`eval.baseline`).
+    pub baseline: Option<Positions>,
+    /// DLF† (`eval.supervised_dlf`).
+    pub supervised: Option<Positions>,
+}
+
+impl Rollouts {
+    /// Rolls every evaluated model out over the test split of `run`.
+    pub fn of(run: &Run, models: &Grounded) -> anyhow::Result<Self> {
+        let scene = &run.scene;
+        let cfg = &run.exp.eval;
+        let test = scene.frames(Role::Test);
+        let truth: Vec<_> = scene.particle_sequence(Role::Test)?;
+        check_sequence(&truth, test.start).context("the test split's particles")?;
+        let steps = test.len() - 1;
+        // both rollouts start from the same state: the truth, or the particles from images
+        let start = starting_particles(run, Role::Test, test.start, "first test frame")?;
+        tracing::info!(steps, "evaluating: rollouts from the first test frame");
+        let grounded = positions(run, &models.dlf, &start, steps, "NeuroFluid")?;
+        let baseline = if cfg.baseline {
+            let net = run.load_dlf(&run.exp.dlf.weights)?;
+            Some(positions(run, &net, &start, steps, "DLF")?)
+        } else {
+            None
+        };
+        let supervised = match &cfg.supervised_dlf {
+            Some(path) => {
+                let net = run.load_dlf(path).context("eval.supervised_dlf")?;
+                Some(positions(run, &net, &start, steps, "DLF†")?)
+            }
+            None => None,
+        };
+        Ok(Self {
+            truth,
+            grounded,
+            baseline,
+            supervised,
+        })
+    }
+
+    /// The rollout steps (the test split's frames after the first).
+    pub fn steps(&self) -> usize {
+        self.truth.len() - 1
+    }
+
+    /// d per rollout step t ≥ 1, truth → prediction and the reverse.
+    pub fn frame_distances(&self) -> Vec<FrameDistance> {
+        let (baseline, supervised) = (self.baseline.as_ref(), self.supervised.as_ref());
+        (1..=self.steps())
+            .map(|t| {
+                let truth = &self.truth[t].pos;
+                let d = |pred: &[[f32; 3]]| gt_to_pred_distance(truth, pred).mean;
+                let d_rev = |pred: &[[f32; 3]]| gt_to_pred_distance(pred, truth).mean;
+                FrameDistance {
+                    t,
+                    neurofluid: d(&self.grounded[t]),
+                    dlf: baseline.map(|b| d(&b[t])),
+                    supervised_dlf: supervised.map(|b| d(&b[t])),
+                    reverse: Reverse {
+                        neurofluid: Some(d_rev(&self.grounded[t])),
+                        dlf: baseline.map(|b| d_rev(&b[t])),
+                        supervised_dlf: supervised.map(|b| d_rev(&b[t])),
+                    },
+                }
+            })
+            .collect()
+    }
+
+    /// Per rollout, the most particles more than `radius` outside `interior` at any step.
+    pub fn escaped(&self, interior: &Aabb, radius: f32) -> Vec<(String, usize)> {
+        let escaped = |label: &str, frames: &[Vec<[f32; 3]>]| {
+            let most = frames[1..]
+                .iter()
+                .map(|p| count_outside(p, interior, radius))
+                .max()
+                .unwrap_or(0);
+            (label.to_string(), most)
+        };
+        [
+            self.baseline
+                .as_deref()
+                .map(|b| escaped(Rollout::Dlf.label(), b)),
+            self.supervised
+                .as_deref()
+                .map(|b| escaped(Rollout::SupervisedDlf.label(), b)),
+            Some(escaped(Rollout::NeuroFluid.label(), &self.grounded)),
+        ]
+        .into_iter()
+        .flatten()
+        .collect()
+    }
+}
+
+/// `net`'s rollout of `steps` steps from `start` against the scene's boundary.
+fn positions(
+    run: &Run,
+    net: &DlfNet,
+    start: &Particles,
+    steps: usize,
+    what: &str,
+) -> anyhow::Result<Positions> {
+    let net = net.valid();
+    let b = run.scene.boundary()?;
+    let boundary = net.boundary(&b.points, &b.normals, &net.device());
+    let bar = indicatif::ProgressBar::new(steps as u64).with_prefix(what.to_string());
+    let out = rollout(&net, &start.pos, &start.vel, &boundary, steps, |_| {
+        bar.inc(1)
+    });
+    bar.finish_and_clear();
+    Ok(out.pos)
+}
