@@ -468,8 +468,7 @@ impl Trainer for JointTrainer {
         stats.grad_norms = vec![("physnerf", norm_p)];
         if let Some(norm_d) = norm_d {
             stats.grad_norms.push(("dlf", norm_d));
-            stats.lr_physnerf = Some(lr_p);
-            stats.lr_dlf = Some(lr_d);
+            stats.lrs = vec![("physnerf", lr_p), ("dlf", lr_d)];
             stats.updated = true;
         }
         Ok(stats)

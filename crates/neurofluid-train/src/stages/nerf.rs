@@ -216,11 +216,11 @@ impl Trainer for NerfTrainer {
             } else {
                 scalar(&loss.coarse)
             })),
-            lr_physnerf: Some(lr),
-            lr_dlf: None,
             rays: rays.len(),
+            lrs: vec![("nerf", lr)],
             grad_norms: vec![("nerf", grad_norm)],
             updated: true,
+            ..StepStats::default()
         })
     }
 

@@ -142,11 +142,11 @@ impl Trainer for WarmupTrainer {
         Ok(StepStats {
             loss,
             psnr: Some(psnr_from_mse(fine_mse)),
-            lr_physnerf: Some(lr),
-            lr_dlf: None,
             rays: self.cfg.rays * self.data.views.len(),
+            lrs: vec![("physnerf", lr)],
             grad_norms: vec![("physnerf", grad_norm)],
             updated: true,
+            ..StepStats::default()
         })
     }
 

@@ -271,9 +271,9 @@ fn log_images(run: &Run, report: &EvalReport) -> anyhow::Result<()> {
             10f64.powf(-i.psnr / 10.0),
             0.0,
         );
-        row.psnr = Some(i.psnr);
-        row.ssim = Some(i.ssim).filter(|v| v.is_finite());
-        row.lpips = i.lpips;
+        row.set("psnr", i.psnr);
+        row.set_some("ssim", Some(i.ssim).filter(|v| v.is_finite()));
+        row.set_some("lpips", i.lpips);
         log.append(&row)?;
     }
     Ok(())
