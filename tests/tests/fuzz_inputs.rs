@@ -428,7 +428,7 @@ proptest! {
         .into_bytes();
         ply.extend(floats);
         let (_d, p) = file_with("cloud.ply", &ply);
-        names_file(neurofluid_train::ply::read_ply(&p), &p)?;
+        names_file(neurofluid_train::formats::ply::read_ply(&p), &p)?;
     }
 }
 

@@ -103,7 +103,7 @@ fn the_ci_experiment_learns() {
     );
 
     // the browser recording holds every frame of the three sets, as eval wrote them
-    let rec = neurofluid_train::viewer::Recording::read(
+    let rec = neurofluid_train::pictures::viewer::Recording::read(
         &run.stage_dir(eval::STAGE).join(eval::VIEWER_FILE),
     )
     .unwrap();
@@ -111,7 +111,7 @@ fn the_ci_experiment_learns() {
     let names: Vec<&str> = rec.tracks.iter().map(|t| t.name.as_str()).collect();
     assert_eq!(names, ["truth", "DLF", "NeuroFluid"]);
     let last = test_frames - 1;
-    let ply = neurofluid_train::ply::read_ply(
+    let ply = neurofluid_train::formats::ply::read_ply(
         &run.stage_dir(eval::STAGE)
             .join(format!("particles/neurofluid_{last:04}.ply")),
     )

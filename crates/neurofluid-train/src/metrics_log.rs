@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::csv_text::{cell, csv_text};
+use crate::formats::csv_text::{cell, csv_text};
 
 /// CSV file name inside a run folder.
 pub const CSV_FILE: &str = "metrics.csv";

@@ -185,7 +185,7 @@ impl CurvesPlot {
 impl EventSink for CurvesPlot {
     fn on_event(&mut self, event: &Event<'_>) -> anyhow::Result<()> {
         if let Event::Finished { .. } | Event::Stopped { .. } = event {
-            crate::plot::plot_metrics_file(&self.jsonl, &self.png)?;
+            crate::pictures::plot::plot_metrics_file(&self.jsonl, &self.png)?;
         }
         Ok(())
     }

@@ -41,7 +41,7 @@ pub const DIAGNOSTIC_COLOUR: Rgb<u8> = Rgb([46, 158, 91]);
 
 /// DejaVu Sans (Bitstream Vera licence, `assets/fonts/`), compiled in: plots and picture labels
 /// need no system font.
-const FONT: &[u8] = include_bytes!("../../../assets/fonts/DejaVuSans.ttf");
+const FONT: &[u8] = include_bytes!("../../../../assets/fonts/DejaVuSans.ttf");
 /// The family name the bundled font is registered under.
 pub(crate) const FONT_FAMILY: &str = "sans-serif";
 
