@@ -254,10 +254,13 @@ pub fn render_curves(rows: &[MetricsRow]) -> RgbImage {
                 }
                 let mut title = format!("{stage}: {}", panel.title);
                 if panel.names.len() > 1 {
+                    // the groups this stage has, in their colours' order
                     let groups: Vec<&str> = panel
                         .names
                         .iter()
-                        .map(|(n, _)| n.rsplit('/').next().unwrap_or(n))
+                        .zip(&series)
+                        .filter(|(_, (points, _))| !points.is_empty())
+                        .map(|((n, _), _)| n.rsplit('/').next().unwrap_or(n))
                         .collect();
                     title.push_str(&format!(" ({})", groups.join(", ")));
                 }
