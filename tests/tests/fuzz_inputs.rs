@@ -152,7 +152,7 @@ fn seeds() -> &'static Seeds {
             let mut log = neurofluid_train::metrics_log::MetricsLog::open(dir.path()).unwrap();
             for s in 1..4 {
                 let mut r = neurofluid_train::metrics_log::MetricsRow::new("warmup", s, 0.1, 1.0);
-                r.psnr = Some(20.0);
+                r.set("psnr", 20.0);
                 log.append(&r).unwrap();
             }
         }
@@ -428,7 +428,7 @@ proptest! {
         .into_bytes();
         ply.extend(floats);
         let (_d, p) = file_with("cloud.ply", &ply);
-        names_file(neurofluid_train::ply::read_ply(&p), &p)?;
+        names_file(neurofluid_train::formats::ply::read_ply(&p), &p)?;
     }
 }
 

@@ -173,10 +173,18 @@ fn diagnostics_reach_the_metrics_and_match_an_independent_rollout() {
     let rows = rows_of(&jsonl, "joint-preview");
     assert_eq!(rows.iter().map(|r| r.step).collect::<Vec<_>>(), [3, 6]);
     for r in &rows {
-        let a = r.grad_alignment.expect("alignment");
+        let a = r.get("grad_alignment").expect("alignment");
         assert!((-1.0..=1.0).contains(&a), "{a}");
-        assert!(r.psnr_true.expect("PSNR on the true particles").is_finite());
-        assert!(r.rollout_d_prime.expect("the rollout's d′").is_finite());
+        assert!(
+            r.get("psnr_true")
+                .expect("PSNR on the true particles")
+                .is_finite()
+        );
+        assert!(
+            r.get("rollout_d_prime")
+                .expect("the rollout's d′")
+                .is_finite()
+        );
     }
     let csv =
         std::fs::read_to_string(run.dir.join(neurofluid_train::metrics_log::CSV_FILE)).unwrap();
@@ -204,7 +212,7 @@ fn diagnostics_reach_the_metrics_and_match_an_independent_rollout() {
         .map(|t| gt_to_pred_distance(&truth[t].pos, &rollout.pos[t]).mean)
         .sum::<f64>()
         / (truth.len() - 1) as f64;
-    let logged = rows[1].rollout_d.expect("rollout d");
+    let logged = rows[1].get("rollout_d").expect("rollout d");
     assert!(
         (logged - expected).abs() <= 1e-9 * expected.max(1.0),
         "logged {logged}, independent {expected}"
@@ -228,7 +236,7 @@ fn foreground_rays_train_and_see_more_fluid() {
     // most of the rays of a step now see fluid: the batch PSNR is lower than on the mostly
     // white uniform draw of the same models
     let psnr = |stage_rows: &[MetricsRow]| {
-        stage_rows.iter().filter_map(|r| r.psnr).sum::<f64>() / stage_rows.len() as f64
+        stage_rows.iter().filter_map(|r| r.get("psnr")).sum::<f64>() / stage_rows.len() as f64
     };
     let focused = psnr(&rows_of(&focused.jsonl, "joint"));
     let mut e = tiny_experiment(tmp.path(), "uniform");

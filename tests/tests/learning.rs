@@ -99,11 +99,11 @@ fn the_ci_experiment_learns() {
     assert!(
         eval_rows
             .iter()
-            .all(|r| r.lpips.is_some_and(|v| v > 0.0) && r.psnr.is_some())
+            .all(|r| r.get("lpips").is_some_and(|v| v > 0.0) && r.get("psnr").is_some())
     );
 
     // the browser recording holds every frame of the three sets, as eval wrote them
-    let rec = neurofluid_train::viewer::Recording::read(
+    let rec = neurofluid_train::pictures::viewer::Recording::read(
         &run.stage_dir(eval::STAGE).join(eval::VIEWER_FILE),
     )
     .unwrap();
@@ -111,7 +111,7 @@ fn the_ci_experiment_learns() {
     let names: Vec<&str> = rec.tracks.iter().map(|t| t.name.as_str()).collect();
     assert_eq!(names, ["truth", "DLF", "NeuroFluid"]);
     let last = test_frames - 1;
-    let ply = neurofluid_train::ply::read_ply(
+    let ply = neurofluid_train::formats::ply::read_ply(
         &run.stage_dir(eval::STAGE)
             .join(format!("particles/neurofluid_{last:04}.ply")),
     )
@@ -151,7 +151,10 @@ fn a_model_that_starts_dead_is_stopped_with_the_reason() {
     assert!(err.contains("physnerf.density"), "{err}");
     // the rows logged so far show the zero gradients, and the message counts steps as they do
     let rows = neurofluid_train::metrics_log::read_jsonl(log.jsonl_path()).unwrap();
-    assert!(rows.iter().all(|r| r.grad_norm_physnerf == Some(0.0)));
+    assert!(
+        rows.iter()
+            .all(|r| r.get("grad_norm/physnerf") == Some(0.0))
+    );
     // (a session shorter than the patience is judged after its last, logged, step)
     let last = rows.iter().map(|r| r.step).max().unwrap();
     assert_eq!(last, run.exp.warmup.iters);

@@ -239,26 +239,9 @@ impl SceneConfig {
     }
 }
 
-/// A bad `[scene]` table.
-#[derive(Debug, thiserror::Error)]
-pub enum ConfigError {
-    /// The file could not be read.
-    #[error("{path}: {error}")]
-    Io {
-        /// The file.
-        path: PathBuf,
-        /// The I/O error.
-        error: std::io::Error,
-    },
-    /// The TOML is malformed or a field is missing or out of range.
-    #[error("{path}: {message}")]
-    Parse {
-        /// The file.
-        path: PathBuf,
-        /// What is wrong, naming the field.
-        message: String,
-    },
-}
+/// A bad `[scene]` table: the scene error's `Io` (the file could not be read) or `Parse` (the
+/// TOML is malformed, or a field is missing or out of range, named in the message).
+pub type ConfigError = neurofluid_core::scene::SceneError;
 
 #[cfg(test)]
 mod tests {

@@ -7,14 +7,44 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::csv_text::{cell, csv_text};
+use crate::formats::csv_text::{cell, csv_text};
 
 /// CSV file name inside a run folder.
 pub const CSV_FILE: &str = "metrics.csv";
 /// JSON-lines file name inside a run folder.
 pub const JSONL_FILE: &str = "metrics.jsonl";
-/// The CSV header.
+/// The CSV's first columns, always written in this order (the columns of every earlier
+/// release): a scalar named `a/b` goes to column `a_b`; names beyond these get columns of their
+/// own after them, in the order they first arrive.
 pub const CSV_HEADER: &str = "stage,step,loss,psnr,lr_physnerf,lr_dlf,rays_per_s,time_s,grad_norm_physnerf,grad_norm_dlf,ssim,lpips,rollout_d,grad_alignment,psnr_true,rollout_d_prime";
+
+/// Keys of earlier releases' files and the scalar names they stand for.
+const RENAMED: [(&str, &str); 2] = [("lr_renderer", "lr/physnerf"), ("lr_transition", "lr/dlf")];
+
+/// Scalars with one value per parameter group: `<family>/<group>`.
+pub const GROUP_FAMILIES: [&str; 2] = ["lr", "grad_norm"];
+
+/// The scalar name of a CSV column or JSON key: `lr_dlf` (a column, or an earlier release's
+/// key) is `lr/dlf`, as is an older release's `lr_transition`.
+pub fn scalar_name(key: &str) -> String {
+    if let Some((_, new)) = RENAMED.iter().find(|(old, _)| *old == key) {
+        return new.to_string();
+    }
+    for family in GROUP_FAMILIES {
+        if let Some(group) = key
+            .strip_prefix(family)
+            .and_then(|rest| rest.strip_prefix('_'))
+        {
+            return format!("{family}/{group}");
+        }
+    }
+    key.to_string()
+}
+
+/// The CSV column of a scalar: `/` becomes `_`.
+pub fn column_name(scalar: &str) -> String {
+    scalar.replace('/', "_")
+}
 
 /// Errors of the metrics log.
 #[derive(Debug, thiserror::Error)]
@@ -39,8 +69,10 @@ pub enum MetricsError {
     },
 }
 
-/// One logged step.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+/// One logged step: its stage, step, loss and time, and whatever named scalars the step or
+/// evaluation reported (`psnr`, `lr/<group>`, `grad_norm/<group>`, `rays_per_s`, `ssim`,
+/// `rollout_d`, …), in the order they were set. A JSON line holds them as keys of one object.
+#[derive(Debug, Clone, PartialEq)]
 pub struct MetricsRow {
     /// Stage: `warmup`, `joint`, `eval`, …
     pub stage: String,
@@ -48,54 +80,10 @@ pub struct MetricsRow {
     pub step: u64,
     /// Training loss of the step (or batch mean since the last row).
     pub loss: f64,
-    /// PSNR (dB) of the step's batch or of an evaluation.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub psnr: Option<f64>,
-    /// PhysNeRF's learning rate (the warm-up's only one).
-    #[serde(
-        default,
-        alias = "lr_renderer",
-        skip_serializing_if = "Option::is_none"
-    )]
-    pub lr_physnerf: Option<f64>,
-    /// DLF's learning rate (joint stage, supervised DLF).
-    #[serde(
-        default,
-        alias = "lr_transition",
-        skip_serializing_if = "Option::is_none"
-    )]
-    pub lr_dlf: Option<f64>,
-    /// Throughput in rays per second.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub rays_per_s: Option<f64>,
     /// Seconds since the run (or stage) started.
     pub time_s: f64,
-    /// L2 norm of PhysNeRF's gradients in the update.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub grad_norm_physnerf: Option<f64>,
-    /// L2 norm of DLF's gradients in the update.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub grad_norm_dlf: Option<f64>,
-    /// SSIM of an evaluation render.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub ssim: Option<f64>,
-    /// LPIPS of an evaluation render.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub lpips: Option<f64>,
-    /// Joint stage: d (× 1000) of DLF's rollout over the training frames against the truth.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub rollout_d: Option<f64>,
-    /// Joint stage: mean cosine between the image gradient's descent direction at the
-    /// prediction and the true error.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub grad_alignment: Option<f64>,
-    /// Joint stage: the renderer's PSNR on the true particles of training frames.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub psnr_true: Option<f64>,
-    /// Joint stage: d′ (× 1000, from each predicted particle to the nearest true one) of the
-    /// same rollout as `rollout_d`: spray that d does not see.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub rollout_d_prime: Option<f64>,
+    /// The named scalars, each name once.
+    pub scalars: Vec<(String, f64)>,
 }
 
 impl MetricsRow {
@@ -105,58 +93,137 @@ impl MetricsRow {
             stage: stage.to_string(),
             step,
             loss,
-            psnr: None,
-            lr_physnerf: None,
-            lr_dlf: None,
-            rays_per_s: None,
             time_s,
-            grad_norm_physnerf: None,
-            grad_norm_dlf: None,
-            ssim: None,
-            lpips: None,
-            rollout_d: None,
-            grad_alignment: None,
-            psnr_true: None,
-            rollout_d_prime: None,
+            scalars: Vec::new(),
         }
     }
 
-    /// Sets the column named `name` (`rollout_d`, `rollout_d_prime`, `grad_alignment`,
-    /// `psnr_true`); false for a
-    /// name that is not a column.
-    pub fn set_score(&mut self, name: &str, value: f64) -> bool {
-        let slot = match name {
-            "rollout_d" => &mut self.rollout_d,
-            "rollout_d_prime" => &mut self.rollout_d_prime,
-            "grad_alignment" => &mut self.grad_alignment,
-            "psnr_true" => &mut self.psnr_true,
-            _ => return false,
-        };
-        *slot = Some(value);
-        true
+    /// The scalar `name`, if the row has it.
+    pub fn get(&self, name: &str) -> Option<f64> {
+        self.scalars
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, v)| *v)
     }
 
-    /// The CSV line (with its newline); empty cells for missing values.
-    pub fn csv_line(&self) -> String {
-        csv_text([[
-            self.stage.clone(),
-            self.step.to_string(),
-            self.loss.to_string(),
-            cell(self.psnr),
-            cell(self.lr_physnerf),
-            cell(self.lr_dlf),
-            cell(self.rays_per_s),
-            self.time_s.to_string(),
-            cell(self.grad_norm_physnerf),
-            cell(self.grad_norm_dlf),
-            cell(self.ssim),
-            cell(self.lpips),
-            cell(self.rollout_d),
-            cell(self.grad_alignment),
-            cell(self.psnr_true),
-            cell(self.rollout_d_prime),
-        ]])
+    /// Sets the scalar `name` (replacing an earlier value).
+    pub fn set(&mut self, name: &str, value: f64) {
+        match self.scalars.iter_mut().find(|(n, _)| n == name) {
+            Some(slot) => slot.1 = value,
+            None => self.scalars.push((name.to_string(), value)),
+        }
     }
+
+    /// Sets the scalar `name` where there is a value.
+    pub fn set_some(&mut self, name: &str, value: Option<f64>) {
+        if let Some(v) = value {
+            self.set(name, v);
+        }
+    }
+
+    /// Removes the scalar `name`.
+    pub fn remove(&mut self, name: &str) {
+        self.scalars.retain(|(n, _)| n != name);
+    }
+
+    /// The CSV line under `columns` (with its newline); empty cells for missing values.
+    pub fn csv_line(&self, columns: &[String]) -> String {
+        csv_text([columns.iter().map(|c| match c.as_str() {
+            "stage" => self.stage.clone(),
+            "step" => self.step.to_string(),
+            "loss" => self.loss.to_string(),
+            "time_s" => self.time_s.to_string(),
+            c => cell(
+                self.scalars
+                    .iter()
+                    .find(|(n, _)| column_name(n) == c)
+                    .map(|(_, v)| *v),
+            ),
+        })])
+    }
+}
+
+impl Serialize for MetricsRow {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeMap;
+        let mut map = s.serialize_map(Some(4 + self.scalars.len()))?;
+        map.serialize_entry("stage", &self.stage)?;
+        map.serialize_entry("step", &self.step)?;
+        map.serialize_entry("loss", &self.loss)?;
+        for (name, v) in &self.scalars {
+            map.serialize_entry(name, v)?;
+        }
+        map.serialize_entry("time_s", &self.time_s)?;
+        map.end()
+    }
+}
+
+impl<'de> Deserialize<'de> for MetricsRow {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct Visit;
+        impl<'de> serde::de::Visitor<'de> for Visit {
+            type Value = MetricsRow;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a metrics row (an object with stage, step, loss and time_s)")
+            }
+            fn visit_map<A: serde::de::MapAccess<'de>>(
+                self,
+                mut m: A,
+            ) -> Result<MetricsRow, A::Error> {
+                use serde::de::Error;
+                let (mut stage, mut step, mut loss, mut time_s) = (None, None, None, None);
+                let mut row = MetricsRow::new("", 0, 0.0, 0.0);
+                while let Some(key) = m.next_key::<String>()? {
+                    match key.as_str() {
+                        "stage" => stage = Some(m.next_value::<String>()?),
+                        "step" => step = Some(m.next_value::<u64>()?),
+                        "loss" => loss = Some(m.next_value::<f64>()?),
+                        "time_s" => time_s = Some(m.next_value::<f64>()?),
+                        // a missing value (`null`) or another kind of value is no scalar
+                        _ => {
+                            if let serde_json::Value::Number(n) =
+                                m.next_value::<serde_json::Value>()?
+                            {
+                                let v =
+                                    n.as_f64().ok_or_else(|| A::Error::custom("not a number"))?;
+                                row.set(&scalar_name(&key), v);
+                            }
+                        }
+                    }
+                }
+                row.stage = stage.ok_or_else(|| A::Error::missing_field("stage"))?;
+                row.step = step.ok_or_else(|| A::Error::missing_field("step"))?;
+                row.loss = loss.ok_or_else(|| A::Error::missing_field("loss"))?;
+                row.time_s = time_s.ok_or_else(|| A::Error::missing_field("time_s"))?;
+                Ok(row)
+            }
+        }
+        d.deserialize_map(Visit)
+    }
+}
+
+/// The CSV columns of `rows`: [`CSV_HEADER`]'s, then each further scalar's in first-seen order.
+pub fn columns_of<'a>(rows: impl IntoIterator<Item = &'a MetricsRow>) -> Vec<String> {
+    let mut columns: Vec<String> = CSV_HEADER.split(',').map(str::to_string).collect();
+    for r in rows {
+        for (name, _) in &r.scalars {
+            let c = column_name(name);
+            if !columns.contains(&c) {
+                columns.push(c);
+            }
+        }
+    }
+    columns
+}
+
+/// The whole CSV text (header and lines) of `rows`.
+fn csv_of(rows: &[MetricsRow]) -> String {
+    let columns = columns_of(rows);
+    let mut csv = format!("{}\n", columns.join(","));
+    for r in rows {
+        csv.push_str(&r.csv_line(&columns));
+    }
+    csv
 }
 
 /// PSNR (dB) of a mean squared error on [0, 1] colours: −10·log10(mse).
@@ -171,6 +238,8 @@ pub struct MetricsLog {
     jsonl_path: PathBuf,
     csv: File,
     jsonl: File,
+    /// The CSV's columns.
+    columns: Vec<String>,
 }
 
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> MetricsError + '_ {
@@ -180,9 +249,18 @@ fn io(path: &Path) -> impl FnOnce(std::io::Error) -> MetricsError + '_ {
     }
 }
 
+fn append_to(p: &Path) -> Result<File, MetricsError> {
+    OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(p)
+        .map_err(io(p))
+}
+
 impl MetricsLog {
-    /// Opens (creating) the log in `dir`, appending to existing files. A CSV written under
-    /// another header (an earlier release's columns) is first written again from the JSONL.
+    /// Opens (creating) the log in `dir`, appending to existing files. A CSV whose header does
+    /// not begin with [`CSV_HEADER`] (an earlier release's columns) is first written again from
+    /// the JSONL.
     pub fn open(dir: &Path) -> Result<Self, MetricsError> {
         std::fs::create_dir_all(dir).map_err(io(dir))?;
         let csv_path = dir.join(CSV_FILE);
@@ -191,31 +269,30 @@ impl MetricsLog {
             let mut line = String::new();
             BufReader::new(f).read_line(&mut line).ok().map(|_| line)
         });
-        if header.is_some_and(|h| !h.is_empty() && h.trim_end() != CSV_HEADER)
-            && jsonl_path.is_file()
-        {
+        let header = header.map(|h| h.trim_end().to_string()).unwrap_or_default();
+        let ours = header == CSV_HEADER || header.starts_with(&format!("{CSV_HEADER},"));
+        if !header.is_empty() && !ours && jsonl_path.is_file() {
             return Self::open_resumed(dir, |_| true);
         }
-        let open = |p: &Path| {
-            OpenOptions::new()
-                .create(true)
-                .append(true)
-                .open(p)
-                .map_err(io(p))
-        };
-        let mut csv = open(&csv_path)?;
-        let jsonl = open(&jsonl_path)?;
+        let mut csv = append_to(&csv_path)?;
+        let jsonl = append_to(&jsonl_path)?;
         let empty = csv.metadata().map_err(io(&csv_path))?.len() == 0;
         if empty {
             writeln!(csv, "{CSV_HEADER}")
                 .and_then(|()| csv.flush())
                 .map_err(io(&csv_path))?;
         }
+        let columns = if empty || !ours {
+            columns_of([])
+        } else {
+            header.split(',').map(str::to_string).collect()
+        };
         Ok(Self {
             csv_path,
             jsonl_path,
             csv,
             jsonl,
+            columns,
         })
     }
 
@@ -228,15 +305,13 @@ impl MetricsLog {
         let jsonl_path = dir.join(JSONL_FILE);
         if jsonl_path.exists() {
             let rows: Vec<MetricsRow> = read_jsonl(&jsonl_path)?.into_iter().filter(keep).collect();
-            let mut csv = format!("{CSV_HEADER}\n");
             let mut jsonl = String::new();
             for r in &rows {
-                csv.push_str(&r.csv_line());
                 jsonl.push_str(&serde_json::to_string(r).expect("row serialises"));
                 jsonl.push('\n');
             }
             let csv_path = dir.join(CSV_FILE);
-            neurofluid_core::atomic::write_bytes(&csv_path, csv.as_bytes())
+            neurofluid_core::atomic::write_bytes(&csv_path, csv_of(&rows).as_bytes())
                 .map_err(io(&csv_path))?;
             neurofluid_core::atomic::write_bytes(&jsonl_path, jsonl.as_bytes())
                 .map_err(io(&jsonl_path))?;
@@ -244,16 +319,29 @@ impl MetricsLog {
         Self::open(dir)
     }
 
-    /// Appends one row to both files and flushes them.
+    /// Appends one row to both files and flushes them. A scalar without a CSV column yet
+    /// widens the CSV: it is written again from the JSONL under the new header.
     pub fn append(&mut self, row: &MetricsRow) -> Result<(), MetricsError> {
-        write!(self.csv, "{}", row.csv_line())
-            .and_then(|()| self.csv.flush())
-            .map_err(io(&self.csv_path))?;
         let json = serde_json::to_string(row).expect("row serialises");
         writeln!(self.jsonl, "{json}")
             .and_then(|()| self.jsonl.flush())
             .map_err(io(&self.jsonl_path))?;
-        Ok(())
+        let new = row
+            .scalars
+            .iter()
+            .any(|(n, _)| !self.columns.contains(&column_name(n)));
+        if new {
+            let rows = read_jsonl(&self.jsonl_path)?;
+            let csv = csv_of(&rows);
+            neurofluid_core::atomic::write_bytes(&self.csv_path, csv.as_bytes())
+                .map_err(io(&self.csv_path))?;
+            self.csv = append_to(&self.csv_path)?;
+            self.columns = columns_of(&rows);
+            return Ok(());
+        }
+        write!(self.csv, "{}", row.csv_line(&self.columns))
+            .and_then(|()| self.csv.flush())
+            .map_err(io(&self.csv_path))
     }
 
     /// The JSONL file (read it back with [`read_jsonl`]).
@@ -265,6 +353,49 @@ impl MetricsLog {
     pub fn csv_path(&self) -> &Path {
         &self.csv_path
     }
+}
+
+/// Reads every row of a `metrics.csv` file, this release's or an earlier one's (columns by
+/// name; `lr_dlf` is the scalar `lr/dlf`).
+pub fn read_csv(path: &Path) -> Result<Vec<MetricsRow>, MetricsError> {
+    let parse = |line: usize, message: String| MetricsError::Parse {
+        path: path.to_path_buf(),
+        line,
+        message,
+    };
+    let mut reader = csv::Reader::from_path(path).map_err(|e| parse(1, e.to_string()))?;
+    let header: Vec<String> = reader
+        .headers()
+        .map_err(|e| parse(1, e.to_string()))?
+        .iter()
+        .map(str::to_string)
+        .collect();
+    let mut rows = Vec::new();
+    for (i, record) in reader.records().enumerate() {
+        let line = i + 2;
+        let record = record.map_err(|e| parse(line, e.to_string()))?;
+        let mut row = MetricsRow::new("", 0, 0.0, 0.0);
+        for (column, text) in header.iter().zip(record.iter()) {
+            let number = || {
+                text.parse::<f64>()
+                    .map_err(|e| parse(line, format!("{column}: {e}")))
+            };
+            match column.as_str() {
+                "stage" => row.stage = text.to_string(),
+                "step" => {
+                    row.step = text
+                        .parse()
+                        .map_err(|e| parse(line, format!("step: {e}")))?
+                }
+                "loss" => row.loss = number()?,
+                "time_s" => row.time_s = number()?,
+                _ if text.is_empty() => {}
+                c => row.set(&scalar_name(c), number()?),
+            }
+        }
+        rows.push(row);
+    }
+    Ok(rows)
 }
 
 /// Reads every row of a `metrics.jsonl` file (blank lines skipped). A last line without its
@@ -302,8 +433,8 @@ mod tests {
 
     fn row(stage: &str, step: u64, loss: f64) -> MetricsRow {
         let mut r = MetricsRow::new(stage, step, loss, step as f64 * 0.5);
-        r.psnr = Some(psnr_from_mse(loss));
-        r.lr_physnerf = Some(5e-4);
+        r.set("psnr", psnr_from_mse(loss));
+        r.set("lr/physnerf", 5e-4);
         r
     }
 
@@ -326,7 +457,7 @@ mod tests {
         {
             let mut log = MetricsLog::open(dir.path()).unwrap();
             let mut r = MetricsRow::new("joint", 0, 0.2, 9.0);
-            r.lr_dlf = Some(1e-5);
+            r.set("lr/dlf", 1e-5);
             log.append(&r).unwrap();
         }
         let csv = std::fs::read_to_string(dir.path().join(CSV_FILE)).unwrap();
@@ -339,8 +470,8 @@ mod tests {
         let rows = read_jsonl(&dir.path().join(JSONL_FILE)).unwrap();
         assert_eq!(rows.len(), 3);
         assert_eq!(rows[1], row("warmup", 10, 0.05));
-        assert_eq!(rows[2].lr_dlf, Some(1e-5));
-        assert_eq!(rows[2].psnr, None);
+        assert_eq!(rows[2].get("lr/dlf"), Some(1e-5));
+        assert_eq!(rows[2].get("psnr"), None);
     }
 
     #[test]
@@ -415,5 +546,85 @@ mod tests {
         .unwrap();
         let err = read_jsonl(&p).unwrap_err();
         assert!(err.to_string().contains("line 2"), "{err}");
+    }
+
+    /// Files of an earlier release (the fixed 16 columns; `lr_physnerf`-style JSON keys, and
+    /// the older `lr_renderer`/`lr_transition`) read as named scalars, and a log opened over them
+    /// keeps appending under the same header.
+    #[test]
+    fn old_files_read_as_named_scalars() {
+        let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures");
+        let csv = read_csv(&fixtures.join("metrics-v1.csv")).unwrap();
+        let jsonl = read_jsonl(&fixtures.join("metrics-v1.jsonl")).unwrap();
+        assert_eq!(csv.len(), 5);
+        assert_eq!(jsonl.len(), 6);
+        // the CSV and the JSONL of the same release say the same
+        for (a, b) in csv.iter().zip(&jsonl) {
+            let mut a = a.clone();
+            a.scalars.sort_by(|x, y| x.0.cmp(&y.0));
+            let mut b = b.clone();
+            b.scalars.sort_by(|x, y| x.0.cmp(&y.0));
+            assert_eq!(a, b);
+        }
+        let joint = &jsonl[2];
+        assert_eq!((joint.stage.as_str(), joint.step), ("joint", 28));
+        assert_eq!(joint.get("lr/physnerf"), Some(1e-4));
+        assert_eq!(joint.get("lr/dlf"), Some(1e-4));
+        assert_eq!(joint.get("grad_norm/dlf"), Some(0.33109222170497077));
+        assert_eq!(joint.get("rays_per_s"), Some(599.7043510425078));
+        assert_eq!(jsonl[3].get("rollout_d_prime"), Some(30.732555655048223));
+        assert_eq!(jsonl[4].get("lpips"), Some(0.1003879806958139));
+        assert_eq!(jsonl[5].get("lr/physnerf"), Some(4e-4));
+        assert_eq!(jsonl[5].get("lr/dlf"), Some(1e-4));
+        // written again, a row has the same CSV line as before
+        let columns = columns_of([]);
+        let old = std::fs::read_to_string(fixtures.join("metrics-v1.csv")).unwrap();
+        let lines: Vec<String> = csv.iter().map(|r| r.csv_line(&columns)).collect();
+        assert_eq!(old.lines().nth(3).unwrap(), lines[2].trim_end());
+        // a log in a folder of old files appends under the old header
+        let dir = tempfile::tempdir().unwrap();
+        for f in ["metrics-v1.csv", "metrics-v1.jsonl"] {
+            let to = if f.ends_with("csv") {
+                CSV_FILE
+            } else {
+                JSONL_FILE
+            };
+            std::fs::copy(fixtures.join(f), dir.path().join(to)).unwrap();
+        }
+        let mut log = MetricsLog::open(dir.path()).unwrap();
+        log.append(&row("warmup", 75, 0.08)).unwrap();
+        let text = std::fs::read_to_string(dir.path().join(CSV_FILE)).unwrap();
+        assert!(text.starts_with(&old), "{text}");
+        assert_eq!(read_csv(&dir.path().join(CSV_FILE)).unwrap().len(), 6);
+    }
+
+    /// A scalar the CSV has no column for yet widens it; rows before it get an empty cell.
+    #[test]
+    fn a_new_scalar_gets_a_column_of_its_own() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut log = MetricsLog::open(dir.path()).unwrap();
+        log.append(&row("nerf", 0, 0.1)).unwrap();
+        let mut r = row("nerf", 1, 0.1);
+        r.set("grad_norm/nerf", 2.5);
+        log.append(&r).unwrap();
+        log.append(&r).unwrap();
+        let csv = std::fs::read_to_string(dir.path().join(CSV_FILE)).unwrap();
+        let lines: Vec<&str> = csv.lines().collect();
+        assert_eq!(lines[0], format!("{CSV_HEADER},grad_norm_nerf"));
+        assert!(lines[1].ends_with(",,"), "{csv}");
+        assert!(
+            lines[2].ends_with(",2.5") && lines[3].ends_with(",2.5"),
+            "{csv}"
+        );
+        assert_eq!(
+            read_csv(&dir.path().join(CSV_FILE)).unwrap()[2].get("grad_norm/nerf"),
+            Some(2.5)
+        );
+        // reopened, the log keeps the wider header
+        drop(log);
+        MetricsLog::open(dir.path()).unwrap().append(&r).unwrap();
+        let csv = std::fs::read_to_string(dir.path().join(CSV_FILE)).unwrap();
+        assert_eq!(csv.lines().count(), 5);
+        assert!(csv.lines().last().unwrap().ends_with(",2.5"));
     }
 }

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::csv_text::{cell, csv_text};
+use crate::formats::csv_text::{cell, csv_text};
 
 /// JSON file name of the report inside an eval folder.
 pub const JSON_FILE: &str = "report.json";

@@ -8,8 +8,8 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use neurofluid_core::scene::Particles;
 
-use crate::mesh::{SurfaceSettings, reconstruct};
-use crate::ply::read_ply;
+use crate::formats::ply::read_ply;
+use crate::geometry::mesh::{SurfaceSettings, reconstruct};
 
 /// Mesh formats.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]

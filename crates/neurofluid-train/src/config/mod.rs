@@ -22,6 +22,7 @@
 //! lr = 1e-4
 //! ```
 
+pub mod checks;
 mod errors;
 mod legacy;
 pub mod preset;
@@ -33,6 +34,7 @@ use std::path::{Path, PathBuf};
 use neurofluid_physnerf::PhysNerfConfig;
 use serde::{Deserialize, Serialize};
 
+pub use checks::{Cadenced, Section};
 pub use errors::{ConfigError, from_toml_str, line_col};
 pub(crate) use errors::{from_table, read_text};
 pub use preset::Preset;
@@ -202,168 +204,40 @@ impl Experiment {
             .try_for_each(|s| self.apply_override(s.as_ref()))
     }
 
-    /// Checks values serde cannot: ranges, exclusive choices, ordering.
+    /// Checks values serde cannot: ranges, exclusive choices, ordering. Each section checks
+    /// itself ([`checks::Section::problem`]); the first problem is the error.
     pub fn validate(&self, origin: &Path) -> Result<(), ConfigError> {
-        let bad = |key: &str, msg: &str| Err(ConfigError::invalid(origin, key, msg));
         let name = self.name.trim();
         if name.is_empty() || name == "." || name == ".." || self.name.contains(['/', '\\']) {
-            return bad(
+            return Err(ConfigError::invalid(
+                origin,
                 "name",
                 "expected a name that is one folder name (not empty, `.` or `..`, no slashes)",
-            );
+            ));
         }
-        match (&self.scene.path, &self.scene.builtin) {
-            (Some(_), Some(_)) => {
-                return bad(
-                    "scene",
-                    "give either `path` (an existing scene) or `builtin` (generate one), not both",
-                );
-            }
-            (None, None) => {
-                return bad(
-                    "scene",
-                    "expected `path = \"<scene dir>\"` or `builtin = \"watercube\" | \"watersphere\" | \"honeycone\" | \"waterbunny\"`",
-                );
-            }
-            (Some(_), None) if !self.scene.generate.is_empty() => {
-                return bad(
-                    "scene.generate",
-                    "generator settings need `builtin`, not `path`",
-                );
-            }
-            _ => {}
+        let problem = checks::problem_of(&self.scene)
+            .or_else(|| checks::problem_of(&self.physnerf))
+            .or_else(|| checks::problem_of(&self.warmup))
+            .or_else(|| checks::problem_of(&self.joint))
+            .or_else(|| checks::problem_of(&self.nerf))
+            .or_else(|| checks::problem_of(&self.initial))
+            .or_else(|| checks::problem_of(&self.eval));
+        match problem {
+            Some((key, msg)) => Err(ConfigError::invalid(origin, &key, &msg)),
+            None => Ok(()),
         }
-        for reserved in ["name", "scale", "out"] {
-            if self.scene.generate.contains_key(reserved) {
-                return bad(
-                    &format!("scene.generate.{reserved}"),
-                    "set this as `scene.builtin` / `scene.scale` / `scene.dir` instead",
-                );
-            }
-        }
-        let s = &self.scene;
-        for (key, v) in [("scene.near", s.near), ("scene.far", s.far)] {
-            if v.is_some_and(|v| !(v.is_finite() && v >= 0.0)) {
-                return bad(key, "expected a finite distance ≥ 0");
-            }
-        }
-        if let (Some(n), Some(f)) = (s.near, s.far)
-            && n >= f
-        {
-            return bad("scene.far", "expected far > near");
-        }
-        if let Some((field, msg)) = self.physnerf.problem() {
-            return bad(&format!("physnerf.{field}"), &msg);
-        }
-        let w = &self.warmup;
-        if w.iters == 0 {
-            return bad("warmup.iters", "expected at least 1 iteration");
-        }
-        if w.rays == 0 {
-            return bad("warmup.rays", "expected at least 1");
-        }
-        if let Some((key, msg)) = w.optim.problem() {
-            return bad(&format!("warmup.optim.{key}"), msg);
-        }
-        check_frac(w.precrop_frac, "warmup.precrop_frac", origin)?;
-        if w.views.as_ref().is_some_and(Vec::is_empty) {
-            return bad("warmup.views", "expected at least one view");
-        }
-        let j = &self.joint;
-        if j.epochs == 0 {
-            return bad("joint.epochs", "expected at least 1 epoch");
-        }
-        if j.rays == 0 {
-            return bad("joint.rays", "expected at least 1");
-        }
-        if j.dlf_every == 0 {
-            return bad("joint.dlf_every", "expected at least 1");
-        }
-        if j.bptt_steps == 0 {
-            return bad("joint.bptt_steps", "expected at least 1");
-        }
-        if let Some((key, msg)) = j.physnerf_optim.problem() {
-            return bad(&format!("joint.physnerf_optim.{key}"), msg);
-        }
-        if let Some((key, msg)) = j.dlf_optim.problem() {
-            return bad(&format!("joint.dlf_optim.{key}"), msg);
-        }
-        if !(j.boundary_weight.is_finite() && j.boundary_weight >= 0.0) {
-            return bad("joint.boundary_weight", "expected a weight ≥ 0");
-        }
-        check_frac(j.precrop_frac, "joint.precrop_frac", origin)?;
-        if !(0.0..=1.0).contains(&j.foreground_rays) {
-            return bad("joint.foreground_rays", "expected a share in [0, 1]");
-        }
-        if !(j.silhouette_weight.is_finite() && j.silhouette_weight >= 0.0) {
-            return bad("joint.silhouette_weight", "expected a finite weight ≥ 0");
-        }
-        if !(j.density_weight.is_finite() && j.density_weight >= 0.0) {
-            return bad("joint.density_weight", "expected a finite weight ≥ 0");
-        }
-        if !(j.anchor_weight.is_finite() && j.anchor_weight >= 0.0) {
-            return bad("joint.anchor_weight", "expected a finite weight ≥ 0");
-        }
-        let n = &self.nerf;
-        if let Some((field, msg)) = n.model.problem() {
-            return bad(&format!("nerf.model.{field}"), &msg);
-        }
-        if n.model.density == neurofluid_physnerf::DensityActivation::Softplus && !n.clip_to_box {
-            return bad(
-                "nerf.model.density",
-                "\"softplus\" needs nerf.clip_to_box = true (outside the box the density must \
-                 be zero, or every ray's infinite last interval is opaque)",
-            );
-        }
-        if n.iters == 0 {
-            return bad("nerf.iters", "expected at least 1 iteration");
-        }
-        if n.rays == 0 || n.images_per_step == 0 {
-            return bad("nerf.rays", "expected at least 1 ray and 1 image per step");
-        }
-        if n.rays < n.images_per_step {
-            return bad(
-                "nerf.images_per_step",
-                "expected at most `nerf.rays` images per step",
-            );
-        }
-        if let Some((key, msg)) = n.optim.problem() {
-            return bad(&format!("nerf.optim.{key}"), msg);
-        }
-        check_frac(n.precrop_frac, "nerf.precrop_frac", origin)?;
-        let i = &self.initial;
-        if !(i.cell_radii.is_finite() && i.cell_radii > 0.0) {
-            return bad(
-                "initial.cell_radii",
-                "expected a grid spacing > 0 particle radii",
-            );
-        }
-        if !(i.opacity > 0.0 && i.opacity < 1.0) {
-            return bad("initial.opacity", "expected an opacity in (0, 1)");
-        }
-        let e = &self.eval;
-        if !(e.image_scale.is_finite() && e.image_scale > 0.0 && e.image_scale <= 1.0) {
-            return bad("eval.image_scale", "expected a scale in (0, 1]");
-        }
-        if e.render_every == 0 {
-            return bad("eval.render_every", "expected at least 1");
-        }
-        if e.views.as_ref().is_some_and(Vec::is_empty) {
-            return bad("eval.views", "expected at least one view");
-        }
-        Ok(())
     }
-}
 
-fn check_frac(v: f64, key: &str, origin: &Path) -> Result<(), ConfigError> {
-    if v.is_finite() && v > 0.0 && v <= 1.0 {
-        Ok(())
-    } else {
-        Err(ConfigError::invalid(
-            origin,
-            key,
-            "expected a fraction in (0, 1]",
-        ))
+    /// The keys that never shape a training state (prefixes on whole key segments): what is
+    /// logged and when, the device, where outputs go, memory; each section names its own.
+    pub fn free_keys() -> Vec<String> {
+        let mut keys: Vec<String> = ["name", "device", "out_dir"].map(String::from).to_vec();
+        keys.extend(checks::free_keys_of::<EvalSection>());
+        keys.extend(checks::free_keys_of::<PhysNerfConfig>());
+        keys.extend(checks::free_keys_of::<WarmupSection>());
+        keys.extend(checks::free_keys_of::<JointSection>());
+        keys.extend(checks::free_keys_of::<NerfSection>());
+        keys
     }
 }
 

@@ -12,29 +12,16 @@ use serde::{Deserialize, Serialize};
 use super::Experiment;
 use crate::stage::Stage;
 
-/// Keys that never shape a training state (prefix match on whole key segments).
-const FREE: &[&str] = &[
-    "name",
-    "device",
-    "out_dir",
-    "eval",
-    "physnerf.chunk",
-    "warmup.log_every",
-    "warmup.ckpt_every",
-    "warmup.preview_every",
-    "joint.log_every",
-    "joint.ckpt_every",
-    "joint.preview_every",
-    "nerf.log_every",
-    "nerf.ckpt_every",
-    "nerf.preview_every",
-    "nerf.model.chunk",
-];
-
-/// Whether `key` is [`FREE`] or under a free key.
+/// Whether `key` never shapes a training state: it is one of [`Experiment::free_keys`] or
+/// under one.
 fn is_free(key: &str) -> bool {
-    FREE.iter()
-        .any(|p| key == *p || key.starts_with(&format!("{p}.")))
+    static FREE: std::sync::LazyLock<Vec<String>> = std::sync::LazyLock::new(Experiment::free_keys);
+    FREE.iter().any(|p| {
+        key == p
+            || key
+                .strip_prefix(p.as_str())
+                .is_some_and(|r| r.starts_with('.'))
+    })
 }
 
 /// Keys added after a release, with the value that keeps the earlier behaviour: a checkpoint
@@ -163,6 +150,34 @@ impl Settings {
 mod tests {
     use super::*;
     use std::path::Path;
+
+    /// The free keys the sections name are the hand list of the release before them.
+    #[test]
+    fn free_keys_come_from_the_sections() {
+        let mut keys = Experiment::free_keys();
+        keys.sort();
+        let mut before = [
+            "name",
+            "device",
+            "out_dir",
+            "eval",
+            "physnerf.chunk",
+            "warmup.log_every",
+            "warmup.ckpt_every",
+            "warmup.preview_every",
+            "joint.log_every",
+            "joint.ckpt_every",
+            "joint.preview_every",
+            "nerf.log_every",
+            "nerf.ckpt_every",
+            "nerf.preview_every",
+            "nerf.model.chunk",
+        ];
+        before.sort();
+        assert_eq!(keys, before);
+        assert!(is_free("eval.views") && is_free("warmup.log_every"));
+        assert!(!is_free("evaluate") && !is_free("warmup.log_everything"));
+    }
 
     fn exp(overrides: &[&str]) -> Experiment {
         let mut e = Experiment::from_toml_str(

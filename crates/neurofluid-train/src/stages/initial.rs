@@ -17,9 +17,9 @@ use super::run_folder::Run;
 use super::scoring::{at_least_wide, particle_row};
 use super::views::load_particles;
 use crate::config::{InitialParticles, Settings};
+use crate::geometry::volume_fill::{DensityGrid, FillSettings, surface_and_fill};
 use crate::metrics_log::MetricsLog;
 use crate::stage::Stage;
-use crate::volume_fill::{DensityGrid, FillSettings, surface_and_fill};
 
 /// Folder of the recovered initial state inside the run folder.
 pub const STAGE: Stage = Stage::Initial;

@@ -38,6 +38,7 @@ use super::views::{
     render_beside_truth, require_warmup_every_frame, scalar, tensor_points,
 };
 use super::warmup::{self, WarmupData};
+use crate::config::Cadenced;
 use crate::config::JointSection;
 use crate::density_prior::DensityPrior;
 use crate::focus::{image_foreground, mark_particles, sample_focused};
@@ -47,7 +48,7 @@ use crate::sampler::Rng;
 use crate::silhouette::{projected_radius, silhouette_loss};
 use crate::stage::{Stage, files};
 use crate::trainer::checkpoint;
-use crate::trainer::{Cadence, Evaluation, StageState, StepStats, Trainer, guard};
+use crate::trainer::{Evaluation, StageState, StepStats, Trainer, guard};
 
 /// Folder of the stage inside the run folder.
 pub const STAGE: Stage = Stage::Joint;
@@ -524,8 +525,7 @@ impl Trainer for JointTrainer {
         stats.grad_norms = vec![("physnerf", norm_p)];
         if let Some(norm_d) = norm_d {
             stats.grad_norms.push(("dlf", norm_d));
-            stats.lr_physnerf = Some(lr_p);
-            stats.lr_dlf = Some(lr_d);
+            stats.lrs = vec![("physnerf", lr_p), ("dlf", lr_d)];
             stats.updated = true;
         }
         Ok(stats)
@@ -786,12 +786,7 @@ pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::
     let physnerf = warmup::load_trained(run)?;
     let dlf = run.load_dlf(&run.exp.dlf.weights)?;
     let mut trainer = JointTrainer::new(cfg, physnerf, dlf, data, run.exp.seed)?;
-    let cadence = Cadence {
-        log_every: cfg.log_every,
-        evaluate_every: cfg.preview_every,
-        checkpoint_every: cfg.ckpt_every,
-    };
-    super::drive::drive(run, log, &mut trainer, STAGE, cadence, stop)?;
+    super::drive::drive(run, log, &mut trainer, STAGE, cfg.cadence(), stop)?;
     Ok(trainer.into_models())
 }
 

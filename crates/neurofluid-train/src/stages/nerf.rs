@@ -16,13 +16,14 @@ use super::run_folder::Run;
 use super::views::{
     ViewFrame, batch_of, ray_share, require_warmup_every_frame, scalar, side_by_side,
 };
+use crate::config::Cadenced;
 use crate::config::NerfSection;
 use crate::metrics_log::{MetricsLog, psnr_from_mse};
 use crate::optim::{Group, NerfGroup};
 use crate::sampler::Rng;
 use crate::stage::{Stage, files};
 use crate::trainer::checkpoint;
-use crate::trainer::{Cadence, Evaluation, StageState, StepStats, Trainer, guard};
+use crate::trainer::{Evaluation, StageState, StepStats, Trainer, guard};
 
 /// Which NeRF.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -216,11 +217,11 @@ impl Trainer for NerfTrainer {
             } else {
                 scalar(&loss.coarse)
             })),
-            lr_physnerf: Some(lr),
-            lr_dlf: None,
             rays: rays.len(),
+            lrs: vec![("nerf", lr)],
             grad_norms: vec![("nerf", grad_norm)],
             updated: true,
+            ..StepStats::default()
         })
     }
 
@@ -300,11 +301,6 @@ pub fn train(run: &Run, log: &mut MetricsLog, kind: NerfKind) -> anyhow::Result<
         "NeRF training"
     );
     let mut trainer = NerfTrainer::new(kind, cfg, new_nerf(run, kind)?, data, run.exp.seed);
-    let cadence = Cadence {
-        log_every: cfg.log_every,
-        evaluate_every: cfg.preview_every,
-        checkpoint_every: cfg.ckpt_every,
-    };
-    super::drive::drive(run, log, &mut trainer, kind.stage(), cadence, None)?;
+    super::drive::drive(run, log, &mut trainer, kind.stage(), cfg.cadence(), None)?;
     Ok(trainer.into_nerf())
 }

@@ -176,7 +176,7 @@ impl Trainer for SupervisedDlfTrainer {
         }
         Ok(StepStats {
             loss: batch_loss,
-            lr_dlf: Some(lr),
+            lrs: vec![("dlf", lr)],
             grad_norms: vec![("dlf", grad_norm)],
             updated: true,
             ..StepStats::default()

@@ -13,13 +13,14 @@ use neurofluid_physnerf::PhysNerf;
 
 use super::run_folder::Run;
 use super::views::{ViewFrame, load_particles, points_tensor, render_beside_truth, scalar};
+use crate::config::Cadenced;
 use crate::config::WarmupSection;
 use crate::metrics_log::{MetricsLog, psnr_from_mse};
 use crate::optim::{Group, WarmupGroup};
 use crate::sampler::Rng;
 use crate::stage::{Stage, files};
 use crate::trainer::checkpoint;
-use crate::trainer::{Cadence, Evaluation, StageState, StepStats, Trainer, guard};
+use crate::trainer::{Evaluation, StageState, StepStats, Trainer, guard};
 
 /// Folder of the stage inside the run folder.
 pub const STAGE: Stage = Stage::Warmup;
@@ -142,11 +143,11 @@ impl Trainer for WarmupTrainer {
         Ok(StepStats {
             loss,
             psnr: Some(psnr_from_mse(fine_mse)),
-            lr_physnerf: Some(lr),
-            lr_dlf: None,
             rays: self.cfg.rays * self.data.views.len(),
+            lrs: vec![("physnerf", lr)],
             grad_norms: vec![("physnerf", grad_norm)],
             updated: true,
+            ..StepStats::default()
         })
     }
 
@@ -210,12 +211,7 @@ pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::
         "warm-up"
     );
     let mut trainer = WarmupTrainer::new(cfg, new_physnerf(run)?, data, run.exp.seed);
-    let cadence = Cadence {
-        log_every: cfg.log_every,
-        evaluate_every: cfg.preview_every,
-        checkpoint_every: cfg.ckpt_every,
-    };
-    super::drive::drive(run, log, &mut trainer, STAGE, cadence, stop)?;
+    super::drive::drive(run, log, &mut trainer, STAGE, cfg.cadence(), stop)?;
     Ok(trainer.into_physnerf())
 }
 

@@ -6,7 +6,7 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
-use crate::csv_text::{cell as csv_cell, csv_text};
+use crate::formats::csv_text::{cell as csv_cell, csv_text};
 use crate::report::{ReportError, Summary, write_atomic};
 
 /// Markdown table file name inside the sweep folder.

@@ -211,20 +211,10 @@ impl<'s> Driver<'s> {
 
     fn row(stage: &str, done: u64, stats: &StepStats, throughput: &mut Throughput) -> MetricsRow {
         let mut row = MetricsRow::new(stage, done, stats.loss, throughput.elapsed());
-        row.psnr = stats.psnr;
-        row.lr_physnerf = stats.lr_physnerf;
-        row.lr_dlf = stats.lr_dlf;
-        row.rays_per_s = throughput.take_rate();
-        let norm = |group: &str| {
-            stats
-                .grad_norms
-                .iter()
-                .find(|(g, _)| *g == group)
-                .map(|(_, n)| *n)
-        };
-        // the renderer's column: PhysNeRF, or the NeRF of a NeRF stage
-        row.grad_norm_physnerf = norm("physnerf").or_else(|| norm("nerf"));
-        row.grad_norm_dlf = norm("dlf");
+        for (name, v) in stats.named() {
+            row.set(&name, v);
+        }
+        row.set_some("rays_per_s", throughput.take_rate());
         row
     }
 

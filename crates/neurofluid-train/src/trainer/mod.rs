@@ -25,26 +25,45 @@ pub use events::{Event, EventSink};
 /// A stage's own small state (e.g. its random stream), stored in its checkpoint's `state.json`.
 pub type StageState = serde_json::Map<String, serde_json::Value>;
 
-/// What one step did.
+/// What one step did, as named scalars for the log ([`StepStats::named`]): a new parameter
+/// group or diagnostic is a new name here, in the stage that reports it, and nowhere else.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct StepStats {
     /// The loss of the step (of the whole window when several transitions share one update).
     pub loss: f64,
     /// PSNR (dB) of the step's image batch, where there is one.
     pub psnr: Option<f64>,
-    /// PhysNeRF's learning rate of the update.
-    pub lr_physnerf: Option<f64>,
-    /// DLF's learning rate of the update.
-    pub lr_dlf: Option<f64>,
     /// Rays rendered in the step.
     pub rays: usize,
-    /// The L2 norm of each parameter group's gradients in the update (`"physnerf"`, `"dlf"`),
+    /// The learning rate of each parameter group the update stepped (`lr/<group>`).
+    pub lrs: Vec<(&'static str, f64)>,
+    /// The L2 norm of each parameter group's gradients in the update (`grad_norm/<group>`),
     /// 0 for a group the loss did not depend on.
     pub grad_norms: Vec<(&'static str, f64)>,
+    /// Further named scalars of the step, logged under their names.
+    pub scalars: Vec<(&'static str, f64)>,
     /// Whether the step ended with an optimiser update. A step inside a window of several
     /// transitions (multi-step BPTT) does not: its loss waits for the window's end, and the
     /// driver logs, evaluates and checkpoints only after updates.
     pub updated: bool,
+}
+
+impl StepStats {
+    /// The step's scalars as the metrics log names them: `psnr`, `lr/<group>`,
+    /// `grad_norm/<group>`, then the further ones.
+    pub fn named(&self) -> Vec<(String, f64)> {
+        let psnr = self.psnr.map(|p| ("psnr".to_string(), p));
+        let family = |family: &str, of: &[(&str, f64)]| -> Vec<(String, f64)> {
+            of.iter()
+                .map(|(g, v)| (format!("{family}/{g}"), *v))
+                .collect()
+        };
+        psnr.into_iter()
+            .chain(family("lr", &self.lrs))
+            .chain(family("grad_norm", &self.grad_norms))
+            .chain(self.scalars.iter().map(|(n, v)| (n.to_string(), *v)))
+            .collect()
+    }
 }
 
 /// A picture: `[render | truth]` side by side, RGB in [0, 1], row-major.

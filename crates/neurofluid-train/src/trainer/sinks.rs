@@ -56,7 +56,7 @@ impl EventSink for ProgressBars {
                     bar.set_message(msg);
                 }
             }
-            Event::Logged(row) => self.rays_per_s = row.rays_per_s,
+            Event::Logged(row) => self.rays_per_s = row.get("rays_per_s"),
             Event::Evaluated {
                 stage,
                 done,
@@ -97,8 +97,8 @@ impl EventSink for ProgressBars {
 }
 
 /// The run's metrics log: the driver's rows, and one `<stage>-preview` row per evaluation with
-/// a PSNR (its loss is the MSE that PSNR stands for) holding the evaluation's scores that are
-/// metrics columns (the joint stage's diagnostics).
+/// a PSNR (its loss is the MSE that PSNR stands for) holding the evaluation's named scores
+/// (the joint stage's diagnostics).
 #[derive(Debug)]
 pub struct MetricsSink<'a>(pub &'a mut MetricsLog);
 
@@ -115,9 +115,9 @@ impl EventSink for MetricsSink<'_> {
                 if let Some(psnr) = evaluation.psnr {
                     let mse = 10f64.powf(-psnr / 10.0);
                     let mut row = MetricsRow::new(&format!("{stage}-preview"), *done, mse, *time_s);
-                    row.psnr = Some(psnr);
+                    row.set("psnr", psnr);
                     for (name, v) in &evaluation.scores {
-                        row.set_score(name, *v);
+                        row.set(name, *v);
                     }
                     self.0.append(&row)?;
                 }
@@ -185,7 +185,7 @@ impl CurvesPlot {
 impl EventSink for CurvesPlot {
     fn on_event(&mut self, event: &Event<'_>) -> anyhow::Result<()> {
         if let Event::Finished { .. } | Event::Stopped { .. } = event {
-            crate::plot::plot_metrics_file(&self.jsonl, &self.png)?;
+            crate::pictures::plot::plot_metrics_file(&self.jsonl, &self.png)?;
         }
         Ok(())
     }

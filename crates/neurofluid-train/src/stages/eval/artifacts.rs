@@ -13,9 +13,10 @@ use neurofluid_physnerf::{PhysNerf, render_image, save_png};
 
 use super::rollouts::Rollouts;
 use crate::config::PlyEncoding;
+use crate::formats::ply::{PlyFormat, write_ply};
 use crate::metrics_log::{MetricsLog, MetricsRow};
+use crate::pictures::viewer::{Recording, TrackInput};
 use crate::pictures::{column_of, row_of, write_apng};
-use crate::ply::{PlyFormat, write_ply};
 use crate::report::{EvalReport, ImageScore, Rollout};
 use crate::stages::run_folder::Run;
 use crate::stages::scoring::{
@@ -24,7 +25,6 @@ use crate::stages::scoring::{
 use crate::stages::views::{ViewFrame, points_tensor, side_by_side};
 use crate::stages::{joint, warmup};
 use crate::trainer::Picture;
-use crate::viewer::{Recording, TrackInput};
 
 /// The d(t) curves of the rollouts inside `eval/`.
 pub const DISTANCE_PLOT: &str = "distance.png";
@@ -255,7 +255,7 @@ pub fn write_viewer(
 /// run's metrics log.
 pub fn write_report(run: &Run, report: &EvalReport, dir: &Path) -> anyhow::Result<()> {
     report.write_all(dir)?;
-    crate::plot::plot_distances(report, &dir.join(DISTANCE_PLOT))?;
+    crate::pictures::plot::plot_distances(report, &dir.join(DISTANCE_PLOT))?;
     log_images(run, report)
 }
 
@@ -271,9 +271,9 @@ fn log_images(run: &Run, report: &EvalReport) -> anyhow::Result<()> {
             10f64.powf(-i.psnr / 10.0),
             0.0,
         );
-        row.psnr = Some(i.psnr);
-        row.ssim = Some(i.ssim).filter(|v| v.is_finite());
-        row.lpips = i.lpips;
+        row.set("psnr", i.psnr);
+        row.set_some("ssim", Some(i.ssim).filter(|v| v.is_finite()));
+        row.set_some("lpips", i.lpips);
         log.append(&row)?;
     }
     Ok(())

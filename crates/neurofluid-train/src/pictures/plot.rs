@@ -41,7 +41,7 @@ pub const DIAGNOSTIC_COLOUR: Rgb<u8> = Rgb([46, 158, 91]);
 
 /// DejaVu Sans (Bitstream Vera licence, `assets/fonts/`), compiled in: plots and picture labels
 /// need no system font.
-const FONT: &[u8] = include_bytes!("../../../assets/fonts/DejaVuSans.ttf");
+const FONT: &[u8] = include_bytes!("../../../../assets/fonts/DejaVuSans.ttf");
 /// The family name the bundled font is registered under.
 pub(crate) const FONT_FAMILY: &str = "sans-serif";
 
@@ -129,10 +129,73 @@ fn draw_panel<DB: DrawingBackend>(
     Ok(())
 }
 
-/// Draws the curves of `rows` into an image: one column per stage (first-seen order), loss on
-/// top, PSNR below (with the renderer's PSNR on the true particles where logged), and, when any
-/// row has them, the joint stage's diagnostics in further rows (training-rollout d, gradient
-/// alignment); x = the stage's step. Non-finite values are skipped.
+/// Scalars drawn grey beside another's curve, not in a row of their own: (scalar, beside, what
+/// the grey curve is).
+const BESIDE: [(&str, &str, &str); 2] = [
+    ("psnr_true", "psnr", "on the true particles"),
+    ("rollout_d_prime", "rollout_d", "d′ (spray)"),
+];
+
+/// Colours of a family's further groups (`lr/<group>`: the first group takes the row's colour).
+const GROUP_COLOURS: [Rgb<u8>; 3] = [Rgb([217, 130, 43]), Rgb([128, 60, 170]), Rgb([31, 90, 180])];
+
+/// One row of panels: the scalars it draws (a name, or a family's `<family>/<group>` names).
+struct PanelRow {
+    /// The scalar, or the family (`lr`, `grad_norm`).
+    title: String,
+    /// The scalars of the row, each with its colour.
+    names: Vec<(String, Rgb<u8>)>,
+    /// Log-scaled when it spans a decade or more.
+    log: bool,
+}
+
+/// The rows of panels for `rows`: loss and PSNR, then every further scalar that arrives (in
+/// first-seen order), a parameter-group family (`lr/…`, `grad_norm/…`) in one row; the scalars
+/// of [`BESIDE`] are drawn in their companion's row.
+fn panel_rows(rows: &[MetricsRow]) -> Vec<PanelRow> {
+    let row = |title: &str, colour, log| PanelRow {
+        title: title.to_string(),
+        names: vec![(title.to_string(), colour)],
+        log,
+    };
+    let mut out = vec![
+        row("loss", LOSS_COLOUR, true),
+        row("psnr", PSNR_COLOUR, false),
+    ];
+    for r in rows {
+        for (name, _) in &r.scalars {
+            if BESIDE.iter().any(|(n, _, _)| n == name)
+                || out.iter().any(|p| p.names.iter().any(|(n, _)| n == name))
+            {
+                continue;
+            }
+            let family = crate::metrics_log::GROUP_FAMILIES
+                .into_iter()
+                .find(|f| name.strip_prefix(f).is_some_and(|g| g.starts_with('/')));
+            match family.and_then(|f| out.iter_mut().find(|p| p.title == f)) {
+                Some(p) => {
+                    let colour = GROUP_COLOURS[(p.names.len() - 1) % GROUP_COLOURS.len()];
+                    p.names.push((name.clone(), colour));
+                }
+                None => {
+                    let title = family.unwrap_or(name);
+                    out.push(PanelRow {
+                        title: title.to_string(),
+                        names: vec![(name.clone(), DIAGNOSTIC_COLOUR)],
+                        log: family.is_some(),
+                    });
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Draws the curves of `rows` into an image: one column per stage (first-seen order), one row
+/// per quantity (loss on top, PSNR below, then whatever further scalars the rows hold; see
+/// [`panel_rows`]); x = the stage's step. A stage's panel draws its own rows' values, or, for
+/// a scalar its own rows lack, those of its evaluations (`<stage>-preview`, e.g. the joint
+/// diagnostics). Non-finite values are skipped.
 pub fn render_curves(rows: &[MetricsRow]) -> RgbImage {
     register_bundled_font();
     let mut stages: Vec<&str> = Vec::new();
@@ -141,28 +204,9 @@ pub fn render_curves(rows: &[MetricsRow]) -> RgbImage {
             stages.push(&r.stage);
         }
     }
-    // the quantities below loss and PSNR, each a row when some row logged it
-    type Column = fn(&MetricsRow) -> Option<f64>;
-    /// A quantity drawn grey beside a row's own, with its name.
-    type Companion = Option<(&'static str, Column)>;
-    // (title, the row's quantity, a grey companion drawn beside it)
-    let extra: Vec<(&str, Column, Companion)> = [
-        (
-            "rollout d (training frames)",
-            (|r: &MetricsRow| r.rollout_d) as Column,
-            Some(("d′ (spray)", (|r: &MetricsRow| r.rollout_d_prime) as Column)),
-        ),
-        (
-            "gradient alignment (cos)",
-            |r: &MetricsRow| r.grad_alignment,
-            None,
-        ),
-    ]
-    .into_iter()
-    .filter(|(_, f, _)| rows.iter().any(|r| f(r).is_some()))
-    .collect();
+    let panels = panel_rows(rows);
     let cols = stages.len().max(1);
-    let n_rows = 2 + extra.len();
+    let n_rows = panels.len();
     let (w, h) = (cols as u32 * PANEL_W, n_rows as u32 * PANEL_H);
     let mut buf = vec![255u8; (w * h * 3) as usize];
     let drawn = (|| -> Result<(), String> {
@@ -178,50 +222,58 @@ pub fn render_curves(rows: &[MetricsRow]) -> RgbImage {
         }
         let areas = root.split_evenly((n_rows, cols));
         for (i, stage) in stages.iter().enumerate() {
-            // the stage's rows and those of its evaluations (`<stage>-preview`)
             let preview = format!("{stage}-preview");
-            let of = |f: &dyn Fn(&MetricsRow) -> Option<f64>, own: bool| -> Vec<(f64, f64)> {
+            let of_stage = |name: &str, s: &str| -> Vec<(f64, f64)> {
                 rows.iter()
-                    .filter(|r| {
-                        if own {
-                            r.stage == *stage
+                    .filter(|r| r.stage == s)
+                    .filter_map(|r| {
+                        let v = if name == "loss" {
+                            Some(r.loss).filter(|l| *l > 0.0)
                         } else {
-                            r.stage == preview
-                        }
+                            r.get(name)
+                        };
+                        v.map(|v| (r.step as f64, v))
                     })
-                    .filter_map(|r| f(r).map(|v| (r.step as f64, v)))
                     .filter(|(_, v)| v.is_finite())
                     .collect()
             };
-            let loss = of(&|r| Some(r.loss).filter(|l| *l > 0.0), true);
-            let title = format!("{stage}: loss");
-            draw_panel(&areas[i], &title, &[(loss, LOSS_COLOUR)], true)?;
-            let psnr = of(&|r| r.psnr, true);
-            let psnr_true = of(&|r| r.psnr_true, false);
-            let title = if psnr_true.is_empty() {
-                format!("{stage}: PSNR (dB)")
-            } else {
-                format!("{stage}: PSNR (dB); grey: on the true particles")
+            // the stage's own values, or else its evaluations'
+            let of = |name: &str| {
+                let own = of_stage(name, stage);
+                if own.is_empty() && name != "loss" {
+                    of_stage(name, &preview)
+                } else {
+                    own
+                }
             };
-            let series = [(psnr, PSNR_COLOUR), (psnr_true, PSNR_TRUE_COLOUR)];
-            draw_panel(&areas[cols + i], &title, &series, false)?;
-            for (k, (name, f, companion)) in extra.iter().enumerate() {
-                let points = of(&|r| f(r), false);
-                if points.is_empty() {
+            for (k, panel) in panels.iter().enumerate() {
+                let mut series: Vec<Series> =
+                    panel.names.iter().map(|(n, c)| (of(n), *c)).collect();
+                if k >= 2 && series.iter().all(|(p, _)| p.is_empty()) {
                     continue;
                 }
-                let area = &areas[(2 + k) * cols + i];
-                let (beside, label) = match companion {
-                    Some((label, g)) => (of(&|r| g(r), false), *label),
-                    None => (Vec::new(), ""),
-                };
-                let title = if beside.is_empty() {
-                    format!("{stage}: {name}")
-                } else {
-                    format!("{stage}: {name}; grey: {label}")
-                };
-                let series = [(points, DIAGNOSTIC_COLOUR), (beside, PSNR_TRUE_COLOUR)];
-                draw_panel(area, &title, &series, false)?;
+                let mut title = format!("{stage}: {}", panel.title);
+                if panel.names.len() > 1 {
+                    // the groups this stage has, in their colours' order
+                    let groups: Vec<&str> = panel
+                        .names
+                        .iter()
+                        .zip(&series)
+                        .filter(|(_, (points, _))| !points.is_empty())
+                        .map(|((n, _), _)| n.rsplit('/').next().unwrap_or(n))
+                        .collect();
+                    title.push_str(&format!(" ({})", groups.join(", ")));
+                }
+                for (name, beside, what) in BESIDE {
+                    if panel.names.iter().any(|(n, _)| n == beside) {
+                        let points = of(name);
+                        if !points.is_empty() {
+                            title.push_str(&format!("; grey: {what}"));
+                            series.push((points, PSNR_TRUE_COLOUR));
+                        }
+                    }
+                }
+                draw_panel(&areas[k * cols + i], &title, &series, panel.log)?;
             }
         }
         root.present().map_err(|e| e.to_string())
@@ -368,13 +420,13 @@ mod tests {
         for s in (0..=400).step_by(10) {
             let loss = 0.2 * (-(s as f64) / 80.0).exp() + 2e-3;
             let mut r = MetricsRow::new("warmup", s, loss, s as f64);
-            r.psnr = Some(psnr_from_mse(loss / 2.0));
+            r.set("psnr", psnr_from_mse(loss / 2.0));
             v.push(r);
         }
         for s in 0..98 {
             let loss = 0.01 + 0.002 * (s as f64 / 10.0).sin();
             let mut r = MetricsRow::new("joint", s, loss, 400.0 + s as f64);
-            r.psnr = Some(psnr_from_mse(loss / 2.0));
+            r.set("psnr", psnr_from_mse(loss / 2.0));
             v.push(r);
         }
         v.push(MetricsRow::new("joint", 98, f64::NAN, 500.0));
@@ -433,11 +485,10 @@ mod tests {
         // three evaluations of the joint stage: rollout d falls, the alignment rises
         for (k, step) in [32u64, 65, 98].into_iter().enumerate() {
             let mut r = MetricsRow::new("joint-preview", step, 1e-3, 500.0);
-            r.psnr = Some(25.0);
-            r.set_score("rollout_d", 40.0 - 10.0 * k as f64);
-            r.set_score("grad_alignment", 0.1 * k as f64);
-            r.set_score("psnr_true", 28.0);
-            assert!(!r.set_score("not_a_column", 1.0));
+            r.set("psnr", 25.0);
+            r.set("rollout_d", 40.0 - 10.0 * k as f64);
+            r.set("grad_alignment", 0.1 * k as f64);
+            r.set("psnr_true", 28.0);
             rows.push(r);
         }
         let img = render_curves(&rows);
@@ -463,7 +514,7 @@ mod tests {
             .iter()
             .cloned()
             .map(|mut r| {
-                r.psnr_true = None;
+                r.remove("psnr_true");
                 r
             })
             .collect();

@@ -16,7 +16,7 @@ use std::collections::VecDeque;
 use anyhow::Context;
 use splashsurf_lib::nalgebra::Vector3;
 
-use crate::mesh::Mesh;
+use crate::geometry::mesh::Mesh;
 
 /// Density samples on the points of a regular grid: point (i, j, k) lies at
 /// `origin + (i, j, k)·cell` and its value is `values[i + dims[0]·(j + dims[1]·k)]`.

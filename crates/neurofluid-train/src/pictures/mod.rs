@@ -1,6 +1,10 @@
 //! What a person looks at after an evaluation: animated PNGs (APNG, played by every browser and
 //! by GitHub's README view) and pictures of the particles themselves, seen from a test camera and
-//! coloured by each predicted particle's distance to the nearest true one.
+//! coloured by each predicted particle's distance to the nearest true one; the training curves
+//! and d(t) plots ([`plot`]) and the evaluation's page ([`viewer`]).
+
+pub mod plot;
+pub mod viewer;
 
 use std::path::Path;
 
@@ -8,7 +12,7 @@ use anyhow::Context;
 use neurofluid_core::camera::Camera;
 use plotters::prelude::*;
 
-use crate::plot::{FONT_FAMILY, register_bundled_font};
+use crate::pictures::plot::{FONT_FAMILY, register_bundled_font};
 use crate::trainer::Picture;
 
 /// Writes `frames` (all of one size) as an endlessly looping animated PNG, `frame_ms` per
