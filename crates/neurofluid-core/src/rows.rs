@@ -19,6 +19,8 @@ use std::sync::{Arc, OnceLock};
 use burn::prelude::*;
 use burn::tensor::IndexingUpdateOp;
 
+use crate::transfer::upload;
+
 /// Row indices (repeats allowed) with their device copy and, built on first use, the plan that
 /// sums rows into their destinations in a fixed order. Cheap to clone.
 #[derive(Debug, Clone)]
@@ -51,7 +53,7 @@ impl RowIndex {
             .map(|i| u32::try_from(i).expect("row index below 2^32"))
             .collect();
         let signed: Vec<i32> = ids.iter().map(|&i| i as i32).collect();
-        let tensor = Tensor::<1, Int>::from_data(TensorData::new(signed, [ids.len()]), device);
+        let tensor = upload(TensorData::new(signed, [ids.len()]), device);
         Self {
             ids,
             tensor,
@@ -159,7 +161,7 @@ impl SumPlan {
 }
 
 fn int_tensor(v: &[i32], device: &Device) -> Tensor<1, Int> {
-    Tensor::<1, Int>::from_data(TensorData::new(v.to_vec(), [v.len()]), device)
+    upload(TensorData::new(v.to_vec(), [v.len()]), device)
 }
 
 /// Rows `idx` of `t` by Burn's `gather` (one index per value).

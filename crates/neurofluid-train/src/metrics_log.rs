@@ -14,7 +14,7 @@ pub const CSV_FILE: &str = "metrics.csv";
 /// JSON-lines file name inside a run folder.
 pub const JSONL_FILE: &str = "metrics.jsonl";
 /// The CSV header.
-pub const CSV_HEADER: &str = "stage,step,loss,psnr,lr_physnerf,lr_dlf,rays_per_s,time_s,grad_norm_physnerf,grad_norm_dlf,ssim,lpips,rollout_d,grad_alignment,psnr_true,rollout_d_prime";
+pub const CSV_HEADER: &str = "stage,step,loss,psnr,lr_physnerf,lr_dlf,rays_per_s,time_s,grad_norm_physnerf,grad_norm_dlf,reads_per_step,read_bytes_per_step,uploads_per_step,upload_bytes_per_step,ssim,lpips,rollout_d,grad_alignment,psnr_true,rollout_d_prime";
 
 /// Errors of the metrics log.
 #[derive(Debug, thiserror::Error)]
@@ -76,6 +76,19 @@ pub struct MetricsRow {
     /// L2 norm of DLF's gradients in the update.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub grad_norm_dlf: Option<f64>,
+    /// Device → host reads per step (mean over the steps since the previous row; the step and
+    /// the trainer's state check, `neurofluid_core::transfer`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reads_per_step: Option<f64>,
+    /// Bytes read per step (as `reads_per_step`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub read_bytes_per_step: Option<f64>,
+    /// Host → device uploads per step (as `reads_per_step`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub uploads_per_step: Option<f64>,
+    /// Bytes uploaded per step (as `reads_per_step`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub upload_bytes_per_step: Option<f64>,
     /// SSIM of an evaluation render.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ssim: Option<f64>,
@@ -112,6 +125,10 @@ impl MetricsRow {
             time_s,
             grad_norm_physnerf: None,
             grad_norm_dlf: None,
+            reads_per_step: None,
+            read_bytes_per_step: None,
+            uploads_per_step: None,
+            upload_bytes_per_step: None,
             ssim: None,
             lpips: None,
             rollout_d: None,
@@ -149,6 +166,10 @@ impl MetricsRow {
             self.time_s.to_string(),
             cell(self.grad_norm_physnerf),
             cell(self.grad_norm_dlf),
+            cell(self.reads_per_step),
+            cell(self.read_bytes_per_step),
+            cell(self.uploads_per_step),
+            cell(self.upload_bytes_per_step),
             cell(self.ssim),
             cell(self.lpips),
             cell(self.rollout_d),

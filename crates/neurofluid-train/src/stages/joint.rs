@@ -62,8 +62,10 @@ pub struct Grounded {
 /// boundary L1 penalty, `mean |x − clamp(x, lo, hi)|`).
 pub fn boundary_penalty(pos: Tensor<2>, interior: &Aabb) -> Tensor<1> {
     let device = pos.device();
-    let lo = Tensor::<1>::from_floats(interior.min, &device).unsqueeze_dim::<2>(0);
-    let hi = Tensor::<1>::from_floats(interior.max, &device).unsqueeze_dim::<2>(0);
+    let lo = neurofluid_core::transfer::upload::<1, burn::tensor::Float, _>(interior.min, &device)
+        .unsqueeze_dim::<2>(0);
+    let hi = neurofluid_core::transfer::upload::<1, burn::tensor::Float, _>(interior.max, &device)
+        .unsqueeze_dim::<2>(0);
     let below = relu(lo - pos.clone());
     let above = relu(pos - hi);
     (below + above).mean()

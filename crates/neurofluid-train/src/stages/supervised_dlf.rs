@@ -168,7 +168,7 @@ impl Trainer for SupervisedDlfTrainer {
             });
             let loss =
                 supervised_loss(&self.net, &self.train[s], t, rot) * (LOSS_SCALE / batch as f32);
-            batch_loss += loss.clone().into_scalar::<f32>() as f64;
+            batch_loss += neurofluid_core::transfer::read_scalar(loss.clone());
             let grads = GradientsParams::from_grads(loss.backward(), &self.net);
             accum.accumulate(&self.net, grads);
         }

@@ -33,7 +33,7 @@ pub fn grad_norm<M: Module>(grads: &GradientsParams, module: &M) -> f64 {
     impl ModuleVisitor for SumSquares<'_> {
         fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
             if let Some(g) = self.grads.get::<D>(param.id) {
-                let s: f64 = g.powi_scalar(2).sum().into_scalar::<f64>();
+                let s = neurofluid_core::transfer::read_scalar(g.powi_scalar(2).sum());
                 self.sum += s;
             }
         }
