@@ -29,6 +29,7 @@ use burn::tensor::activation::relu;
 use neurofluid_core::metrics::gt_to_pred_distance;
 use neurofluid_core::npz::{NpzReader, NpzWriter};
 use neurofluid_core::scene::{Aabb, Particles, Role, Scene};
+use neurofluid_core::transfer::read_vec;
 use neurofluid_dlf::{Boundary, DlfNet};
 use neurofluid_physnerf::{PhysNerf, RayBatch};
 
@@ -231,21 +232,53 @@ pub fn split_image_loss(
     colours: Tensor<2>,
     jitter: Option<&mut dyn rand::RngCore>,
 ) -> anyhow::Result<SplitImageLoss> {
+    let split = split_on_device(physnerf, pred, None, rays, colours, jitter)?;
+    let [fine, total]: [f64; 2] = read_vec(Tensor::cat(vec![split.fine, split.total], 0))?
+        .try_into()
+        .expect("two values");
+    Ok(SplitImageLoss {
+        loss: total,
+        psnr: psnr_from_mse(fine),
+        physnerf_grads: split.physnerf_grads,
+        dx: split.dx,
+    })
+}
+
+/// [`SplitImageLoss`] with the losses left on the device (`[1]` each), for a step that reads
+/// them back together with its other values.
+struct SplitOnDevice {
+    fine: Tensor<1>,
+    total: Tensor<1>,
+    physnerf_grads: Option<GradientsParams>,
+    dx: Option<Vec<[f32; 3]>>,
+}
+
+/// [`split_image_loss`] without reading the losses; `host` is `pred`'s values when the caller
+/// holds them (the renderer then reads nothing back for the neighbour search).
+fn split_on_device(
+    physnerf: &PhysNerf,
+    pred: &Tensor<2>,
+    host: Option<&[[f32; 3]]>,
+    rays: &RayBatch,
+    colours: Tensor<2>,
+    jitter: Option<&mut dyn rand::RngCore>,
+) -> anyhow::Result<SplitOnDevice> {
     let x = pred.clone().detach().require_grad();
-    let out = physnerf.render_rays(&x, rays, jitter)?;
+    let out = match host {
+        Some(h) => physnerf.render_rays_with_host(&x, h, rays, jitter)?,
+        None => physnerf.render_rays(&x, rays, jitter)?,
+    };
     let image_loss = physnerf.loss(&out, colours);
-    let psnr = psnr_from_mse(scalar(&image_loss.fine));
-    let loss = scalar(&image_loss.total);
-    let (physnerf_grads, dx) = match guard::backward(image_loss.total) {
+    let (physnerf_grads, dx) = match guard::backward(image_loss.total.clone()) {
         Some(mut grads) => (
             Some(GradientsParams::from_module(&mut grads, physnerf)),
             x.grad(&grads).map(|g| tensor_points(&g)),
         ),
         None => (None, None),
     };
-    Ok(SplitImageLoss {
-        loss,
-        psnr,
+    Ok(SplitOnDevice {
+        fine: image_loss.fine,
+        total: image_loss.total,
         physnerf_grads,
         dx,
     })
@@ -275,6 +308,9 @@ pub struct JointTrainer {
     data: JointData,
     boundary: Boundary,
     state: State,
+    /// The carried positions on the host, when the last step read them (the state check uses
+    /// them instead of reading the device again).
+    state_host: Option<Vec<[f32; 3]>>,
     /// DLF's surrogate loss of the window so far (several transitions with `bptt_steps` > 1).
     pending: Option<Tensor<1>>,
     /// The window's loss so far.
@@ -311,6 +347,7 @@ impl JointTrainer {
             data,
             boundary,
             state,
+            state_host: None,
             pending: None,
             pending_loss: 0.0,
             physnerf_grads: GradientsAccumulator::new(),
@@ -355,25 +392,34 @@ impl Trainer for JointTrainer {
         let pred = self
             .dlf
             .step(self.state.0.clone(), self.state.1.clone(), &self.boundary);
+        // the prediction on the host, read once: the rays, the renderer's neighbour search, the
+        // silhouette, the alignment and the state check all use it
+        let pred_host = tensor_points(&pred.pos);
         self.last_target = t + 1;
-        let (rays, colours) = self.rays_at(step, t + 1, &pred.pos)?;
+        let (rays, colours) = self.rays_at(step, t + 1, &pred.pos, &pred_host)?;
         let jitter: Option<&mut dyn rand::RngCore> = if self.physnerf.config.stratified {
             Some(&mut self.rng)
         } else {
             None
         };
-        let split = split_image_loss(&self.physnerf, &pred.pos, &rays, colours, jitter)?;
+        let split = split_on_device(
+            &self.physnerf,
+            &pred.pos,
+            Some(&pred_host),
+            &rays,
+            colours,
+            jitter,
+        )?;
         let boundary = boundary_penalty(pred.pos.clone(), &self.data.interior)
             .mul_scalar(self.cfg.boundary_weight);
-        self.pending_loss += split.loss + scalar(&boundary);
         if let Some(g) = split.physnerf_grads {
             self.physnerf_grads.accumulate(&self.physnerf, g);
         }
-        let psnr = split.psnr;
         let mut dx = split.dx;
+        let mut silhouette = None;
         if self.cfg.silhouette_weight > 0.0 {
-            let (loss, g) = self.silhouette_at(t + 1, &pred.pos);
-            self.pending_loss += loss;
+            let (loss, g) = self.silhouette_at(t + 1, &pred_host);
+            silhouette = Some(loss);
             dx = Some(match dx {
                 Some(d) => d
                     .iter()
@@ -383,15 +429,16 @@ impl Trainer for JointTrainer {
                 None => g,
             });
         }
-        let surrogate = dlf_surrogate(&pred.pos, dx.as_deref()) + boundary;
+        let surrogate = dlf_surrogate(&pred.pos, dx.as_deref()) + boundary.clone();
         if let Some(g) = &dx {
-            self.record_alignment(t + 1, &pred.pos, g);
+            self.record_alignment(t + 1, &pred_host, g);
         }
         self.pending = Some(match self.pending.take() {
             None => surrogate,
             Some(p) => p + surrogate,
         });
         self.state = (pred.pos, pred.vel);
+        self.state_host = Some(pred_host);
         let done = step + 1;
         let edge = (t + 1) as u64 == transitions || done == self.total_steps();
         let window = self.cfg.bptt_steps.max(1) as u64;
@@ -399,17 +446,48 @@ impl Trainer for JointTrainer {
         // DLF steps at the end of every `dlf_every`-th window (and of every epoch)
         let dlf_end =
             window_end && (edge || done.is_multiple_of(window * self.cfg.dlf_every.max(1) as u64));
+        // at the end of a window the gradients too, so that the step reads its values back once
+        // (a non-finite loss is not used to update: the guard stops the run on it)
+        let mut g_physnerf = None;
+        let mut g_dlf = None;
+        let mut parts = vec![split.fine, split.total, boundary];
+        let (mut n_physnerf, mut n_dlf) = (0, 0);
+        if window_end {
+            let g = self.physnerf_grads.grads();
+            if let Some(sums) = guard::grad_square_sums(&g, &self.physnerf) {
+                n_physnerf = sums.dims()[0];
+                parts.push(sums);
+            }
+            g_physnerf = Some(g);
+            if dlf_end {
+                let surrogate = self.pending.take().context("no loss to optimise")?;
+                let g = match guard::backward(surrogate) {
+                    Some(mut grads) => GradientsParams::from_module(&mut grads, &self.dlf),
+                    None => GradientsParams::new(),
+                };
+                if let Some(sums) = guard::grad_square_sums(&g, &self.dlf) {
+                    n_dlf = sums.dims()[0];
+                    parts.push(sums);
+                }
+                g_dlf = Some(g);
+            }
+        }
+        let values: Vec<f64> = read_vec(Tensor::cat(parts, 0))?;
+        let (fine, image, boundary) = (values[0], values[1], values[2]);
+        self.pending_loss += image + boundary;
+        if let Some(loss) = silhouette {
+            self.pending_loss += loss;
+        }
         let mut stats = StepStats {
-            psnr: Some(psnr),
+            psnr: Some(psnr_from_mse(fine)),
             rays: self.cfg.rays,
             loss: self.pending_loss,
             ..StepStats::default()
         };
-        if !window_end {
+        let Some(g_physnerf) = g_physnerf else {
             return Ok(stats);
-        }
+        };
         self.pending_loss = 0.0;
-        let g_physnerf = self.physnerf_grads.grads();
         if !stats.loss.is_finite() {
             return Ok(stats);
         }
@@ -417,17 +495,10 @@ impl Trainer for JointTrainer {
             self.cfg.physnerf_optim.lr_at(step),
             self.cfg.dlf_optim.lr_at(step),
         );
-        let norm_p = guard::grad_norm(&g_physnerf, &self.physnerf);
-        let g_dlf = if dlf_end {
-            let surrogate = self.pending.take().context("no loss to optimise")?;
-            Some(match guard::backward(surrogate) {
-                Some(mut grads) => GradientsParams::from_module(&mut grads, &self.dlf),
-                None => GradientsParams::new(),
-            })
-        } else {
-            None
-        };
-        let norm_d = g_dlf.as_ref().map(|g| guard::grad_norm(g, &self.dlf));
+        let norm_p = guard::norm_of(&values[3..3 + n_physnerf]);
+        let norm_d = g_dlf
+            .as_ref()
+            .map(|_| guard::norm_of(&values[3 + n_physnerf..3 + n_physnerf + n_dlf]));
         if norm_p.is_finite() && norm_d.is_none_or(f64::is_finite) {
             self.physnerf = self
                 .opt_physnerf
@@ -454,7 +525,14 @@ impl Trainer for JointTrainer {
     /// The carried particles must stay finite and near the box: farther than one box size
     /// outside it, the state has exploded (and so will everything trained on it).
     fn check_state(&self) -> Result<(), String> {
-        let pos = tensor_points(&self.state.0);
+        let read;
+        let pos = match &self.state_host {
+            Some(host) => host,
+            None => {
+                read = tensor_points(&self.state.0);
+                &read
+            }
+        };
         let b = &self.data.interior;
         let margin: f32 = (0..3).map(|a| b.max[a] - b.min[a]).fold(0.0, f32::max);
         for (i, p) in pos.iter().enumerate() {
@@ -517,6 +595,7 @@ impl Trainer for JointTrainer {
                 points_tensor(&r.points("pos")?, &device),
                 points_tensor(&r.points("vel")?, &device),
             );
+            self.state_host = None;
         }
         Ok(())
     }
@@ -531,8 +610,9 @@ impl JointTrainer {
         step: u64,
         t: usize,
         pred: &Tensor<2>,
+        pred_host: &[[f32; 3]],
     ) -> anyhow::Result<(RayBatch, Tensor<2>)> {
-        let predicted = (self.cfg.foreground_rays > 0.0).then(|| tensor_points(pred));
+        let predicted = (self.cfg.foreground_rays > 0.0).then_some(pred_host);
         let n_views = self.data.views.len();
         let mut parts = Vec::with_capacity(n_views);
         for (v, frames) in self.data.views.iter().enumerate() {
@@ -556,8 +636,7 @@ impl JointTrainer {
 
     /// The weighted silhouette term of training frame `t` over every view, and its gradient
     /// with respect to the predicted positions `pred`.
-    fn silhouette_at(&self, t: usize, pred: &Tensor<2>) -> (f64, Vec<[f32; 3]>) {
-        let points = tensor_points(pred);
+    fn silhouette_at(&self, t: usize, points: &[[f32; 3]]) -> (f64, Vec<[f32; 3]>) {
         let weight = self.cfg.silhouette_weight;
         let mut loss = 0.0;
         let mut grad = vec![[0.0f32; 3]; points.len()];
@@ -586,18 +665,17 @@ impl JointTrainer {
 
     /// Adds the cosine between −`dx` and the true error at training frame `t` to the alignment,
     /// where the truth is known and has the prediction's particles (matched by index).
-    fn record_alignment(&mut self, t: usize, pred: &Tensor<2>, dx: &[[f32; 3]]) {
+    fn record_alignment(&mut self, t: usize, predicted: &[[f32; 3]], dx: &[[f32; 3]]) {
         let Some(truth) = self.data.truth.as_ref().map(|truth| &truth[t]) else {
             return;
         };
-        if truth.len() != pred.dims()[0] {
+        if truth.len() != predicted.len() {
             return;
         }
-        let predicted = tensor_points(pred);
         let descent: Vec<[f32; 3]> = dx.iter().map(|v| v.map(|c| -c)).collect();
         let error: Vec<[f32; 3]> = truth
             .iter()
-            .zip(&predicted)
+            .zip(predicted)
             .map(|(a, b)| [a[0] - b[0], a[1] - b[1], a[2] - b[2]])
             .collect();
         if let Some(c) = cosine(&descent, &error) {
