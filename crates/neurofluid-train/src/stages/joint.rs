@@ -649,7 +649,7 @@ impl JointTrainer {
             let s = silhouette_loss(
                 camera,
                 &self.data.foreground[v][t],
-                &points,
+                points,
                 radius,
                 self.cfg.silhouette_cover,
             );
