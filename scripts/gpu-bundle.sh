@@ -1,13 +1,15 @@
 #!/usr/bin/env bash
 # Builds a bundle that runs NeuroFluid-rs on a GPU machine with no Rust toolchain and no network:
 # the trainer, the two step benchmarks and the backend-generic test binaries, built here with the
-# wgpu backend (Vulkan; on NVIDIA through the driver's Vulkan ICD) in the dev profile (as every
-# figure in BENCHMARKS.md), stripped, packed with xz into parts of at most 36 MiB, with
-# `run-on-gpu.sh` to run them there.
+# wgpu backend as a GPU user gets it (the `wgpu` feature: Vulkan's SPIR-V compiler, autotune,
+# fusion; on NVIDIA through the driver's Vulkan ICD) in the `gpu` profile (release, no debug
+# assertions: with them wgpu turns on its validation layers), stripped, packed with xz into parts
+# of at most 36 MiB, with `run-on-gpu.sh` to run them there. Part 1 (the trainer and the two step
+# benchmarks) is all that run-on-gpu.sh's default steps need.
 #
 #   scripts/gpu-bundle.sh DIR
 #   # then, on the GPU machine, in a copy of this repository (same commit):
-#   DIR/run-on-gpu.sh DIR RESULTS [STEPS]   # STEPS: tests benches quick paper (default: all)
+#   DIR/run-on-gpu.sh DIR RESULTS [STEPS]   # STEPS: see run-on-gpu.sh (default: physnerf dlf quick)
 #
 # The binaries find the repository's test data through the path they were built in; run-on-gpu.sh
 # links that path to the copy it runs in. CUDA is not in the bundle: Burn 0.22's CUDA backend
@@ -21,7 +23,7 @@ features=neurofluid-train/wgpu
 # the backend-generic tests that check numbers on the device (the float64 ones are refused on wgpu)
 tests="dense_layer posenc indexed_rows backends conv_geometry fused_conv parity_forward
 parity_backward parity_rollout parity_e2e_f32 parity_stages options_and_weights nerf_fit
-supervised_dlf pipeline_resume pretrain_on_scene learning"
+supervised_dlf pipeline_resume pretrain_on_scene learning transfers"
 mkdir -p "$out"
 rm -f "$out"/part-*.tar.xz
 json=$(mktemp)
@@ -29,8 +31,10 @@ trap 'rm -f "$json"; rm -rf "$stage"' EXIT
 stage=$(mktemp -d)
 mkdir -p "$stage/bin"
 # (the test build also builds the trainer's binary, with the same features)
-cargo test --workspace --features $features --locked --no-run --message-format=json >"$json"
-cargo bench --profile dev --workspace --features $features --locked --no-run \
+profile=${GPU_BUNDLE_PROFILE:-gpu}
+cargo test --profile "$profile" --workspace --features $features --locked --no-run \
+    --message-format=json >"$json"
+cargo bench --profile "$profile" --workspace --features $features --locked --no-run \
     --bench train_step --bench dlf_step --message-format=json >>"$json"
 python3 - "$json" "$stage/bin" $tests <<'PY'
 import json, shutil, subprocess, sys
@@ -56,6 +60,7 @@ for name, exe in sorted(found.items()):
     subprocess.run(["strip", "-o", f"{dest}/{name}", exe], check=True)
 PY
 echo "$root" >"$stage/build-root"
+echo "$profile" >"$stage/profile"
 git rev-parse HEAD >"$stage/commit"
 cp scripts/run-on-gpu.sh "$out/run-on-gpu.sh"
 # Vulkan's loader, for a GPU machine that has none (Debian/Ubuntu package; best effort)
@@ -64,7 +69,7 @@ if command -v apt-get >/dev/null; then
     (cd "$out/debs" && apt-get download libvulkan1 2>/dev/null) ||
         echo "libvulkan1 not fetched: put Vulkan's loader in $out/debs if the GPU machine lacks it"
 fi
-cp "$stage/build-root" "$stage/commit" "$out/"
+cp "$stage/build-root" "$stage/commit" "$stage/profile" "$out/"
 # parts of at most 36 MiB (about six binaries' worth: each binary holds Burn's kernels for flex and
 # cubecl, 60 MB stripped, 6 MB more per binary compressed together), so that each fits beside the
 # repository (26 MB) in a 64 MiB transfer; the parts may arrive one at a time and unpack into the
@@ -74,7 +79,7 @@ parts=(
     "dense_layer posenc indexed_rows backends"
     "conv_geometry fused_conv parity_forward parity_backward"
     "parity_rollout supervised_dlf parity_e2e_f32 parity_stages"
-    "options_and_weights nerf_fit pipeline_resume"
+    "options_and_weights nerf_fit pipeline_resume transfers"
     "pretrain_on_scene learning"
 )
 pack() {

@@ -1,16 +1,28 @@
 #!/usr/bin/env bash
 # Runs a bundle made by scripts/gpu-bundle.sh on a GPU machine, in a copy of the repository at the
-# bundle's commit: the backend-generic tests on wgpu, the PhysNeRF and DLF step benchmarks (wgpu,
-# then the machine's CPU for the same-run reference), the quick main job on wgpu, and the
-# paper-scale WaterCube for PAPER_SECONDS (default 300; a second call resumes it from its
-# checkpoints). Logs and a summary go to RESULTS.
+# bundle's commit, in priority order within a time budget (BUDGET seconds, default 540: one
+# 10-minute device call with room to unpack), each step cut at what is left:
 #
-#   BUNDLE/run-on-gpu.sh BUNDLE RESULTS [tests] [benches] [quick] [paper]
+#   physnerf  the PhysNeRF training step on wgpu (1,024 rays, 64 + 128 samples, 10,164 particles,
+#             with its host–device copies), the project's PyTorch reference of the same step on
+#             CUDA (where python3 has torch with CUDA), then the same step on this machine's CPU
+#   dlf       DLF forward and forward+backward at 8k and 32k fluid particles, wgpu then CPU
+#   quick     the quick main job on wgpu, GPU utilisation sampled every second (per stage in the
+#             summary)
+#   profile   one small PhysNeRF step with CUBECL_DEBUG_OPTION=profile: cubecl's log of every
+#             kernel launch (the summary counts them)
+#   tests     the backend-generic test binaries on wgpu (parts 2-6 of the bundle)
+#   paper     the paper-scale WaterCube for PAPER_SECONDS (default 300; a second call resumes it)
+#
+#   BUNDLE/run-on-gpu.sh BUNDLE RESULTS [STEP...]   # default: physnerf dlf quick profile
+#
+# Logs go to RESULTS, one line per run to RESULTS/summary.txt.
 set -uo pipefail
-bundle=$(cd "${1:?usage: run-on-gpu.sh BUNDLE RESULTS [STEPS]}" && pwd)
-results=${2:?usage: run-on-gpu.sh BUNDLE RESULTS [STEPS]}
+bundle=$(cd "${1:?usage: run-on-gpu.sh BUNDLE RESULTS [STEP...]}" && pwd)
+results=${2:?usage: run-on-gpu.sh BUNDLE RESULTS [STEP...]}
 shift 2
-steps=${*:-tests benches quick paper}
+steps=${*:-physnerf dlf quick profile}
+budget=${BUDGET:-540}
 mkdir -p "$results"
 results=$(cd "$results" && pwd)
 summary=$results/summary.txt
@@ -38,54 +50,150 @@ if [ -z "${VK_DRIVER_FILES:-}" ] && [ -e "$nv_icd" ] &&
 fi
 export XDG_RUNTIME_DIR=${XDG_RUNTIME_DIR:-/tmp}
 bin=$bundle/bin
-say "commit $(cat "$bundle/commit"); $(date -u +%FT%TZ); $(nproc) CPUs"
+say "commit $(cat "$bundle/commit"), profile $(cat "$bundle/profile" 2>/dev/null || echo dev); $(date -u +%FT%TZ); $(nproc) CPUs; budget ${budget} s"
 command -v nvidia-smi >/dev/null && say "$(nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader)"
 
-timed() { # label log command...: wall seconds and exit status into the summary
-    local label=$1 log=$2
-    shift 2
+deadline=$((SECONDS + budget))
+left() { echo $((deadline - SECONDS)); }
+
+# label cap log command...: runs the command for at most min(cap, what is left of the budget)
+# seconds; wall seconds and exit status (124: cut by the limit) into the summary
+timed() {
+    local label=$1 cap=$2 log=$3
+    shift 3
     local exe
     for exe in "$@"; do [[ $exe == "$bin"/* ]] && break; done
     if [[ $exe == "$bin"/* ]] && [ ! -x "$exe" ]; then
         say "$label: skipped, ${exe##*/} is in a part not unpacked here"
         return
     fi
+    local limit
+    limit=$(left)
+    ((cap < limit)) && limit=$cap
+    if ((limit < 15)); then
+        say "$label: skipped, the budget is spent"
+        return
+    fi
+    echo "== $label ($(date -u +%FT%TZ), at most $limit s)" >>"$log"
     local t0=$SECONDS
-    "$@" >>"$log" 2>&1
+    timeout "$limit" "$@" >>"$log" 2>&1
     local rc=$?
     say "$label: exit $rc, $((SECONDS - t0)) s"
 }
 
+# the summary lines a log's last run printed that start with one of the patterns
+report() {
+    local log=$1
+    shift
+    [ -e "$log" ] || return
+    local pattern
+    for pattern in "$@"; do
+        awk '/^== /{buf=""} {buf=buf $0 "\n"} END{printf "%s", buf}' "$log" |
+            grep -E "$pattern" | sed 's/^/    /' | tee -a "$summary"
+    done
+}
+
+has_cuda_torch() {
+    command -v python3 >/dev/null &&
+        python3 -c 'import sys, torch; sys.exit(0 if torch.cuda.is_available() else 1)' 2>/dev/null
+}
+
 for step in $steps; do
     case $step in
-    tests)
-        for t in dense_layer posenc indexed_rows backends conv_geometry fused_conv parity_forward \
-            parity_backward parity_rollout parity_e2e_f32 parity_stages options_and_weights \
-            nerf_fit supervised_dlf pipeline_resume pretrain_on_scene learning; do
-            echo "== $t" >>"$results/tests.log"
-            NEUROFLUID_TEST_DEVICE=wgpu timed "test $t" "$results/tests.log" "$bin/$t"
-            [ -x "$bin/$t" ] && grep '^test result' "$results/tests.log" | tail -1 | sed 's/^/  /' | tee -a "$summary"
-        done
+    physnerf)
+        log=$results/physnerf.log
+        timed "PhysNeRF step, wgpu" 200 "$log" "$bin/train_step" --bench --device wgpu
+        report "$log" "step \(forward|MLPs alone|host–device|forward [0-9]"
+        if has_cuda_torch; then
+            timed "PhysNeRF step, PyTorch reference on CUDA" 150 "$log" python3 \
+                tests/data/physnerf/physnerf_reference.py bench --device cuda --repeats 3 \
+                --modes gated all --out "$results/physnerf_torch_cuda.json"
+            report "$log" "^ *(gated|all):"
+        else
+            say "PhysNeRF step, PyTorch reference on CUDA: skipped, no python3 with torch and CUDA"
+        fi
+        timed "PhysNeRF step, CPU" 150 "$log" "$bin/train_step" --bench --device cpu
+        report "$log" "step \(forward"
         ;;
-    benches)
+    dlf)
+        log=$results/dlf.log
         for d in wgpu cpu; do
-            timed "train_step $d" "$results/benches.log" "$bin/train_step" --bench --device "$d"
-            timed "dlf_step $d" "$results/benches.log" \
-                "$bin/dlf_step" --device "$d" --repeats 3 --sizes 8000 32000
+            timed "DLF step, $d" 180 "$log" "$bin/dlf_step" --device "$d" --repeats 3 \
+                --sizes 8000 32000
+            report "$log" "^\| [0-9]" "N = [0-9]+:"
         done
         ;;
     quick)
+        log=$results/quick.log
+        util=$results/quick-gpu-util.txt
+        : >"$util"
+        sampler=
+        if command -v nvidia-smi >/dev/null; then
+            (while sleep 1; do
+                echo "$(date -u +%s.%N) $(nvidia-smi --query-gpu=utilization.gpu \
+                    --format=csv,noheader,nounits | head -1)"
+            done) >>"$util" 2>/dev/null &
+            sampler=$!
+        fi
         rss=()
         [ -x /usr/bin/time ] && rss=(/usr/bin/time -v)
-        timed "quick main job (wgpu)" "$results/quick.log" "${rss[@]}" \
-            "$bin/neurofluid-train" run experiments/quick-watercube.toml --device wgpu --fresh \
-            --set name=gpu-quick
+        timed "quick main job, wgpu" 600 "$log" "${rss[@]}" "$bin/neurofluid-train" run \
+            experiments/quick-watercube.toml --device wgpu --fresh --set name=gpu-quick
+        [ -n "$sampler" ] && kill "$sampler" 2>/dev/null
+        report "$log" "^\| NeuroFluid|^\| DLF \(|Maximum resident"
+        # GPU utilisation per stage: the log's stage lines (UTC) split the samples
+        if [ -s "$util" ] && command -v python3 >/dev/null; then
+            python3 - "$log" "$util" <<'PY' | tee -a "$summary"
+import datetime, re, sys
+log, util = sys.argv[1], sys.argv[2]
+marks = []
+for line in open(log, errors="replace"):
+    m = re.match(r"(\d{4}-\d\d-\d\dT[\d:.]+)Z\s+INFO (warm-up|joint grounding|evaluating)", line)
+    if m:
+        t = datetime.datetime.fromisoformat(m.group(1)[:26]).replace(tzinfo=datetime.timezone.utc)
+        marks.append((t.timestamp(), m.group(2)))
+samples = []
+for line in open(util):
+    parts = line.split()
+    if len(parts) == 2 and parts[1].isdigit():
+        samples.append((float(parts[0]), int(parts[1])))
+def stage(t):
+    name = "before the warm-up"
+    for start, n in marks:
+        if t >= start:
+            name = n
+    return name
+by = {}
+for t, u in samples:
+    by.setdefault(stage(t), []).append(u)
+for name, us in by.items():
+    busy = sum(u > 50 for u in us) / len(us)
+    print(f"    GPU utilisation, {name}: mean {sum(us) / len(us):.0f} %, "
+          f"{100 * busy:.0f} % of {len(us)} samples above 50 %")
+PY
+        fi
+        ;;
+    profile)
+        log=$results/profile.log
+        timed "one small PhysNeRF step, cubecl's kernel profile" 90 "$log" \
+            env CUBECL_DEBUG_OPTION=profile "$bin/train_step" --device wgpu
+        say "    lines in the profile log: $(wc -l <"$log") (cubecl prints one per kernel launch)"
+        ;;
+    tests)
+        for t in dense_layer posenc indexed_rows backends conv_geometry fused_conv parity_forward \
+            parity_backward parity_rollout parity_e2e_f32 parity_stages options_and_weights \
+            nerf_fit supervised_dlf pipeline_resume pretrain_on_scene learning transfers; do
+            NEUROFLUID_TEST_DEVICE=wgpu timed "test $t" 600 "$results/tests.log" "$bin/$t"
+            [ -x "$bin/$t" ] && grep '^test result' "$results/tests.log" | tail -1 |
+                sed 's/^/    /' | tee -a "$summary"
+        done
         ;;
     paper)
-        timed "paper-scale WaterCube (wgpu, ${PAPER_SECONDS:-300} s at most)" "$results/paper.log" \
-            timeout "${PAPER_SECONDS:-300}" "$bin/neurofluid-train" run \
+        timed "paper-scale WaterCube (wgpu, ${PAPER_SECONDS:-300} s at most)" \
+            "${PAPER_SECONDS:-300}" "$results/paper.log" "$bin/neurofluid-train" run \
             experiments/paper-watercube.toml --device wgpu --set name=gpu-paper
         ;;
-    *) say "unknown step $step (tests, benches, quick, paper)" ;;
+    *) say "unknown step $step (physnerf, dlf, quick, profile, tests, paper)" ;;
     esac
 done
+say "done at $(date -u +%FT%TZ), $SECONDS s"

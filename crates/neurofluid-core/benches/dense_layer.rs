@@ -14,6 +14,7 @@ use burn::nn::LinearConfig;
 use burn::prelude::*;
 use burn::tensor::Distribution;
 use neurofluid_core::dense::{Activation, linear};
+use neurofluid_core::transfer::read_scalar;
 
 /// Best wall time of `f` over `repeats` runs after one warm-up.
 fn best(repeats: usize, mut f: impl FnMut()) -> f64 {
@@ -59,13 +60,9 @@ fn main() {
             };
             if backward {
                 let g = y.sum().backward();
-                let _ = x
-                    .grad(&g)
-                    .expect("input gradient")
-                    .sum()
-                    .into_scalar::<f32>();
+                let _ = read_scalar(x.grad(&g).expect("input gradient").sum());
             } else {
-                let _ = y.sum().into_scalar::<f32>();
+                let _ = read_scalar(y.sum());
             }
         };
         let flop = 2.0 * (m * k * n) as f64;

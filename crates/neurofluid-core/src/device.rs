@@ -36,7 +36,7 @@ pub fn compiled_backends() -> Vec<&'static str> {
     if cfg!(feature = "ndarray") {
         out.push("ndarray");
     }
-    if cfg!(feature = "wgpu") {
+    if cfg!(feature = "wgpu-base") {
         out.push("wgpu");
     }
     if cfg!(feature = "cuda") {
@@ -185,9 +185,9 @@ fn ndarray() -> Option<Device> {
 }
 
 fn wgpu() -> Option<Device> {
-    #[cfg(feature = "wgpu")]
+    #[cfg(feature = "wgpu-base")]
     return Some(Device::wgpu(burn::prelude::DeviceKind::DefaultDevice));
-    #[cfg(not(feature = "wgpu"))]
+    #[cfg(not(feature = "wgpu-base"))]
     None
 }
 

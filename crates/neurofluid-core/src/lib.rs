@@ -24,3 +24,4 @@ pub mod real;
 pub mod rows;
 pub mod scene;
 pub mod tensors;
+pub mod transfer;

@@ -21,9 +21,7 @@ pub fn first_non_finite<M: Module>(module: &M) -> Option<String> {
         }
         fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
             if self.found.is_none()
-                && !param
-                    .val()
-                    .to_data()
+                && !crate::transfer::read_data(param.val())
                     .iter::<f64>()
                     .all(|v: f64| v.is_finite())
             {

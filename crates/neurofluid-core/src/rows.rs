@@ -19,6 +19,8 @@ use std::sync::{Arc, OnceLock};
 use burn::prelude::*;
 use burn::tensor::IndexingUpdateOp;
 
+use crate::transfer::upload;
+
 /// Row indices (repeats allowed) with their device copy and, built on first use, the plan that
 /// sums rows into their destinations in a fixed order. Cheap to clone.
 #[derive(Debug, Clone)]
@@ -28,16 +30,18 @@ pub struct RowIndex {
     plan: Arc<OnceLock<SumPlan>>,
 }
 
-/// The fixed-order sum of `L` rows into `n` destinations (host arrays).
+/// The fixed-order sum of `L` rows into `n` destinations, planned on the host and uploaded
+/// once: every later sum with the plan (the four fluid convs of a DLF step share their
+/// geometry's indices, forward and backward) reuses the device copies.
 #[derive(Debug)]
 struct SumPlan {
     /// Destination rows.
     n: usize,
     /// Groups of destinations with at most `width` rows each: the positions of their rows
     /// `[destinations · width]`, ascending per destination, padded with `L` (a zero row).
-    groups: Vec<(Vec<i32>, usize)>,
+    groups: Vec<(Tensor<1, Int>, usize)>,
     /// Per destination, its row in the groups' stacked sums (one past the last: a zero row).
-    place: Vec<i32>,
+    place: Tensor<1, Int>,
 }
 
 impl RowIndex {
@@ -51,7 +55,7 @@ impl RowIndex {
             .map(|i| u32::try_from(i).expect("row index below 2^32"))
             .collect();
         let signed: Vec<i32> = ids.iter().map(|&i| i as i32).collect();
-        let tensor = Tensor::<1, Int>::from_data(TensorData::new(signed, [ids.len()]), device);
+        let tensor = upload(TensorData::new(signed, [ids.len()]), device);
         Self {
             ids,
             tensor,
@@ -73,16 +77,18 @@ impl RowIndex {
     /// plan's fixed order (the plan is cached for the first `n` asked for); a composition of
     /// Burn's gather and sum (any backend, any tracking).
     fn sum_into(&self, values: Tensor<2>, n: usize) -> Tensor<2> {
+        let device = values.device();
         let owned;
-        let cached = self.plan.get_or_init(|| SumPlan::new(&self.ids, n));
+        let cached = self
+            .plan
+            .get_or_init(|| SumPlan::new(&self.ids, n, &device));
         let plan = if cached.n == n {
             cached
         } else {
-            owned = SumPlan::new(&self.ids, n);
+            owned = SumPlan::new(&self.ids, n, &device);
             &owned
         };
         let c = values.dims()[1];
-        let device = values.device();
         let dtype = values.dtype();
         let zero = || Tensor::<2>::zeros([1, c], (&device, dtype));
         let padded = Tensor::cat(vec![values, zero()], 0);
@@ -90,8 +96,8 @@ impl RowIndex {
             .groups
             .iter()
             .map(|(positions, width)| {
-                let rows = positions.len() / width;
-                let g = plain_gather(padded.clone(), int_tensor(positions, &device));
+                let rows = positions.dims()[0] / width;
+                let g = plain_gather(padded.clone(), positions.clone());
                 if *width == 1 {
                     g
                 } else {
@@ -100,15 +106,15 @@ impl RowIndex {
             })
             .collect();
         parts.push(zero());
-        plain_gather(Tensor::cat(parts, 0), int_tensor(&plan.place, &device))
+        plain_gather(Tensor::cat(parts, 0), plan.place.clone())
     }
 }
 
 impl SumPlan {
     /// Groups the positions of `ids` (each below `n`) by destination (a stable counting sort, so
     /// each destination's rows stay in ascending order), destinations by the next power of two
-    /// of their row count.
-    fn new(ids: &[u32], n: usize) -> Self {
+    /// of their row count; the arrays uploaded to `device`.
+    fn new(ids: &[u32], n: usize, device: &Device) -> Self {
         let l = ids.len();
         let mut start = vec![0usize; n + 1];
         for &i in ids {
@@ -146,7 +152,7 @@ impl SumPlan {
                     place[j] = stacked as i32;
                     stacked += 1;
                 }
-                (positions, width)
+                (int_tensor(&positions, device), width)
             })
             .collect();
         for p in &mut place {
@@ -154,12 +160,16 @@ impl SumPlan {
                 *p = stacked as i32;
             }
         }
-        Self { n, groups, place }
+        Self {
+            n,
+            groups,
+            place: int_tensor(&place, device),
+        }
     }
 }
 
 fn int_tensor(v: &[i32], device: &Device) -> Tensor<1, Int> {
-    Tensor::<1, Int>::from_data(TensorData::new(v.to_vec(), [v.len()]), device)
+    upload(TensorData::new(v.to_vec(), [v.len()]), device)
 }
 
 /// Rows `idx` of `t` by Burn's `gather` (one index per value).
@@ -175,7 +185,7 @@ pub fn gather_rows(t: Tensor<2>, idx: &RowIndex) -> Tensor<2> {
     if on_flex(&t) {
         return t.select(0, idx.tensor.clone());
     }
-    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    #[cfg(any(feature = "wgpu-base", feature = "cuda"))]
     if let Some(y) = cube_ops::gather_rows(&t, idx) {
         return y;
     }
@@ -188,7 +198,7 @@ pub fn add_rows(base: Tensor<2>, idx: &RowIndex, values: Tensor<2>) -> Tensor<2>
     if on_flex(&base) {
         return base.select_assign(0, idx.tensor.clone(), values, IndexingUpdateOp::Add);
     }
-    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    #[cfg(any(feature = "wgpu-base", feature = "cuda"))]
     if let Some(y) = cube_ops::add_rows(&base, idx, &values) {
         return y;
     }
@@ -215,7 +225,7 @@ fn on_flex(t: &Tensor<2>) -> bool {
 /// [`gather_rows`] and [`add_rows`] as autodiff operations of the cubecl backend (wgpu, CUDA),
 /// their gradients computed on the untracked tensors: the gather's by the planned sum, the
 /// added values' by a gather.
-#[cfg(any(feature = "wgpu", feature = "cuda"))]
+#[cfg(any(feature = "wgpu-base", feature = "cuda"))]
 mod cube_ops {
     use super::*;
     use burn::backend::autodiff::checkpoint::base::Checkpointer;

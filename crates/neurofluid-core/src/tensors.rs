@@ -4,7 +4,7 @@ use burn::prelude::*;
 
 /// A `[N, 3]` float tensor of points on `device`.
 pub fn points_tensor(points: &[[f32; 3]], device: &Device) -> Tensor<2> {
-    Tensor::from_data(
+    crate::transfer::upload(
         TensorData::new(points.as_flattened().to_vec(), [points.len(), 3]),
         device,
     )
@@ -21,10 +21,7 @@ pub fn tensor_points(t: &Tensor<2>) -> Vec<[f32; 3]> {
         "expected a [N, 3] tensor, got {:?}",
         t.dims()
     );
-    let v = t
-        .clone()
-        .try_into_vec_as::<f32>()
-        .expect("float tensor data");
+    let v: Vec<f32> = crate::transfer::read_vec(t.clone()).expect("float tensor data");
     v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()
 }
 

@@ -137,3 +137,37 @@ fn added_rows_and_their_gradient() {
         assert!(again == (out, grad), "{name}: a second run gave other bits");
     }
 }
+
+#[test]
+fn an_index_uploads_its_plan_once_and_sums_alike_every_time() {
+    use neurofluid_core::transfer::counts;
+    let mut rng = ChaCha8Rng::seed_from_u64(13);
+    let device = test_device();
+    let (_, idx) = index_sets(&mut rng).remove(1);
+    let ids = RowIndex::new(idx.iter().map(|&i| i as usize), &device);
+    let base = Tensor::<2>::zeros([N, C], &device);
+    let sums: Vec<Vec<f32>> = (0..3)
+        .map(|_| {
+            let values = random(idx.len() * C, &mut ChaCha8Rng::seed_from_u64(14));
+            let v = Tensor::<2>::from_data(TensorData::new(values, [idx.len(), C]), &device);
+            let before = counts();
+            let out = add_rows(base.clone(), &ids, v);
+            let uploads = counts().since(before).uploads;
+            (uploads, f32s(out))
+        })
+        .enumerate()
+        .map(|(i, (uploads, out))| {
+            // the first sum may plan and upload (off the CPU backend); later ones reuse it
+            if i > 0 {
+                assert_eq!(uploads, 0, "sum {i} uploaded its plan again");
+            }
+            out
+        })
+        .collect();
+    let values = random(idx.len() * C, &mut ChaCha8Rng::seed_from_u64(14));
+    assert_close("sums", &sums[0], &rows_summed(&idx, &values));
+    assert!(
+        sums[1] == sums[0] && sums[2] == sums[0],
+        "the same sums, bit for bit"
+    );
+}

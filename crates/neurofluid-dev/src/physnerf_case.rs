@@ -145,7 +145,7 @@ impl CaseInputs {
     /// The particles as a `[N, 3]` tensor on `device` in `dtype` (rounded to nearest for F32).
     pub fn particles_tensor(&self, device: &Device, dtype: DType) -> Tensor<2> {
         let flat: Vec<f64> = self.particles.iter().flatten().copied().collect();
-        Tensor::from_data(
+        neurofluid_core::transfer::upload(
             TensorData::new(flat, [self.particles.len(), 3]),
             (device, dtype),
         )
@@ -241,8 +241,7 @@ impl CaseOutputs {
 }
 
 fn vec_of<const D: usize>(t: Tensor<D>) -> Result<Vec<f64>> {
-    t.try_into_vec_as::<f64>()
-        .map_err(|e| PhysNerfError::Readback(format!("{e:?}")))
+    neurofluid_core::transfer::read_vec(t).map_err(|e| PhysNerfError::Readback(format!("{e:?}")))
 }
 
 /// Small gradients stored per network (besides the first layer).
@@ -360,7 +359,7 @@ pub fn run_case(inputs: &CaseInputs, model: &PhysNerf) -> Result<CaseOutputs> {
     }
     // loss on the case's rays
     let ids = RowIndex::new(inputs.ray_ids.iter().copied(), &device);
-    let target = Tensor::<2>::from_data(
+    let target: Tensor<2> = neurofluid_core::transfer::upload(
         TensorData::new(flat3(&inputs.target), [inputs.target.len(), 3]),
         (&device, dtype),
     );

@@ -256,3 +256,49 @@ fn weights_roundtrip_and_bad_files_are_reported() {
     assert!(err.contains("nerf_coarse.extra.weight"), "{err}");
     std::fs::remove_dir_all(dir).ok();
 }
+
+#[test]
+fn a_render_given_the_particles_on_the_host_reads_one_less_and_gives_the_same_bits() {
+    use neurofluid_core::transfer::counts;
+    let (inputs, _) = case();
+    let device = neurofluid_core::device::test_device().autodiff();
+    let rays = centre_rays(&inputs);
+    let target = Tensor::<2>::full([rays.len(), 3], 0.3, &device);
+    let model = PhysNerf::from_nerf_pl(
+        inputs.weights_path(),
+        inputs.config.clone(),
+        &device,
+        DType::F32,
+    )
+    .unwrap();
+    let host: Vec<[f32; 3]> = inputs
+        .particles
+        .iter()
+        .map(|p| p.map(|c| c as f32))
+        .collect();
+    let mut results = Vec::new();
+    for given in [false, true] {
+        let p = inputs.particles_tensor(&device, DType::F32).require_grad();
+        let before = counts();
+        let out = if given {
+            model.render_rays_with_host(&p, &host, &rays, None).unwrap()
+        } else {
+            model.render_rays(&p, &rays, None).unwrap()
+        };
+        let reads = counts().since(before).reads;
+        let rgb = vals(out.final_rgb());
+        let grads = model.loss(&out, target.clone()).total.backward();
+        results.push((rgb, vals(p.grad(&grads).unwrap()), reads));
+    }
+    let (read, given) = (&results[0], &results[1]);
+    assert_eq!(given.0, read.0, "colours");
+    assert_eq!(given.1, read.1, "particle gradients");
+    assert_eq!(given.2 + 1, read.2, "the particles are not read back");
+    // the host copy must be the tensor's: another length is refused
+    let p = inputs.particles_tensor(&device, DType::F32);
+    assert!(
+        model
+            .render_rays_with_host(&p, &host[1..], &rays, None)
+            .is_err()
+    );
+}

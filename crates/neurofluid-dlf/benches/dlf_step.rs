@@ -2,7 +2,10 @@
 //! particles (the reference harness's `bench` scenes: a lattice block 5 cm above the floor of a
 //! closed box with DLF-density walls, v = (0.3, 0, 0.2), jitter 2 mm). One warm-up, then the
 //! median of `--repeats` runs, wall and process CPU time (all threads) with the 1-minute load
-//! average; a per-phase breakdown of one forward step at the largest size follows.
+//! average; a per-phase breakdown of one forward step at the largest size follows. Per size it
+//! also prints the host–device copies of one forward and one forward+backward step
+//! (`neurofluid_core::transfer`: reads and uploads, count and bytes, the closing read-back that
+//! ends each timed step included).
 //!
 //! `cargo bench --profile dev -p neurofluid-dlf --bench dlf_step -- [--repeats 5] [--sizes 2000 8000 32000] [--device wgpu]`
 //! (the dev profile builds every dependency at opt-level 3; `cargo bench` alone uses release).
@@ -12,6 +15,7 @@ use std::time::Instant;
 
 use burn::prelude::*;
 use neurofluid_core::cpu_time::process_cpu_seconds;
+use neurofluid_core::transfer::{self, Counts};
 use neurofluid_dlf::geometry::{ConvGeometry, build_host_geometry};
 use neurofluid_dlf::net::{points_tensor, tensor_points};
 use neurofluid_dlf::scene::{block_in_box, dlf_wall_spacing};
@@ -50,7 +54,14 @@ fn load_average() -> String {
 }
 
 fn sync(t: &Tensor<2>) {
-    let _ = t.to_data();
+    let _ = transfer::read_data(t.clone());
+}
+
+/// The host–device copies of one call of `f`.
+fn copies_of<T>(f: impl FnOnce() -> T) -> Counts {
+    let before = transfer::counts();
+    let _ = f();
+    transfer::counts().since(before)
 }
 
 fn main() {
@@ -101,6 +112,7 @@ fn main() {
     println!(
         "| N fluid | N wall | neighbours | forward wall s | forward cpu s | fwd+bwd wall s | fwd+bwd cpu s | load avg |\n| --- | --- | --- | --- | --- | --- | --- | --- |"
     );
+    let mut copies = Vec::new();
     for &n in &sizes {
         let scene = block_in_box(n, dlf_wall_spacing(), [0.3, 0.0, 0.2], 0.002, 1, 0.05);
         let boundary = net.boundary(&scene.box_points, &scene.box_normals, &device);
@@ -125,14 +137,23 @@ fn main() {
             let loss = dlf_step_loss(o.pos, target.clone(), &o.num_fluid_neighbors);
             let grads = loss.backward();
             let g = net_ad.conv1.kernel.val().grad(&grads).expect("grad");
-            let _ = g.into_data();
+            let _ = transfer::read_data(g);
         };
         fwd_bwd();
         let (tb, cb) = measure(repeats, fwd_bwd);
+        copies.push((n, copies_of(fwd), copies_of(fwd_bwd)));
         println!(
             "| {n} | {} | {mean_nb:.1} | {tf:.3} | {cf:.2} | {tb:.3} | {cb:.2} | {} |",
             scene.box_points.len(),
             load_average()
+        );
+    }
+    println!("\nhost–device copies per step:");
+    for (n, f, fb) in copies {
+        println!(
+            "  N = {n}: forward {}; forward+backward {}",
+            f.describe(),
+            fb.describe()
         );
     }
     // Where the time of one forward step goes (largest size).

@@ -81,7 +81,7 @@ impl ContinuousConv {
             let gather_first = fused::gather_first(cin, cout) || kernel.is_tracked();
             // the host weights as they are (no device round trip) unless overridden
             let weights = match &geometry.weights_override {
-                Some(w) => w.clone().into_data(),
+                Some(w) => neurofluid_core::transfer::read_data(w.clone()),
                 None => TensorData::new(geometry.host.weights.clone(), [geometry.num_entries(), 1]),
             }
             .convert_dtype(dtype);

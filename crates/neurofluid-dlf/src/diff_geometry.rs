@@ -10,12 +10,16 @@ use crate::geometry::{CORNERS, HostGeometry, search_radius};
 use crate::mapping::KERNEL_SIZE;
 
 fn column(v: &[f32], device: &Device, dtype: burn::tensor::DType) -> Tensor<2> {
-    Tensor::<2>::from_data(TensorData::new(v.to_vec(), [v.len(), 1]), device).cast(dtype)
+    neurofluid_core::transfer::upload::<2, burn::tensor::Float, _>(
+        TensorData::new(v.to_vec(), [v.len(), 1]),
+        device,
+    )
+    .cast(dtype)
 }
 
 fn mask(v: Vec<bool>, device: &Device) -> Tensor<2, Bool> {
     let n = v.len();
-    Tensor::<2, Bool>::from_data(TensorData::new(v, [n, 1]), device)
+    neurofluid_core::transfer::upload(TensorData::new(v, [n, 1]), device)
 }
 
 /// Weights `[8P, 1]` of `host`'s pair corners as a function of the input and output positions

@@ -37,7 +37,7 @@ fn rows_per_chunk(cin: usize) -> usize {
 
 /// A tensor's values on the host (no copy when it is contiguous and not shared).
 fn host_data(t: Tensor<2>) -> TensorData {
-    t.into_data()
+    neurofluid_core::transfer::read_data(t)
 }
 
 fn values<T: Real>(data: &TensorData) -> &[T] {
@@ -47,7 +47,7 @@ fn values<T: Real>(data: &TensorData) -> &[T] {
 
 /// A tensor of `T`'s dtype (`from_data` alone would convert f64 data to the default f32).
 fn device_tensor<T: Real>(v: Vec<T>, shape: [usize; 2], device: &Device) -> Tensor<2> {
-    Tensor::<2>::from_data(
+    neurofluid_core::transfer::upload(
         TensorData::new(v, shape),
         TensorCreationOptions::new(device.clone()).with_dtype(T::dtype()),
     )

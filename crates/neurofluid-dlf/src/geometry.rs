@@ -186,7 +186,7 @@ impl ConvGeometry {
                 .host_weights
                 .get_or_init(|| {
                     let n = self.host.weights.len();
-                    Tensor::<2>::from_data(
+                    neurofluid_core::transfer::upload::<2, burn::tensor::Float, _>(
                         TensorData::new(self.host.weights.clone(), [n, 1]),
                         &self.device,
                     )
@@ -239,7 +239,7 @@ impl ConvGeometry {
             let int = |v: Vec<i64>| RowIndex::new(v.into_iter().map(|i| i as usize), device);
             let weights = match &self.weights_override {
                 Some(w) => w.clone().narrow(0, p0 * CORNERS, n8),
-                None => Tensor::<2>::from_data(
+                None => neurofluid_core::transfer::upload::<2, burn::tensor::Float, _>(
                     TensorData::new(host.weights[p0 * CORNERS..p1 * CORNERS].to_vec(), [n8, 1]),
                     device,
                 ),

@@ -19,8 +19,11 @@ pub fn dlf_step_loss(pred: Tensor<2>, target: Tensor<2>, num_fluid_neighbors: &[
         .iter()
         .map(|&c| (-(c as f32) / NEIGHBOR_SCALE).exp())
         .collect();
-    let importance =
-        Tensor::<1>::from_data(TensorData::new(importance, [n]), &device).cast(pred.dtype());
+    let importance = neurofluid_core::transfer::upload::<1, burn::tensor::Float, _>(
+        TensorData::new(importance, [n]),
+        &device,
+    )
+    .cast(pred.dtype());
     let diff = pred - target;
     let dist = ((diff.clone() * diff).sum_dim(1).squeeze_dim::<1>(1) + 1e-9).sqrt();
     (importance * dist.powf_scalar(LOSS_GAMMA)).mean()

@@ -102,7 +102,7 @@ fn rotation_tensor(r: [[f32; 3]; 3], transpose: bool, device: &Device) -> Tensor
             if transpose { r[j][i] } else { r[i][j] }
         })
         .collect();
-    Tensor::from_data(TensorData::new(v, [3, 3]), device)
+    neurofluid_core::transfer::upload(TensorData::new(v, [3, 3]), device)
 }
 
 pub use neurofluid_core::tensors::{points_tensor, tensor_points};
@@ -119,7 +119,11 @@ pub fn contain(
     let device = pos.device();
     let n = pos.dims()[0];
     let bound = |c: [f32; 3]| {
-        Tensor::<2>::from_data(TensorData::new(c.to_vec(), [1, 3]), &device).expand([n, 3])
+        neurofluid_core::transfer::upload::<2, burn::tensor::Float, _>(
+            TensorData::new(c.to_vec(), [1, 3]),
+            &device,
+        )
+        .expand([n, 3])
     };
     let clamped = pos
         .clone()
@@ -276,7 +280,8 @@ impl DlfNet {
         let pos = self.to_model(pos);
         let vel = self.to_model(vel);
         let g = cfg.model_gravity().map(|c| cfg.dt * c);
-        let g = Tensor::<2>::from_data(TensorData::new(g.to_vec(), [1, 3]), &device);
+        let g: Tensor<2> =
+            neurofluid_core::transfer::upload(TensorData::new(g.to_vec(), [1, 3]), &device);
         let vel_pred = vel.clone() + g;
         let pos_pred = pos.clone() + ((vel_pred.clone() + vel) * cfg.dt) / 2.0;
         let (fluid, solid) = self.geometries(&pos_pred, boundary);

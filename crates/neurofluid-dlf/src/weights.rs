@@ -238,9 +238,14 @@ pub fn net_from_tensors(
         let k = take(&format!("{name}.kernel"), ks)?;
         let b = take(&format!("{name}.bias"), bs)?;
         let kshape: [usize; 5] = ks.clone().try_into().expect("5-d kernel");
-        conv.kernel =
-            Param::from_tensor(Tensor::from_data(TensorData::new(k.data, kshape), device));
-        conv.bias = Param::from_tensor(Tensor::from_data(TensorData::new(b.data, [bs[0]]), device));
+        conv.kernel = Param::from_tensor(neurofluid_core::transfer::upload(
+            TensorData::new(k.data, kshape),
+            device,
+        ));
+        conv.bias = Param::from_tensor(neurofluid_core::transfer::upload(
+            TensorData::new(b.data, [bs[0]]),
+            device,
+        ));
         Ok(())
     };
     conv(&mut net.conv0_fluid, "conv0_fluid")?;
@@ -255,9 +260,13 @@ pub fn net_from_tensors(
         let b = take(&format!("{name}.bias"), bs)?;
         let (out, inp) = (ws[0], ws[1]);
         // torch Linear is [out, in]; Burn's is [in, out]
-        let wt = Tensor::<2>::from_data(TensorData::new(w.data, [out, inp]), device).transpose();
+        let wt = neurofluid_core::transfer::upload::<2, burn::tensor::Float, _>(
+            TensorData::new(w.data, [out, inp]),
+            device,
+        )
+        .transpose();
         lin.weight = Param::from_tensor(wt);
-        lin.bias = Some(Param::from_tensor(Tensor::from_data(
+        lin.bias = Some(Param::from_tensor(neurofluid_core::transfer::upload(
             TensorData::new(b.data, [out]),
             device,
         )));

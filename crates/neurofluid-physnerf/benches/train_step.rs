@@ -6,7 +6,9 @@
 //! the best rather than the median because the machine is shared). Without `--bench` (as under
 //! `cargo test --benches`) it runs one 32-ray step as a smoke test. Off the CPU the stage times
 //! are host clocks around asynchronous GPU work (the neighbour search, host work, is exact); the
-//! step, the backward and the MLPs alone end with a read-back, so they are exact.
+//! step, the backward and the MLPs alone end with a read-back, so they are exact. It also
+//! prints the step's host–device copies (`neurofluid_core::transfer`: reads and uploads, count
+//! and bytes, the closing read-back of the particle gradient's sum included).
 //! The weights are the reference case's test weights (opaque, textured), the particles a
 //! 22×22×21 lattice (spacing 0.05, jitter ±0.003, randomly permuted: 10,164 particles), the
 //! camera 4 units away (400×400, as in NeuroFluid), the rays 1024 random pixels of the view.
@@ -15,9 +17,10 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use burn::prelude::*;
-use burn::tensor::{DType, Distribution, TensorData};
+use burn::tensor::{DType, Distribution, Float, TensorData};
 use neurofluid_core::camera::Camera;
 use neurofluid_core::cpu_time::process_cpu_seconds;
+use neurofluid_core::transfer::{self, Counts, upload};
 use neurofluid_physnerf::{PhysNerf, PhysNerfConfig, RayBatch, Timings};
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
@@ -92,9 +95,11 @@ fn main() {
     let mut backs = Vec::new();
     let mut stage = Vec::<Timings>::new();
     let mut evaluated = (0, 0);
+    let mut copies = Counts::default();
     for it in 0..repeats {
         let p =
-            Tensor::<2>::from_data(TensorData::new(flat.clone(), [n, 3]), &device).require_grad();
+            upload::<2, Float, _>(TensorData::new(flat.clone(), [n, 3]), &device).require_grad();
+        let before = transfer::counts();
         let c0 = process_cpu_seconds();
         let t0 = Instant::now();
         let out = model.render_rays(&p, &rays, None).expect("render");
@@ -102,8 +107,9 @@ fn main() {
         let t1 = Instant::now();
         let grads = loss.total.backward();
         let g = p.grad(&grads).expect("particle gradient");
-        let _ = g.sum().into_scalar::<f32>();
+        let _ = transfer::read_scalar(g.sum());
         let t2 = Instant::now();
+        copies = transfer::counts().since(before);
         evaluated = (
             out.coarse.evaluated,
             out.fine.as_ref().map_or(0, |f| f.evaluated),
@@ -145,7 +151,7 @@ fn main() {
             let grads = total.backward();
             for ex in inputs {
                 let g = ex.grad(&grads).expect("input gradient");
-                let _ = g.sum().into_scalar::<f32>();
+                let _ = transfer::read_scalar(g.sum());
             }
             if it > 0 {
                 v.push(secs(t0.elapsed()));
@@ -178,6 +184,7 @@ fn main() {
         pct(comp, fwd)
     );
     println!("  backward {back:.3} s");
+    println!("  host–device copies per step: {}", copies.describe());
     println!(
         "  MLPs alone (forward + backward on the same rows): {mlp_fb:.3} s = {:.0} % of the step; everything else (neighbour search, features, encodings, compositing, sampling and their backward): {:.3} s = {:.0} %",
         pct(mlp_fb, step),

@@ -32,7 +32,7 @@ pub struct LocalFeatures {
 
 /// Builds a `[rows, cols]` float tensor of dtype T from host values.
 pub fn host_tensor<T: Real>(values: Vec<T>, shape: [usize; 2], device: &Device) -> Tensor<2> {
-    Tensor::from_data(TensorData::new(values, shape), (device, T::DTYPE))
+    neurofluid_core::transfer::upload(TensorData::new(values, shape), (device, T::DTYPE))
 }
 
 /// Flattens `[[T; 3]]` rows into a `[n, 3]` tensor.

@@ -58,8 +58,7 @@ impl DepthPlan {
 }
 
 pub(crate) fn read<T: Real, const D: usize>(t: Tensor<D>) -> Result<Vec<T>> {
-    t.try_into_vec_as::<T>()
-        .map_err(|e| PhysNerfError::Readback(format!("{e:?}")))
+    neurofluid_core::transfer::read_vec(t).map_err(|e| PhysNerfError::Readback(format!("{e:?}")))
 }
 
 /// Renders `rays` rays: `pass(which, z, s, timings)` evaluates and composites one pass on the

@@ -195,7 +195,36 @@ impl PhysNerf {
             ));
         }
         let rng = if self.config.stratified { rng } else { None };
-        self.dispatch(particles, rays, rng, None)
+        self.dispatch(particles, None, rays, rng, None)
+    }
+
+    /// [`PhysNerf::render_rays`] given also the particles' values on the host (`host`, equal to
+    /// `particles`, which must be f32): the neighbour search runs on the host, and a caller that
+    /// already holds the positions spares the renderer reading them back from the device (a
+    /// stall of a GPU's queue).
+    pub fn render_rays_with_host(
+        &self,
+        particles: &Tensor<2>,
+        host: &[[f32; 3]],
+        rays: &RayBatch,
+        rng: Option<&mut dyn RngCore>,
+    ) -> Result<RenderOutput> {
+        if self.config.stratified && rng.is_none() {
+            return Err(PhysNerfError::Invalid(
+                "config.stratified needs an RNG".into(),
+            ));
+        }
+        if particles.dtype() != DType::F32 || host.len() != particles.dims()[0] {
+            return Err(PhysNerfError::Invalid(format!(
+                "host particles: {} given for a {:?} tensor of {:?}; they must be the f32 \
+                 tensor's values",
+                host.len(),
+                particles.dtype(),
+                particles.dims()
+            )));
+        }
+        let rng = if self.config.stratified { rng } else { None };
+        self.dispatch(particles, Some(host), rays, rng, None)
     }
 
     /// Like [`PhysNerf::render_rays`] (deterministic), but the fine pass runs on the given sorted
@@ -216,12 +245,13 @@ impl PhysNerf {
                 fine_z.len()
             )));
         }
-        self.dispatch(particles, rays, None, Some(fine_z))
+        self.dispatch(particles, None, rays, None, Some(fine_z))
     }
 
     fn dispatch(
         &self,
         particles: &Tensor<2>,
+        host: Option<&[[f32; 3]]>,
         rays: &RayBatch,
         rng: Option<&mut dyn RngCore>,
         fine_z: Option<&[f64]>,
@@ -247,8 +277,8 @@ impl PhysNerf {
             )));
         }
         match particles.dtype() {
-            DType::F32 => self.render_impl::<f32>(particles, rays, rng, fine_z),
-            DType::F64 => self.render_impl::<f64>(particles, rays, rng, fine_z),
+            DType::F32 => self.render_impl::<f32>(particles, host, rays, rng, fine_z),
+            DType::F64 => self.render_impl::<f64>(particles, None, rays, rng, fine_z),
             other => Err(PhysNerfError::Invalid(format!(
                 "particles must be F32 or F64, got {other:?}"
             ))),
@@ -258,12 +288,19 @@ impl PhysNerf {
     fn render_impl<T: Real>(
         &self,
         particles: &Tensor<2>,
+        host: Option<&[[f32; 3]]>,
         rays: &RayBatch,
         rng: Option<&mut dyn RngCore>,
         fixed_fine: Option<&[f64]>,
     ) -> Result<RenderOutput> {
-        let flat: Vec<T> = read(particles.clone().detach())?;
-        let p_host: Vec<[T; 3]> = flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        let p_host: Vec<[T; 3]> = match host {
+            // exact: f32 values through f64 into T = f32
+            Some(h) => h.iter().map(|p| p.map(|c| T::of(f64::from(c)))).collect(),
+            None => {
+                let flat: Vec<T> = read(particles.clone().detach())?;
+                flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()
+            }
+        };
         let origins: Vec<[T; 3]> = rays.origins.iter().map(|v| v.map(T::of)).collect();
         let dirs: Vec<[T; 3]> = rays.dirs.iter().map(|v| v.map(T::of)).collect();
         render_hierarchical(

@@ -71,7 +71,7 @@ pub fn render_image_with(
         let end = (start + chunk).min(n);
         let out = render(&rays.slice(start, end))?;
         let read = |t: Tensor<2>| {
-            t.try_into_vec_as::<f32>()
+            neurofluid_core::transfer::read_vec::<f32, 2, burn::tensor::Float>(t)
                 .map_err(|e| PhysNerfError::Readback(format!("{e:?}")))
         };
         coarse.extend(read(out.coarse.rgb_map)?);

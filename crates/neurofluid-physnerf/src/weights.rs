@@ -25,7 +25,7 @@ const FAR_KEY: &str = "far";
 pub const NETS: [&str; 2] = ["nerf_coarse", "nerf_fine"];
 
 fn to_tensor(values: Vec<f64>, shape: Vec<usize>, device: &Device, dtype: DType) -> Tensor<2> {
-    Tensor::from_data(TensorData::new(values, shape), (device, dtype))
+    neurofluid_core::transfer::upload(TensorData::new(values, shape), (device, dtype))
 }
 
 fn load_net(
@@ -159,12 +159,9 @@ impl PhysNerf {
         for (prefix, net) in NETS.iter().zip([&self.coarse, &self.fine]) {
             for (name, layer) in net.named_layers() {
                 let [d_in, d_out] = layer.weight.val().dims();
-                let wt: Vec<f64> = layer
-                    .weight
-                    .val()
-                    .transpose()
-                    .try_into_vec_as::<f64>()
-                    .map_err(|e| PhysNerfError::Readback(format!("{e:?}")))?;
+                let wt: Vec<f64> =
+                    neurofluid_core::transfer::read_vec(layer.weight.val().transpose())
+                        .map_err(|e| PhysNerfError::Readback(format!("{e:?}")))?;
                 w.float(
                     &format!("{prefix}.{name}.weight"),
                     &[d_out, d_in],
@@ -172,9 +169,7 @@ impl PhysNerf {
                     as_f64,
                 );
                 if let Some(b) = &layer.bias {
-                    let bv: Vec<f64> = b
-                        .val()
-                        .try_into_vec_as::<f64>()
+                    let bv: Vec<f64> = neurofluid_core::transfer::read_vec(b.val())
                         .map_err(|e| PhysNerfError::Readback(format!("{e:?}")))?;
                     w.float(&format!("{prefix}.{name}.bias"), &[d_out], &bv, as_f64);
                 }

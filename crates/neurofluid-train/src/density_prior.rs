@@ -18,8 +18,6 @@
 use burn::prelude::*;
 use neurofluid_core::metrics::nearest_others;
 
-use crate::stages::views::tensor_points;
-
 /// The prior's settings, fixed for a run.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DensityPrior {
@@ -74,15 +72,14 @@ impl DensityPrior {
         Ok(Self { k, spread, weight })
     }
 
-    /// L at the positions `pos` (`[N, 3]`, differentiable through its graph), and how many
-    /// particles are sparser than τ; `None` for the term when none is (or a position is not
-    /// finite: the state check reports that).
-    pub fn loss(&self, pos: &Tensor<2>) -> (Option<Tensor<1>>, usize) {
-        let points = tensor_points(pos);
-        let Some(nb) = nearest_others(&points, self.k) else {
+    /// L at the positions `pos` (`[N, 3]`, differentiable through its graph; `points` its host
+    /// copy), and how many particles are sparser than τ; `None` for the term when none is (or a
+    /// position is not finite: the state check reports that).
+    pub fn loss(&self, pos: &Tensor<2>, points: &[[f32; 3]]) -> (Option<Tensor<1>>, usize) {
+        let Some(nb) = nearest_others(points, self.k) else {
             return (None, 0);
         };
-        let sparse: Vec<usize> = spreads(&points, &nb)
+        let sparse: Vec<usize> = spreads(points, &nb)
             .iter()
             .enumerate()
             .filter(|&(i, &s)| s > self.spread && nb[i].len() == self.k)
@@ -123,7 +120,7 @@ fn int_tensor(ids: impl Iterator<Item = usize>, device: &Device) -> Tensor<1, In
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::stages::views::{points_tensor, scalar};
+    use crate::stages::views::{points_tensor, scalar, tensor_points};
 
     /// A 6 × 6 × 6 lattice of spacing 0.05 (a block of fluid at rest).
     fn block() -> Vec<[f32; 3]> {
@@ -160,7 +157,7 @@ mod tests {
             "{}",
             prior.spread
         );
-        let (term, sparse) = prior.loss(&points_tensor(&block(), &device));
+        let (term, sparse) = prior.loss(&points_tensor(&block(), &device), &block());
         assert!(term.is_none());
         assert_eq!(sparse, 0);
     }
@@ -174,7 +171,7 @@ mod tests {
         // off the lattice's symmetry planes, so that no two neighbours tie
         points.push([0.6, 0.137, 0.083]);
         let pos = points_tensor(&points, &device).require_grad();
-        let (term, sparse) = prior.loss(&pos);
+        let (term, sparse) = prior.loss(&pos, &points);
         assert_eq!(sparse, 1);
         let term = term.unwrap();
         let value = scalar(&term);
@@ -212,7 +209,7 @@ mod tests {
         let stray = points.len() - 1;
         for _ in 0..200 {
             let pos = points_tensor(&points, &device).require_grad();
-            let (Some(term), _) = prior.loss(&pos) else {
+            let (Some(term), _) = prior.loss(&pos, &points) else {
                 break;
             };
             let g = tensor_points(&pos.grad(&term.backward()).unwrap());
@@ -222,7 +219,7 @@ mod tests {
                 points[stray][a] -= 0.02 * g[stray][a] / norm;
             }
         }
-        let (term, sparse) = prior.loss(&points_tensor(&points, &device));
+        let (term, sparse) = prior.loss(&points_tensor(&points, &device), &points);
         assert!(term.is_none() && sparse == 0, "{:?}", points[stray]);
         assert!(
             points[stray].iter().all(|&v| v < 0.45),

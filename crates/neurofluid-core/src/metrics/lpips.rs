@@ -64,7 +64,7 @@ fn tensor_f32<const D: usize>(
         .chunks_exact(4)
         .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
         .collect();
-    Ok(Tensor::from_data(
+    Ok(crate::transfer::upload(
         TensorData::new(data, view.shape().to_vec()),
         device,
     ))
@@ -122,7 +122,7 @@ impl Lpips {
                 chw[c * w * h + p] = (2.0 * px[c] - 1.0 - SHIFT[c]) / SCALE[c];
             }
         }
-        Tensor::from_data(TensorData::new(chw, [1, 3, h, w]), &self.device)
+        crate::transfer::upload(TensorData::new(chw, [1, 3, h, w]), &self.device)
     }
 
     /// The LPIPS distance between two images of one size (colours in [0, 1]).
@@ -153,7 +153,7 @@ impl Lpips {
                 None,
                 ConvOptions::new([1, 1], [0, 0], [1, 1], 1),
             );
-            total += layer.mean().into_scalar::<f32>() as f64;
+            total += crate::transfer::read_scalar(layer.mean());
         }
         Ok(total)
     }

@@ -19,8 +19,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     );
     if let Some(name) = args.probe {
         let device = parse_device(&name)?;
-        let x = Tensor::<1>::from_floats([1.0, 2.0, 3.0], &device);
-        let s: f32 = x.clone().mul(x).sum().into_scalar();
+        let x: Tensor<1> = neurofluid_core::transfer::upload([1.0f32, 2.0, 3.0], &device);
+        let s = neurofluid_core::transfer::read_scalar(x.clone().mul(x).sum()) as f32;
         anyhow::ensure!(
             (s - 14.0).abs() < 1e-5,
             "device {name} computed 1²+2²+3² = {s}"

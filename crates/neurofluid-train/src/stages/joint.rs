@@ -29,6 +29,7 @@ use burn::tensor::activation::relu;
 use neurofluid_core::metrics::gt_to_pred_distance;
 use neurofluid_core::npz::{NpzReader, NpzWriter};
 use neurofluid_core::scene::{Aabb, Particles, Role, Scene};
+use neurofluid_core::transfer::read_vec;
 use neurofluid_dlf::{Boundary, DlfNet};
 use neurofluid_physnerf::{PhysNerf, RayBatch};
 
@@ -66,8 +67,10 @@ pub struct Grounded {
 /// boundary L1 penalty, `mean |x − clamp(x, lo, hi)|`).
 pub fn boundary_penalty(pos: Tensor<2>, interior: &Aabb) -> Tensor<1> {
     let device = pos.device();
-    let lo = Tensor::<1>::from_floats(interior.min, &device).unsqueeze_dim::<2>(0);
-    let hi = Tensor::<1>::from_floats(interior.max, &device).unsqueeze_dim::<2>(0);
+    let lo = neurofluid_core::transfer::upload::<1, burn::tensor::Float, _>(interior.min, &device)
+        .unsqueeze_dim::<2>(0);
+    let hi = neurofluid_core::transfer::upload::<1, burn::tensor::Float, _>(interior.max, &device)
+        .unsqueeze_dim::<2>(0);
     let below = relu(lo - pos.clone());
     let above = relu(pos - hi);
     (below + above).mean()
@@ -255,21 +258,53 @@ pub fn split_image_loss(
     colours: Tensor<2>,
     jitter: Option<&mut dyn rand::RngCore>,
 ) -> anyhow::Result<SplitImageLoss> {
+    let split = split_on_device(physnerf, pred, None, rays, colours, jitter)?;
+    let [fine, total]: [f64; 2] = read_vec(Tensor::cat(vec![split.fine, split.total], 0))?
+        .try_into()
+        .expect("two values");
+    Ok(SplitImageLoss {
+        loss: total,
+        psnr: psnr_from_mse(fine),
+        physnerf_grads: split.physnerf_grads,
+        dx: split.dx,
+    })
+}
+
+/// [`SplitImageLoss`] with the losses left on the device (`[1]` each), for a step that reads
+/// them back together with its other values.
+struct SplitOnDevice {
+    fine: Tensor<1>,
+    total: Tensor<1>,
+    physnerf_grads: Option<GradientsParams>,
+    dx: Option<Vec<[f32; 3]>>,
+}
+
+/// [`split_image_loss`] without reading the losses; `host` is `pred`'s values when the caller
+/// holds them (the renderer then reads nothing back for the neighbour search).
+fn split_on_device(
+    physnerf: &PhysNerf,
+    pred: &Tensor<2>,
+    host: Option<&[[f32; 3]]>,
+    rays: &RayBatch,
+    colours: Tensor<2>,
+    jitter: Option<&mut dyn rand::RngCore>,
+) -> anyhow::Result<SplitOnDevice> {
     let x = pred.clone().detach().require_grad();
-    let out = physnerf.render_rays(&x, rays, jitter)?;
+    let out = match host {
+        Some(h) => physnerf.render_rays_with_host(&x, h, rays, jitter)?,
+        None => physnerf.render_rays(&x, rays, jitter)?,
+    };
     let image_loss = physnerf.loss(&out, colours);
-    let psnr = psnr_from_mse(scalar(&image_loss.fine));
-    let loss = scalar(&image_loss.total);
-    let (physnerf_grads, dx) = match guard::backward(image_loss.total) {
+    let (physnerf_grads, dx) = match guard::backward(image_loss.total.clone()) {
         Some(mut grads) => (
             Some(GradientsParams::from_module(&mut grads, physnerf)),
             x.grad(&grads).map(|g| tensor_points(&g)),
         ),
         None => (None, None),
     };
-    Ok(SplitImageLoss {
-        loss,
-        psnr,
+    Ok(SplitOnDevice {
+        fine: image_loss.fine,
+        total: image_loss.total,
         physnerf_grads,
         dx,
     })
@@ -331,6 +366,9 @@ pub struct JointTrainer {
     data: JointData,
     boundary: Boundary,
     state: State,
+    /// The carried positions on the host, when the last step read them (the state check uses
+    /// them instead of reading the device again).
+    state_host: Option<Vec<[f32; 3]>>,
     /// DLF's surrogate loss of the window so far (several transitions with `bptt_steps` > 1).
     pending: Option<Tensor<1>>,
     /// The window's loss so far.
@@ -377,6 +415,7 @@ impl JointTrainer {
             data,
             boundary,
             state,
+            state_host: None,
             pending: None,
             pending_loss: 0.0,
             physnerf_grads: GradientsAccumulator::new(),
@@ -423,32 +462,43 @@ impl Trainer for JointTrainer {
         let pred = self
             .dlf
             .step(self.state.0.clone(), self.state.1.clone(), &self.boundary);
+        // the prediction on the host, read once: the rays, the renderer's neighbour search, the
+        // silhouette, the alignment and the state check all use it
+        let pred_host = tensor_points(&pred.pos);
         self.last_target = t + 1;
-        let (rays, colours) = self.rays_at(step, t + 1, &pred.pos)?;
+        let (rays, colours) = self.rays_at(step, t + 1, &pred.pos, &pred_host)?;
         let jitter: Option<&mut dyn rand::RngCore> = if self.physnerf.config.stratified {
             Some(&mut self.rng)
         } else {
             None
         };
-        let split = split_image_loss(&self.physnerf, &pred.pos, &rays, colours, jitter)?;
+        let split = split_on_device(
+            &self.physnerf,
+            &pred.pos,
+            Some(&pred_host),
+            &rays,
+            colours,
+            jitter,
+        )?;
         let boundary = boundary_penalty(pred.pos.clone(), &self.data.interior)
             .mul_scalar(self.cfg.boundary_weight);
-        self.pending_loss += split.loss + scalar(&boundary);
         if let Some(g) = split.physnerf_grads {
             self.physnerf_grads.accumulate(&self.physnerf, g);
         }
+        // the terms besides the image's and the boundary's (read back with them, at once)
+        let mut extra = boundary.clone().mul_scalar(0.0);
         if self.data.replay.is_some() {
             let (loss, grads) = self.replay_step(step)?;
-            self.pending_loss += loss;
+            extra = extra + loss;
             if let Some(g) = grads {
                 self.physnerf_grads.accumulate(&self.physnerf, g);
             }
         }
-        let psnr = split.psnr;
         let mut dx = split.dx;
+        let mut silhouette = None;
         if self.cfg.silhouette_weight > 0.0 {
-            let (loss, g) = self.silhouette_at(t + 1, &pred.pos);
-            self.pending_loss += loss;
+            let (loss, g) = self.silhouette_at(t + 1, &pred_host);
+            silhouette = Some(loss);
             dx = Some(match dx {
                 Some(d) => d
                     .iter()
@@ -458,59 +508,84 @@ impl Trainer for JointTrainer {
                 None => g,
             });
         }
-        let mut surrogate = dlf_surrogate(&pred.pos, dx.as_deref()) + boundary;
+        let mut surrogate = dlf_surrogate(&pred.pos, dx.as_deref()) + boundary.clone();
         if let Some(anchor) = &self.anchor {
             let (x, v) = (self.state.0.clone().detach(), self.state.1.clone().detach());
             let target = anchor.step(x, v, &self.boundary).pos.detach();
             let term = anchor_penalty(pred.pos.clone(), target, self.data.radius)
                 .mul_scalar(self.cfg.anchor_weight);
-            self.pending_loss += scalar(&term);
+            extra = extra + term.clone().detach();
             surrogate = surrogate + term;
         }
         if let Some(prior) = &self.density
-            && let (Some(term), _) = prior.loss(&pred.pos)
+            && let (Some(term), _) = prior.loss(&pred.pos, &pred_host)
         {
-            self.pending_loss += scalar(&term);
+            extra = extra + term.clone().detach();
             surrogate = surrogate + term;
         }
         if let Some(g) = &dx {
-            self.record_alignment(t + 1, &pred.pos, g);
+            self.record_alignment(t + 1, &pred_host, g);
         }
         self.pending = Some(match self.pending.take() {
             None => surrogate,
             Some(p) => p + surrogate,
         });
         self.state = (pred.pos, pred.vel);
+        self.state_host = Some(pred_host);
         let Updates {
             physnerf: window_end,
             dlf: dlf_end,
         } = updates_after(&self.cfg, transitions, self.total_steps(), step);
+        // at the end of a window the gradients too, so that the step reads its values back once
+        // (a non-finite loss is not used to update: the guard stops the run on it)
+        let mut g_physnerf = None;
+        let mut g_dlf = None;
+        let mut parts = vec![split.fine, split.total, boundary, extra];
+        let (mut n_physnerf, mut n_dlf) = (0, 0);
+        if window_end {
+            let g = self.physnerf_grads.grads();
+            if let Some(sums) = guard::grad_square_sums(&g, &self.physnerf) {
+                n_physnerf = sums.dims()[0];
+                parts.push(sums);
+            }
+            g_physnerf = Some(g);
+            if dlf_end {
+                let surrogate = self.pending.take().context("no loss to optimise")?;
+                let g = match guard::backward(surrogate) {
+                    Some(mut grads) => GradientsParams::from_module(&mut grads, &self.dlf),
+                    None => GradientsParams::new(),
+                };
+                if let Some(sums) = guard::grad_square_sums(&g, &self.dlf) {
+                    n_dlf = sums.dims()[0];
+                    parts.push(sums);
+                }
+                g_dlf = Some(g);
+            }
+        }
+        let values: Vec<f64> = read_vec(Tensor::cat(parts, 0))?;
+        let (fine, image, boundary, extra) = (values[0], values[1], values[2], values[3]);
+        self.pending_loss += image + boundary + extra;
+        if let Some(loss) = silhouette {
+            self.pending_loss += loss;
+        }
         let mut stats = StepStats {
-            psnr: Some(psnr),
+            psnr: Some(psnr_from_mse(fine)),
             rays: self.cfg.rays,
             loss: self.pending_loss,
             ..StepStats::default()
         };
-        if !window_end {
+        let Some(g_physnerf) = g_physnerf else {
             return Ok(stats);
-        }
+        };
         self.pending_loss = 0.0;
-        let g_physnerf = self.physnerf_grads.grads();
         if !stats.loss.is_finite() {
             return Ok(stats);
         }
         let (lr_p, lr_d) = (self.opt_physnerf.lr(), self.opt_dlf.lr());
-        let norm_p = guard::grad_norm(&g_physnerf, &self.physnerf);
-        let g_dlf = if dlf_end {
-            let surrogate = self.pending.take().context("no loss to optimise")?;
-            Some(match guard::backward(surrogate) {
-                Some(mut grads) => GradientsParams::from_module(&mut grads, &self.dlf),
-                None => GradientsParams::new(),
-            })
-        } else {
-            None
-        };
-        let norm_d = g_dlf.as_ref().map(|g| guard::grad_norm(g, &self.dlf));
+        let norm_p = guard::norm_of(&values[4..4 + n_physnerf]);
+        let norm_d = g_dlf
+            .as_ref()
+            .map(|_| guard::norm_of(&values[4 + n_physnerf..4 + n_physnerf + n_dlf]));
         if norm_p.is_finite() && norm_d.is_none_or(f64::is_finite) {
             self.physnerf = self.opt_physnerf.step(self.physnerf.clone(), g_physnerf);
             if let Some(g) = g_dlf {
@@ -534,7 +609,14 @@ impl Trainer for JointTrainer {
     /// The carried particles must stay finite and near the box: farther than one box size
     /// outside it, the state has exploded (and so will everything trained on it).
     fn check_state(&self) -> Result<(), String> {
-        let pos = tensor_points(&self.state.0);
+        let read;
+        let pos = match &self.state_host {
+            Some(host) => host,
+            None => {
+                read = tensor_points(&self.state.0);
+                &read
+            }
+        };
         let b = &self.data.interior;
         let margin: f32 = (0..3).map(|a| b.max[a] - b.min[a]).fold(0.0, f32::max);
         for (i, p) in pos.iter().enumerate() {
@@ -594,15 +676,16 @@ impl Trainer for JointTrainer {
                 points_tensor(&r.points("pos")?, &device),
                 points_tensor(&r.points("vel")?, &device),
             );
+            self.state_host = None;
         }
         Ok(())
     }
 }
 
 impl JointTrainer {
-    /// The replayed warm-up loss of iteration `step` (`joint.replay_rays` rays from one warm-up
+    /// The replayed warm-up loss of iteration `step` (detached, read with the step's others) (`joint.replay_rays` rays from one warm-up
     /// view in turn, rendered from the warm-up's particles) and PhysNeRF's gradients of it.
-    fn replay_step(&mut self, step: u64) -> anyhow::Result<(f64, Option<GradientsParams>)> {
+    fn replay_step(&mut self, step: u64) -> anyhow::Result<(Tensor<1>, Option<GradientsParams>)> {
         let device = self.dlf.device();
         let replay = self.data.replay.as_ref().context("no warm-up to replay")?;
         let view = &replay.views[(step % replay.views.len() as u64) as usize];
@@ -621,7 +704,7 @@ impl JointTrainer {
         };
         let out = self.physnerf.render_rays(&particles, &rays, jitter)?;
         let loss = self.physnerf.loss(&out, colours).total;
-        let value = scalar(&loss);
+        let value = loss.clone().detach();
         let grads = guard::backward(loss).map(|g| GradientsParams::from_grads(g, &self.physnerf));
         Ok((value, grads))
     }
@@ -634,8 +717,9 @@ impl JointTrainer {
         step: u64,
         t: usize,
         pred: &Tensor<2>,
+        pred_host: &[[f32; 3]],
     ) -> anyhow::Result<(RayBatch, Tensor<2>)> {
-        let predicted = (self.cfg.foreground_rays > 0.0).then(|| tensor_points(pred));
+        let predicted = (self.cfg.foreground_rays > 0.0).then_some(pred_host);
         let n_views = self.data.views.len();
         let mut parts = Vec::with_capacity(n_views);
         for (v, frames) in self.data.views.iter().enumerate() {
@@ -659,8 +743,7 @@ impl JointTrainer {
 
     /// The weighted silhouette term of training frame `t` over every view, and its gradient
     /// with respect to the predicted positions `pred`.
-    fn silhouette_at(&self, t: usize, pred: &Tensor<2>) -> (f64, Vec<[f32; 3]>) {
-        let points = tensor_points(pred);
+    fn silhouette_at(&self, t: usize, points: &[[f32; 3]]) -> (f64, Vec<[f32; 3]>) {
         let weight = self.cfg.silhouette_weight;
         let mut loss = 0.0;
         let mut grad = vec![[0.0f32; 3]; points.len()];
@@ -673,7 +756,7 @@ impl JointTrainer {
             let s = silhouette_loss(
                 camera,
                 &self.data.foreground[v][t],
-                &points,
+                points,
                 radius,
                 self.cfg.silhouette_cover,
             );
@@ -689,18 +772,17 @@ impl JointTrainer {
 
     /// Adds the cosine between −`dx` and the true error at training frame `t` to the alignment,
     /// where the truth is known and has the prediction's particles (matched by index).
-    fn record_alignment(&mut self, t: usize, pred: &Tensor<2>, dx: &[[f32; 3]]) {
+    fn record_alignment(&mut self, t: usize, predicted: &[[f32; 3]], dx: &[[f32; 3]]) {
         let Some(truth) = self.data.truth.as_ref().map(|truth| &truth[t]) else {
             return;
         };
-        if truth.len() != pred.dims()[0] {
+        if truth.len() != predicted.len() {
             return;
         }
-        let predicted = tensor_points(pred);
         let descent: Vec<[f32; 3]> = dx.iter().map(|v| v.map(|c| -c)).collect();
         let error: Vec<[f32; 3]> = truth
             .iter()
-            .zip(&predicted)
+            .zip(predicted)
             .map(|(a, b)| [a[0] - b[0], a[1] - b[1], a[2] - b[2]])
             .collect();
         if let Some(c) = cosine(&descent, &error) {

@@ -157,7 +157,7 @@ impl Trainer for SupervisedDlfTrainer {
         let batch = self.cfg.batch_size.max(1);
         let gravity = self.net.config.gravity;
         let mut accum = GradientsAccumulator::<DlfNet>::new();
-        let mut batch_loss = 0.0;
+        let mut losses = Vec::new();
         for _ in 0..batch {
             let (s, t) = self.samples[self.rng.below(self.samples.len() as u64) as usize];
             let rot = (!self.cfg.no_rotation).then(|| {
@@ -165,12 +165,18 @@ impl Trainer for SupervisedDlfTrainer {
             });
             let loss =
                 supervised_loss(&self.net, &self.train[s], t, rot) * (LOSS_SCALE / batch as f32);
-            batch_loss += loss.clone().into_scalar::<f32>() as f64;
+            losses.push(loss.clone());
             let grads = GradientsParams::from_grads(loss.backward(), &self.net);
             accum.accumulate(&self.net, grads);
         }
         let grads = accum.grads();
-        let grad_norm = guard::grad_norm(&grads, &self.net);
+        // one read: the samples' losses and the gradients' squares
+        let n = losses.len();
+        let mut parts = losses;
+        parts.extend(guard::grad_square_sums(&grads, &self.net));
+        let values: Vec<f64> = neurofluid_core::transfer::read_vec(Tensor::cat(parts, 0))?;
+        let batch_loss = values[..n].iter().fold(0.0, |sum, v| sum + v);
+        let grad_norm = guard::norm_of(&values[n..]);
         if batch_loss.is_finite() && grad_norm.is_finite() {
             self.net = self.opt.step(self.net.clone(), grads);
         }

@@ -49,7 +49,7 @@ pub fn batch_of(parts: &[(&ViewFrame, &[u32])], device: &Device) -> (RayBatch, T
         }
     }
     let n = target.len() / 3;
-    let target = Tensor::from_data(TensorData::new(target, [n, 3]), device);
+    let target = neurofluid_core::transfer::upload(TensorData::new(target, [n, 3]), device);
     (rays, target)
 }
 
@@ -129,7 +129,7 @@ pub fn check_sequence(frames: &[Particles], first: usize) -> anyhow::Result<()> 
 
 /// Scalar value of a one-element tensor.
 pub fn scalar(t: &Tensor<1>) -> f64 {
-    t.clone().into_scalar::<f32>() as f64
+    neurofluid_core::transfer::read_scalar(t.clone())
 }
 
 /// `[a | b]`: two images of the same size side by side.

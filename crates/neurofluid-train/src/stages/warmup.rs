@@ -9,10 +9,11 @@ use anyhow::Context;
 use burn::optim::GradientsParams;
 use burn::prelude::*;
 use neurofluid_core::scene::{Role, Scene};
+use neurofluid_core::transfer::read_vec;
 use neurofluid_physnerf::PhysNerf;
 
 use super::run_folder::Run;
-use super::views::{ViewFrame, load_particles, points_tensor, render_beside_truth, scalar};
+use super::views::{ViewFrame, load_particles, points_tensor, render_beside_truth};
 use crate::config::Cadenced;
 use crate::config::WarmupSection;
 use crate::metrics_log::{MetricsLog, psnr_from_mse};
@@ -107,7 +108,7 @@ impl Trainer for WarmupTrainer {
         let lr = self.opt.lr();
         let device = self.particles.device();
         let mut total: Option<Tensor<1>> = None;
-        let mut fine_mse = 0.0;
+        let mut fine = Vec::with_capacity(self.data.views.len());
         let n = self.data.views.len() as f64;
         for view in &self.data.views {
             let (w, h) = (view.camera.width, view.camera.height);
@@ -120,22 +121,39 @@ impl Trainer for WarmupTrainer {
             } else {
                 None
             };
-            let out = self.physnerf.render_rays(&self.particles, &rays, jitter)?;
+            let out = self.physnerf.render_rays_with_host(
+                &self.particles,
+                &self.data.particles,
+                &rays,
+                jitter,
+            )?;
             let loss = self.physnerf.loss(&out, target);
-            fine_mse += scalar(&loss.fine) / n;
+            fine.push(loss.fine);
             total = Some(match total {
                 None => loss.total,
                 Some(t) => t + loss.total,
             });
         }
         let total = total.context("the warm-up has no views")?;
-        let loss = scalar(&total);
+        // one read for the step: each view's fine MSE, the loss and the gradients' squares (a
+        // non-finite loss is not used to update: the guard stops the run on it)
+        let views = fine.len();
+        let grads =
+            guard::backward(total.clone()).map(|g| GradientsParams::from_grads(g, &self.physnerf));
+        let sums = grads
+            .as_ref()
+            .and_then(|g| guard::grad_square_sums(g, &self.physnerf));
+        let mut parts = fine;
+        parts.push(total);
+        parts.extend(sums);
+        let values: Vec<f64> = read_vec(Tensor::cat(parts, 0))?;
+        let fine_mse = values[..views].iter().fold(0.0, |sum, v| sum + v / n);
+        let loss = values[views];
         let mut grad_norm = 0.0;
         if loss.is_finite()
-            && let Some(grads) = guard::backward(total)
+            && let Some(grads) = grads
         {
-            let grads = GradientsParams::from_grads(grads, &self.physnerf);
-            grad_norm = guard::grad_norm(&grads, &self.physnerf);
+            grad_norm = guard::norm_of(&values[views + 1..]);
             if grad_norm.is_finite() {
                 self.physnerf = self.opt.step(self.physnerf.clone(), grads);
             }

@@ -11,6 +11,7 @@ use super::stop::{self, Stopped};
 use super::{Event, EventSink, StepStats, Trainer};
 use crate::config::Settings;
 use crate::metrics_log::MetricsRow;
+use neurofluid_core::transfer::{self, Counts};
 
 /// When the driver logs, evaluates and checkpoints (every this many steps; 0 = never, and
 /// for checkpoints: only at the end).
@@ -33,11 +34,14 @@ pub struct Driver<'s> {
     stop: Arc<AtomicBool>,
 }
 
-/// Rays and time since the previous metrics row, for the throughput column.
+/// Rays, time and host–device copies since the previous metrics row, for the throughput and
+/// transfer columns.
 struct Throughput {
     started: Instant,
     window: Instant,
     rays: usize,
+    steps: u64,
+    transfers: Counts,
 }
 
 impl Throughput {
@@ -46,7 +50,26 @@ impl Throughput {
             started: Instant::now(),
             window: Instant::now(),
             rays: 0,
+            steps: 0,
+            transfers: Counts::default(),
         }
+    }
+
+    /// The mean copies per step since the previous call (`None` before any step).
+    fn take_transfers(&mut self) -> Option<[f64; 4]> {
+        let (n, c) = (
+            std::mem::take(&mut self.steps),
+            std::mem::take(&mut self.transfers),
+        );
+        (n > 0).then(|| {
+            let per = |v: u64| v as f64 / n as f64;
+            [
+                per(c.reads),
+                per(c.read_bytes),
+                per(c.uploads),
+                per(c.upload_bytes),
+            ]
+        })
     }
 
     fn elapsed(&self) -> f64 {
@@ -215,6 +238,12 @@ impl<'s> Driver<'s> {
             row.set(&name, v);
         }
         row.set_some("rays_per_s", throughput.take_rate());
+        if let Some([r, rb, u, ub]) = throughput.take_transfers() {
+            row.set("reads_per_step", r);
+            row.set("read_bytes_per_step", rb);
+            row.set("uploads_per_step", u);
+            row.set("upload_bytes_per_step", ub);
+        }
         row
     }
 
@@ -249,11 +278,14 @@ impl<'s> Driver<'s> {
             return Err(self.stopped(stage, start));
         }
         for step in start..end {
+            let copies = transfer::counts();
             let stats = trainer.step(step)?;
             let done = step + 1;
             if let Some(what) = guard.check(&stats).or_else(|| trainer.check_state().err()) {
                 return Err(self.diverged(stage, done, what, unconfirmed));
             }
+            throughput.steps += 1;
+            throughput.transfers = throughput.transfers.plus(transfer::counts().since(copies));
             if stats.updated && std::mem::take(&mut unconfirmed) {
                 checkpoint::confirm(&self.stage_dir)?;
             }

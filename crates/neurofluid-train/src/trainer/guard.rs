@@ -13,6 +13,8 @@
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::GradientsParams;
 use burn::prelude::*;
+use burn::tensor::Float;
+use neurofluid_core::transfer::read_vec;
 
 use super::StepStats;
 
@@ -24,23 +26,40 @@ pub const EXPLOSION_FACTOR: f64 = 1e4;
 pub const NO_GRADIENT_PATIENCE: u64 = 10;
 
 /// The global L2 norm of the gradients `grads` holds for `module`'s parameters (0 when it holds
-/// none: the loss did not depend on the module).
+/// none: the loss did not depend on the module), with one read from the device.
 pub fn grad_norm<M: Module>(grads: &GradientsParams, module: &M) -> f64 {
+    match grad_square_sums(grads, module) {
+        Some(sums) => norm_of(&read_vec::<f64, 1, Float>(sums).expect("float gradients")),
+        None => 0.0,
+    }
+}
+
+/// The sum of the squares of each gradient `grads` holds for `module`'s parameters, `[P]` on the
+/// device in the module's visiting order (`None` when it holds none): read it back together with
+/// whatever else the step reads, then [`norm_of`].
+pub fn grad_square_sums<M: Module>(grads: &GradientsParams, module: &M) -> Option<Tensor<1>> {
     struct SumSquares<'a> {
         grads: &'a GradientsParams,
-        sum: f64,
+        sums: Vec<Tensor<1>>,
     }
     impl ModuleVisitor for SumSquares<'_> {
         fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
             if let Some(g) = self.grads.get::<D>(param.id) {
-                let s: f64 = g.powi_scalar(2).sum().into_scalar::<f64>();
-                self.sum += s;
+                self.sums.push(g.powi_scalar(2).sum());
             }
         }
     }
-    let mut v = SumSquares { grads, sum: 0.0 };
+    let mut v = SumSquares {
+        grads,
+        sums: Vec::new(),
+    };
     module.visit(&mut v);
-    v.sum.sqrt()
+    (!v.sums.is_empty()).then(|| Tensor::cat(v.sums, 0))
+}
+
+/// The L2 norm from [`grad_square_sums`] read back: their sum in order, in f64, and its root.
+pub fn norm_of(square_sums: &[f64]) -> f64 {
+    square_sums.iter().fold(0.0, |sum, s| sum + s).sqrt()
 }
 
 /// Losses and gradient norms below this count as this for the explosion test (a loss near
@@ -234,5 +253,42 @@ mod tests {
         assert_eq!(grad_norm(&GradientsParams::new(), &layer), 0.0);
         let untracked = Tensor::<1>::from_data([1.0f32], &device);
         assert!(backward(untracked).is_none());
+    }
+
+    #[test]
+    fn the_gradient_norm_of_many_parameters_is_one_read() {
+        use burn::nn::{Linear, LinearConfig};
+        use neurofluid_core::transfer::counts;
+        let device = neurofluid_core::device::cpu().autodiff();
+        let layers: Vec<Linear> = vec![
+            LinearConfig::new(2, 3).init(&device),
+            LinearConfig::new(3, 3).init(&device),
+            LinearConfig::new(3, 1).init(&device),
+        ];
+        let x = Tensor::<2>::from_data([[3.0f32, 4.0], [-1.0, 0.5]], &device);
+        let y = layers.iter().fold(x, |h, l| l.forward(h).tanh());
+        let grads = GradientsParams::from_grads(y.sum().backward(), &layers);
+        // the norm written out: every gradient read on its own, squared and summed in f64
+        let mut want = 0.0f64;
+        for l in &layers {
+            let mut each = vec![grads.get::<2>(l.weight.id).unwrap().into_data()];
+            each.push(
+                grads
+                    .get::<1>(l.bias.as_ref().unwrap().id)
+                    .unwrap()
+                    .into_data(),
+            );
+            for d in each {
+                want += d.iter::<f64>().map(|v| v * v).sum::<f64>();
+            }
+        }
+        let before = counts();
+        let norm = grad_norm(&grads, &layers);
+        assert_eq!(counts().since(before).reads, 1, "six parameters, one read");
+        assert!(
+            (norm - want.sqrt()).abs() <= 1e-6 * want.sqrt(),
+            "{norm} vs {}",
+            want.sqrt()
+        );
     }
 }
