@@ -7,7 +7,7 @@ use std::path::Path;
 
 use neurofluid_tests::{seeded_turn, tiny_experiment, workspace_root};
 use neurofluid_train::metrics_log::{MetricsLog, read_jsonl};
-use neurofluid_train::stages::preflight::Stage;
+use neurofluid_train::stage::Stage;
 use neurofluid_train::stages::{Run, Start, joint, warmup};
 
 /// The device→host reads of a warm-up step beside one per view (each view's coarse weights,
