@@ -355,8 +355,9 @@ mod tests {
         assert_eq!(lines.len(), 4, "{csv}");
         assert_eq!(lines[0], CSV_HEADER);
         assert_eq!(lines.iter().filter(|l| l.starts_with("stage,")).count(), 1);
-        assert_eq!(lines[1], "warmup,0,0.1,10,0.0005,,,0,,,,,,,,");
-        assert_eq!(lines[3], "joint,0,0.2,,,0.00001,,9,,,,,,,,");
+        // (four empty cells more since issue 30: the host–device copies per step)
+        assert_eq!(lines[1], "warmup,0,0.1,10,0.0005,,,0,,,,,,,,,,,,");
+        assert_eq!(lines[3], "joint,0,0.2,,,0.00001,,9,,,,,,,,,,,,");
         let rows = read_jsonl(&dir.path().join(JSONL_FILE)).unwrap();
         assert_eq!(rows.len(), 3);
         assert_eq!(rows[1], row("warmup", 10, 0.05));
