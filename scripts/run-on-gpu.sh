@@ -50,7 +50,7 @@ if [ -z "${VK_DRIVER_FILES:-}" ] && [ -e "$nv_icd" ] &&
 fi
 export XDG_RUNTIME_DIR=${XDG_RUNTIME_DIR:-/tmp}
 bin=$bundle/bin
-say "commit $(cat "$bundle/commit"), profile $(cat "$bundle/profile" 2>/dev/null || echo dev); $(date -u +%FT%TZ); $(nproc) CPUs; budget ${budget} s"
+say "commit $(cat "$bundle/commit"), profile and features $(cat "$bundle/profile" 2>/dev/null || echo dev); $(date -u +%FT%TZ); $(nproc) CPUs; budget ${budget} s"
 command -v nvidia-smi >/dev/null && say "$(nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader)"
 
 deadline=$((SECONDS + budget))
@@ -79,6 +79,7 @@ timed() {
     timeout "$limit" "$@" >>"$log" 2>&1
     local rc=$?
     say "$label: exit $rc, $((SECONDS - t0)) s"
+    return $rc
 }
 
 # the summary lines a log's last run printed that start with one of the patterns
@@ -103,6 +104,10 @@ for step in $steps; do
     physnerf)
         log=$results/physnerf.log
         timed "PhysNeRF step, wgpu" 200 "$log" "$bin/train_step" --bench --device wgpu
+        if (($? == 139)); then
+            say "    the wgpu binary crashed (SIGSEGV): if in the Vulkan driver, rebuild the bundle" \
+                "without Vulkan's compiler (GPU_BUNDLE_FEATURES=neurofluid-train/wgpu)"
+        fi
         report "$log" "step \(forward|MLPs alone|host–device|forward [0-9]"
         if has_cuda_torch; then
             timed "PhysNeRF step, PyTorch reference on CUDA" 150 "$log" python3 \

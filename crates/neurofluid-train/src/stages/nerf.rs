@@ -13,9 +13,7 @@ use neurofluid_core::scene::{Role, Scene};
 use neurofluid_physnerf::{Nerf, NerfConfig};
 
 use super::run_folder::Run;
-use super::views::{
-    ViewFrame, batch_of, ray_share, require_warmup_every_frame, scalar, side_by_side,
-};
+use super::views::{ViewFrame, batch_of, ray_share, require_warmup_every_frame, side_by_side};
 use crate::config::Cadenced;
 use crate::config::NerfSection;
 use crate::metrics_log::{MetricsLog, psnr_from_mse};
@@ -198,14 +196,23 @@ impl Trainer for NerfTrainer {
         };
         let out = self.nerf.render_rays(&rays, times.as_deref(), jitter)?;
         let loss = out.loss(target);
-        let fine_mse = scalar(&loss.fine);
-        let value = scalar(&loss.total);
+        // one read for the step: the MSEs, the loss and the gradients' squares (a non-finite
+        // loss is not used to update: the guard stops the run on it)
+        let grads =
+            guard::backward(loss.total.clone()).map(|g| GradientsParams::from_grads(g, &self.nerf));
+        let sums = grads
+            .as_ref()
+            .and_then(|g| guard::grad_square_sums(g, &self.nerf));
+        let mut parts = vec![loss.fine, loss.coarse, loss.total];
+        parts.extend(sums);
+        let values: Vec<f64> =
+            neurofluid_core::transfer::read_vec(burn::tensor::Tensor::cat(parts, 0))?;
+        let (fine_mse, coarse_mse, value) = (values[0], values[1], values[2]);
         let mut grad_norm = 0.0;
         if value.is_finite()
-            && let Some(grads) = guard::backward(loss.total)
+            && let Some(grads) = grads
         {
-            let grads = GradientsParams::from_grads(grads, &self.nerf);
-            grad_norm = guard::grad_norm(&grads, &self.nerf);
+            grad_norm = guard::norm_of(&values[3..]);
             if grad_norm.is_finite() {
                 self.nerf = self.opt.step(self.nerf.clone(), grads);
             }
@@ -215,7 +222,7 @@ impl Trainer for NerfTrainer {
             psnr: Some(psnr_from_mse(if out.fine.is_some() {
                 fine_mse
             } else {
-                scalar(&loss.coarse)
+                coarse_mse
             })),
             rays: rays.len(),
             lrs: vec![("nerf", lr)],
