@@ -114,7 +114,7 @@ impl DensityPrior {
 fn int_tensor(ids: impl Iterator<Item = usize>, device: &Device) -> Tensor<1, Int> {
     let v: Vec<i64> = ids.map(|i| i as i64).collect();
     let n = v.len();
-    Tensor::<1, Int>::from_data(TensorData::new(v, [n]), device)
+    neurofluid_core::transfer::upload(TensorData::new(v, [n]), device)
 }
 
 #[cfg(test)]
