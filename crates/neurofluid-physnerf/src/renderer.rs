@@ -189,13 +189,22 @@ impl PhysNerf {
         rays: &RayBatch,
         rng: Option<&mut dyn RngCore>,
     ) -> Result<RenderOutput> {
-        if self.config.stratified && rng.is_none() {
-            return Err(PhysNerfError::Invalid(
-                "config.stratified needs an RNG".into(),
-            ));
-        }
-        let rng = if self.config.stratified { rng } else { None };
+        let rng = self.jitter(rng)?;
         self.dispatch(particles, None, rays, rng, None)
+    }
+
+    /// The RNG a render uses: the given one with `config.stratified` (which needs one), else
+    /// none.
+    fn jitter<'a>(&self, rng: Option<&'a mut dyn RngCore>) -> Result<Option<&'a mut dyn RngCore>> {
+        if !self.config.stratified {
+            return Ok(None);
+        }
+        match rng {
+            Some(rng) => Ok(Some(rng)),
+            None => Err(PhysNerfError::Invalid(
+                "config.stratified needs an RNG".into(),
+            )),
+        }
     }
 
     /// [`PhysNerf::render_rays`] given also the particles' values on the host (`host`, equal to
@@ -209,11 +218,7 @@ impl PhysNerf {
         rays: &RayBatch,
         rng: Option<&mut dyn RngCore>,
     ) -> Result<RenderOutput> {
-        if self.config.stratified && rng.is_none() {
-            return Err(PhysNerfError::Invalid(
-                "config.stratified needs an RNG".into(),
-            ));
-        }
+        let rng = self.jitter(rng)?;
         if particles.dtype() != DType::F32 || host.len() != particles.dims()[0] {
             return Err(PhysNerfError::Invalid(format!(
                 "host particles: {} given for a {:?} tensor of {:?}; they must be the f32 \
@@ -223,7 +228,6 @@ impl PhysNerf {
                 particles.dims()
             )));
         }
-        let rng = if self.config.stratified { rng } else { None };
         self.dispatch(particles, Some(host), rays, rng, None)
     }
 
