@@ -384,6 +384,8 @@ pub struct JointTrainer {
     density: Option<DensityPrior>,
     /// `joint.anchor_weight` > 0: the pretrained DLF (frozen), whose step anchors DLF's.
     anchor: Option<DlfNet>,
+    /// `joint.replay_rays` > 0: the warm-up's particles on the device (uploaded once).
+    replay_particles: Option<Tensor<2>>,
 }
 
 impl JointTrainer {
@@ -405,6 +407,10 @@ impl JointTrainer {
             .transpose()?;
         // `dlf` is the pretrained model here (a resumed run loads its own weights later)
         let anchor = (cfg.anchor_weight > 0.0).then(|| dlf.clone().no_grad());
+        let replay_particles = data
+            .replay
+            .as_ref()
+            .map(|r| points_tensor(&r.particles, &device));
         Ok(Self {
             opt_physnerf: cfg.physnerf_optim.group(),
             opt_dlf: cfg.dlf_optim.group(),
@@ -424,6 +430,7 @@ impl JointTrainer {
             last_target: 1,
             density,
             anchor,
+            replay_particles,
         })
     }
 
@@ -683,8 +690,9 @@ impl Trainer for JointTrainer {
 }
 
 impl JointTrainer {
-    /// The replayed warm-up loss of iteration `step` (detached, read with the step's others) (`joint.replay_rays` rays from one warm-up
-    /// view in turn, rendered from the warm-up's particles) and PhysNeRF's gradients of it.
+    /// The replayed warm-up loss of iteration `step` (`joint.replay_rays` rays from one warm-up
+    /// view in turn, rendered from the warm-up's particles; detached, to be read with the step's
+    /// other values) and PhysNeRF's gradients of it.
     fn replay_step(&mut self, step: u64) -> anyhow::Result<(Tensor<1>, Option<GradientsParams>)> {
         let device = self.dlf.device();
         let replay = self.data.replay.as_ref().context("no warm-up to replay")?;
@@ -696,13 +704,18 @@ impl JointTrainer {
             None,
         )?;
         let (rays, colours) = view.batch(&pixels, &device);
-        let particles = points_tensor(&replay.particles, &device);
+        let particles = self
+            .replay_particles
+            .as_ref()
+            .context("no warm-up particles to replay")?;
         let jitter: Option<&mut dyn rand::RngCore> = if self.physnerf.config.stratified {
             Some(&mut self.rng)
         } else {
             None
         };
-        let out = self.physnerf.render_rays(&particles, &rays, jitter)?;
+        let out =
+            self.physnerf
+                .render_rays_with_host(particles, &replay.particles, &rays, jitter)?;
         let loss = self.physnerf.loss(&out, colours).total;
         let value = loss.clone().detach();
         let grads = guard::backward(loss).map(|g| GradientsParams::from_grads(g, &self.physnerf));
