@@ -8,6 +8,7 @@
 # benchmarks) is all that run-on-gpu.sh's default steps need.
 #
 #   scripts/gpu-bundle.sh DIR
+#   GPU_BUNDLE_PARTS=1 scripts/gpu-bundle.sh DIR   # part 1 only: no test binaries to build
 #   # then, on the GPU machine, in a copy of this repository (same commit):
 #   DIR/run-on-gpu.sh DIR RESULTS [STEPS]   # STEPS: see run-on-gpu.sh (default: physnerf dlf quick)
 #
@@ -34,8 +35,15 @@ stage=$(mktemp -d)
 mkdir -p "$stage/bin"
 # (the test build also builds the trainer's binary, with the same features)
 profile=${GPU_BUNDLE_PROFILE:-gpu}
-cargo test --profile "$profile" --workspace --features $features --locked --no-run \
-    --message-format=json >"$json"
+only_first=${GPU_BUNDLE_PARTS:-all}
+if [ "$only_first" = 1 ]; then
+    tests=""
+    cargo build --profile "$profile" --workspace --features $features --locked --bins \
+        --message-format=json >"$json"
+else
+    cargo test --profile "$profile" --workspace --features $features --locked --no-run \
+        --message-format=json >"$json"
+fi
 cargo bench --profile "$profile" --workspace --features $features --locked --no-run \
     --bench train_step --bench dlf_step --message-format=json >>"$json"
 python3 - "$json" "$stage/bin" $tests <<'PY'
@@ -84,6 +92,7 @@ parts=(
     "options_and_weights nerf_fit pipeline_resume transfers"
     "pretrain_on_scene learning"
 )
+[ "$only_first" = 1 ] && parts=("${parts[0]}")
 pack() {
     # shellcheck disable=SC2086 # the names are a list
     (cd "$stage/bin" && tar cf - $2) | xz -6 --lzma2=dict=256MiB >"$out/part-$1.tar.xz"

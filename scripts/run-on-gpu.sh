@@ -10,18 +10,20 @@
 #   quick     the quick main job on wgpu, GPU utilisation sampled every second (per stage in the
 #             summary)
 #   profile   one small PhysNeRF step with CUBECL_DEBUG_OPTION=profile: cubecl's log of every
-#             kernel launch (the summary counts them)
+#             kernel launch, timed on the device, summed by kernel (scripts/cubecl-profile-summary.py)
+#   dlfprofile  the same for DLF steps at 8k fluid particles (a warm-up, one forward, one
+#             forward+backward)
 #   tests     the backend-generic test binaries on wgpu (parts 2-6 of the bundle)
 #   paper     the paper-scale WaterCube for PAPER_SECONDS (default 300; a second call resumes it)
 #
-#   BUNDLE/run-on-gpu.sh BUNDLE RESULTS [STEP...]   # default: physnerf dlf quick profile
+#   BUNDLE/run-on-gpu.sh BUNDLE RESULTS [STEP...]   # default: physnerf dlf profile dlfprofile quick
 #
 # Logs go to RESULTS, one line per run to RESULTS/summary.txt.
 set -uo pipefail
 bundle=$(cd "${1:?usage: run-on-gpu.sh BUNDLE RESULTS [STEP...]}" && pwd)
 results=${2:?usage: run-on-gpu.sh BUNDLE RESULTS [STEP...]}
 shift 2
-steps=${*:-physnerf dlf quick profile}
+steps=${*:-physnerf dlf profile dlfprofile quick}
 budget=${BUDGET:-540}
 mkdir -p "$results"
 results=$(cd "$results" && pwd)
@@ -182,7 +184,16 @@ PY
         log=$results/profile.log
         timed "one small PhysNeRF step, cubecl's kernel profile" 90 "$log" \
             env CUBECL_DEBUG_OPTION=profile "$bin/train_step" --device wgpu
-        say "    lines in the profile log: $(wc -l <"$log") (cubecl prints one per kernel launch)"
+        python3 scripts/cubecl-profile-summary.py "$log" --top 20 | sed 's/^/    /' |
+            tee -a "$summary"
+        ;;
+    dlfprofile)
+        log=$results/dlf-profile.log
+        timed "DLF steps at 8k, cubecl's kernel profile" 120 "$log" \
+            env CUBECL_DEBUG_OPTION=profile "$bin/dlf_step" --device wgpu --repeats 1 \
+            --sizes 8000
+        python3 scripts/cubecl-profile-summary.py "$log" --top 20 | sed 's/^/    /' |
+            tee -a "$summary"
         ;;
     tests)
         for t in dense_layer posenc indexed_rows backends conv_geometry fused_conv parity_forward \

@@ -57,6 +57,12 @@ pub fn cpu_devices() -> Vec<(&'static str, Device)> {
     out
 }
 
+/// Whether `device` is one of the CPU backends (flex, ndarray), with or without autodiff: the
+/// host's memory, where reading a tensor costs no copy over a bus.
+pub fn is_host(device: &Device) -> bool {
+    cpu_devices().iter().any(|(_, d)| d == device)
+}
+
 /// The default CPU device: flex when compiled in, else ndarray.
 ///
 /// # Panics
@@ -243,6 +249,16 @@ mod tests {
             float64_supported("cpu"),
             cpu().supports_dtype(burn::tensor::DType::F64)
         );
+    }
+
+    #[test]
+    fn the_cpu_backends_are_the_host_with_or_without_autodiff() {
+        for (_, d) in cpu_devices() {
+            assert!(is_host(&d) && is_host(&d.clone().autodiff()));
+        }
+        if let Some(gpu) = wgpu() {
+            assert!(!is_host(&gpu) && !is_host(&gpu.autodiff()));
+        }
     }
 
     #[test]

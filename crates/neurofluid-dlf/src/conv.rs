@@ -6,7 +6,7 @@ use burn::tensor::Distribution;
 use neurofluid_core::rows::{add_rows, gather_rows};
 
 use crate::fused;
-use crate::geometry::ConvGeometry;
+use crate::geometry::{CORNERS, ConvGeometry};
 use crate::mapping::{KERNEL_CELLS, KERNEL_SIZE};
 
 /// A continuous convolution: kernel `[4, 4, 4, Cin, Cout]` indexed `[z, y, x, ..]`, bias `[Cout]`.
@@ -51,11 +51,12 @@ impl ContinuousConv {
     /// Paths, all computing the same sum:
     /// - flex with autodiff: one fused operation with its own backward pass
     ///   ([`crate::fused::try_fused_conv`]);
-    /// - elsewhere, features and weights without gradient (inference, or constant features such
-    ///   as the box normals): the sparse part on the host, the dense part as device matmuls
-    ///   (tracked in K when the kernel is trained) ([`crate::fused::conv_forward`]);
-    /// - elsewhere, features or weights with gradient: gather/scatter with Burn ops over chunks of
-    ///   output points ([`Self::forward_composed`]).
+    /// - another CPU backend, features and weights without gradient (inference, or constant
+    ///   features such as the box normals): the sparse part on the host, the dense part as
+    ///   matmuls (tracked in K when the kernel is trained) ([`crate::fused::conv_forward`]);
+    /// - otherwise (an accelerator, or gradients to the features or the weights): gather and
+    ///   scatter with Burn ops over chunks of output points, on the device
+    ///   ([`Self::forward_composed`]).
     pub fn forward(&self, features: Tensor<2>, geometry: &ConvGeometry) -> Tensor<2> {
         let [n_in, cin] = features.dims();
         let cout = self.out_channels();
@@ -76,7 +77,8 @@ impl ContinuousConv {
         if let Some(out) = fused::try_fused_conv(&geometry.host, &features, weights, &kernel) {
             return out + bias;
         }
-        if !features.is_tracked() && !geometry.weights_tracked() {
+        let host = neurofluid_core::device::is_host(&device);
+        if host && !features.is_tracked() && !geometry.weights_tracked() {
             // the kernel-first order would cut K's gradient at the host
             let gather_first = fused::gather_first(cin, cout) || kernel.is_tracked();
             // the host weights as they are (no device round trip) unless overridden
@@ -107,14 +109,14 @@ impl ContinuousConv {
             chunks
                 .iter()
                 .map(|ch| {
-                    // one gather per pair, shared by its 8 corners
-                    let fp = gather_rows(features.clone(), &ch.pair_in_rows);
-                    let mut g =
-                        Tensor::<2>::zeros([ch.out_len * KERNEL_CELLS, cin], (&device, dtype));
-                    for (rows, w) in ch.corner_out_cell_rows.iter().zip(&ch.corner_weights) {
-                        g = add_rows(g, rows, fp.clone() * w.clone());
-                    }
-                    g.reshape([ch.out_len, KERNEL_CELLS * cin])
+                    // one gather per pair, weighted for its 8 corners, summed into G in one pass
+                    let pairs = ch.pair_in_rows.len();
+                    let fp = gather_rows(features.clone(), &ch.pair_in_rows).unsqueeze_dim::<3>(1);
+                    let w = ch.weights.clone().reshape([pairs, CORNERS, 1]);
+                    let vals = (fp * w).reshape([pairs * CORNERS, cin]);
+                    let g = Tensor::<2>::zeros([ch.out_len * KERNEL_CELLS, cin], (&device, dtype));
+                    add_rows(g, &ch.out_cell_rows, vals)
+                        .reshape([ch.out_len, KERNEL_CELLS * cin])
                         .matmul(k.clone())
                 })
                 .collect()

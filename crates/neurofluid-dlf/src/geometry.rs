@@ -120,10 +120,27 @@ pub fn build_host_geometry(
     }
 }
 
-/// Pair corners per device chunk of the autodiff path: bounds the `[entries, C]` temporaries
-/// of the gather/scatter (2^16 · 96 floats = 25 MB for the widest conv: below glibc's largest
-/// mmap threshold, so freed blocks are reused instead of page-faulting fresh memory).
-pub const CHUNK_ENTRIES: usize = 1 << 16;
+/// Pair corners per chunk of the composed path on a CPU backend: bounds the `[entries, C]`
+/// temporaries of the gather/scatter (2^16 · 96 floats = 25 MB for the widest conv: below
+/// glibc's largest mmap threshold, so freed blocks are reused instead of page-faulting fresh
+/// memory).
+pub const HOST_CHUNK_ENTRIES: usize = 1 << 16;
+
+/// Pair corners per chunk on an accelerator (wgpu, CUDA): 2^21 · 96 floats = 0.8 GB for the
+/// widest conv's largest temporary. Every chunk costs a few dozen kernel launches, and the
+/// features' gradient of each chunk's gather is as long as the whole input, so small chunks
+/// made a GPU step launch-bound and super-linear in N (the first H200 run: 172 chunks per conv
+/// at 32k particles); a 32k-particle step (11M pair corners) now takes 6.
+pub const DEVICE_CHUNK_ENTRIES: usize = 1 << 21;
+
+/// Pair corners per chunk of the composed path on `device`.
+pub fn chunk_entries(device: &Device) -> usize {
+    if neurofluid_core::device::is_host(device) {
+        HOST_CHUNK_ENTRIES
+    } else {
+        DEVICE_CHUNK_ENTRIES
+    }
+}
 
 /// The device tensors of a run of consecutive output points (the autodiff path).
 #[derive(Debug, Clone)]
@@ -140,11 +157,8 @@ pub struct GeometryChunk {
     pub weights: Tensor<2>,
     /// Input index of every pair `[pairs]`.
     pub pair_in_rows: RowIndex,
-    /// Per corner c: `local query·64 + cell` of every pair `[pairs]` (rows of G viewed as
-    /// `[M·64, Cin]`).
-    pub corner_out_cell_rows: Vec<RowIndex>,
-    /// Per corner c: weight of every pair `[pairs, 1]`.
-    pub corner_weights: Vec<Tensor<2>>,
+    /// `local query·64 + cell` of every pair corner (rows of G viewed as `[M·64, Cin]`).
+    pub out_cell_rows: RowIndex,
 }
 
 /// A geometry ready for [`crate::ContinuousConv`]: the host arrays (used directly by the
@@ -157,6 +171,7 @@ pub struct ConvGeometry {
     /// Differentiable weights `[8P, 1]` (the differentiable-geometry mode), else `None`.
     pub weights_override: Option<Tensor<2>>,
     device: Device,
+    chunk_entries: usize,
     chunks: OnceLock<Vec<GeometryChunk>>,
     host_weights: OnceLock<Tensor<2>>,
 }
@@ -172,6 +187,7 @@ impl ConvGeometry {
             host: host.into(),
             weights_override: weights,
             device: device.clone(),
+            chunk_entries: chunk_entries(device),
             chunks: OnceLock::new(),
             host_weights: OnceLock::new(),
         }
@@ -203,6 +219,14 @@ impl ConvGeometry {
             .is_some_and(|w| w.is_tracked())
     }
 
+    /// The same geometry cut into chunks of at most `entries` pair corners (at least one output
+    /// point each) instead of the device's [`chunk_entries`]; the sums do not depend on it.
+    pub fn with_chunk_entries(mut self, entries: usize) -> Self {
+        self.chunk_entries = entries;
+        self.chunks = OnceLock::new();
+        self
+    }
+
     /// The device chunks (built on first call).
     pub fn chunks(&self) -> &[GeometryChunk] {
         self.chunks.get_or_init(|| self.build_chunks())
@@ -216,7 +240,9 @@ impl ConvGeometry {
         let mut q0 = 0;
         while q0 < host.num_out {
             let mut q1 = q0 + 1;
-            while q1 < host.num_out && (offsets[q1 + 1] - offsets[q0]) * CORNERS <= CHUNK_ENTRIES {
+            while q1 < host.num_out
+                && (offsets[q1 + 1] - offsets[q0]) * CORNERS <= self.chunk_entries
+            {
                 q1 += 1;
             }
             let (p0, p1) = (offsets[q0], offsets[q1]);
@@ -244,26 +270,10 @@ impl ConvGeometry {
                     device,
                 ),
             };
-            let np = p1 - p0;
             let pair_in_rows = int(in_rows.iter().step_by(CORNERS).copied().collect());
-            let corner_out_cell_rows = (0..CORNERS)
-                .map(|c| {
-                    int(out_cell_rows
-                        .iter()
-                        .skip(c)
-                        .step_by(CORNERS)
-                        .copied()
-                        .collect())
-                })
-                .collect();
-            let by_pair = weights.clone().reshape([np, CORNERS]);
-            let corner_weights = (0..CORNERS)
-                .map(|c| by_pair.clone().narrow(1, c, 1))
-                .collect();
             chunks.push(GeometryChunk {
                 pair_in_rows,
-                corner_out_cell_rows,
-                corner_weights,
+                out_cell_rows: int(out_cell_rows),
                 out_start: q0,
                 out_len: q1 - q0,
                 in_cell_rows: int(in_cell_rows),

@@ -99,8 +99,9 @@ impl Case {
         to_tensor(p, device).cast(self.dtype)
     }
 
-    /// Σ coeff ⊙ conv(features) by the fused or the composed path, and its gradients.
-    fn run(&self, fused: bool, tracked: Tracked) -> Run {
+    /// Σ coeff ⊙ conv(features) by the fused path (`path` = `None`) or the composed path in
+    /// chunks of at most `path` pair corners, and its gradients.
+    fn run(&self, path: Option<usize>, tracked: Tracked) -> Run {
         let ad = device().autodiff();
         let track = |t: Tensor<2>, on: bool| if on { t.require_grad() } else { t };
         let features = track(
@@ -110,7 +111,10 @@ impl Case {
         let xin = track(self.points(&self.inputs, &ad), tracked.positions);
         let xout = track(self.points(&self.outputs, &ad), tracked.positions);
         let weights = differentiable_weights(&self.host, xin.clone(), xout.clone(), FILTER_EXTENT);
-        let geometry = ConvGeometry::new(self.host.clone(), weights, &ad);
+        let mut geometry = ConvGeometry::new(self.host.clone(), weights, &ad);
+        if let Some(entries) = path {
+            geometry = geometry.with_chunk_entries(entries);
+        }
         let k = neurofluid_dlf::mapping::KERNEL_SIZE;
         let kernel = self.tensor(&self.kernel, [k, k, k, self.cin, self.cout], &ad);
         let conv = ContinuousConv {
@@ -119,10 +123,9 @@ impl Case {
         };
         // parameters require gradients unless the module is frozen
         let conv = if tracked.kernel { conv } else { conv.no_grad() };
-        let out = if fused {
-            conv.forward(features.clone(), &geometry)
-        } else {
-            conv.forward_composed(features.clone(), &geometry)
+        let out = match path {
+            None => conv.forward(features.clone(), &geometry),
+            Some(_) => conv.forward_composed(features.clone(), &geometry),
         };
         let coeff = self.tensor(&self.coeff, [self.outputs.len(), self.cout], &ad);
         let loss = (out.clone() * coeff).sum();
@@ -171,13 +174,19 @@ fn check(cin: usize, cout: usize, same_cloud: bool) {
             kernel: false,
         },
     ];
-    for tracked in subsets {
-        let fused = case.run(true, tracked);
-        let composed = case.run(false, tracked);
+    // the composed path in one chunk, and in chunks of about 40 output points
+    let one_chunk = case.host.num_pairs() * 8;
+    let chunked = (one_chunk / 6).max(8);
+    for (tracked, entries) in subsets
+        .into_iter()
+        .flat_map(|t| [(t, one_chunk), (t, chunked)])
+    {
+        let fused = case.run(None, tracked);
+        let composed = case.run(Some(entries), tracked);
         let e = max_rel(&fused.out, &composed.out);
         assert!(
             e < tol,
-            "{cin}→{cout} {tracked:?}: output differs by {e:.2e}"
+            "{cin}→{cout} {tracked:?}, {entries} per chunk: output differs by {e:.2e}"
         );
         let names = ["features", "input points", "output points", "kernel"];
         let wanted = [
@@ -205,7 +214,8 @@ fn check(cin: usize, cout: usize, same_cloud: bool) {
                 let e = max_rel(a, b);
                 assert!(
                     e < tol,
-                    "{cin}→{cout} {tracked:?}: {name} gradient differs by {e:.2e}"
+                    "{cin}→{cout} {tracked:?}, {entries} per chunk: {name} gradient differs by \
+                     {e:.2e}"
                 );
             }
         }
@@ -217,7 +227,6 @@ fn fused_matches_composed_gather_first() {
     check(4, 32, true);
     check(96, 64, true);
     check(3, 32, false);
-    // more than one chunk of output points (65,536 / 288 = 227 of the 250 per chunk)
     check(288, 72, true);
 }
 
