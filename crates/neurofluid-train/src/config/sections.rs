@@ -214,6 +214,11 @@ pub enum SurfaceThreshold {
     /// The density at which one particle spacing (2r) of fluid absorbs `opacity` of the light,
     /// σ_iso = −ln(1 − opacity)/(2r): an absolute rule for opaque fluids.
     Opacity,
+    /// The density whose body, seen from each warm-up camera, best covers the pixels the fluid
+    /// covers in that view's alpha (mean intersection over union): a rule from the images
+    /// alone, for any material and any renderer's look (`crate::geometry::silhouette_iso`). Needs
+    /// images with an alpha channel.
+    Silhouette,
 }
 
 /// `[initial]`: how the particles at t = 0 are recovered from the NeRF of frame 0.
@@ -243,11 +248,12 @@ impl Default for InitialSection {
 
 impl InitialSection {
     /// The density threshold σ_iso for particles of radius `radius`, given the largest density
-    /// sampled in the box.
-    pub fn iso(&self, radius: f64, max_density: f64) -> f64 {
+    /// sampled in the box; `None` for the silhouette rule, which the views decide.
+    pub fn iso(&self, radius: f64, max_density: f64) -> Option<f64> {
         match self.threshold {
-            SurfaceThreshold::HalfMax => 0.5 * max_density,
-            SurfaceThreshold::Opacity => -(1.0 - self.opacity).ln() / (2.0 * radius),
+            SurfaceThreshold::HalfMax => Some(0.5 * max_density),
+            SurfaceThreshold::Opacity => Some(-(1.0 - self.opacity).ln() / (2.0 * radius)),
+            SurfaceThreshold::Silhouette => None,
         }
     }
 }
@@ -537,14 +543,19 @@ mod tests {
     #[test]
     fn surface_thresholds_follow_their_rules() {
         let half = InitialSection::default();
-        assert_eq!(half.iso(0.025, 8.0), 4.0);
+        assert_eq!(half.iso(0.025, 8.0), Some(4.0));
         let opaque = InitialSection {
             threshold: SurfaceThreshold::Opacity,
             opacity: 0.5,
             ..InitialSection::default()
         };
         // one spacing (0.05) at σ_iso absorbs half the light: exp(−σ·0.05) = 0.5
-        let s = opaque.iso(0.025, 8.0);
+        let s = opaque.iso(0.025, 8.0).unwrap();
         assert!(((-s * 0.05).exp() - 0.5).abs() < 1e-12, "{s}");
+        let views = InitialSection {
+            threshold: SurfaceThreshold::Silhouette,
+            ..InitialSection::default()
+        };
+        assert_eq!(views.iso(0.025, 8.0), None);
     }
 }

@@ -17,6 +17,7 @@ use super::run_folder::Run;
 use super::scoring::{at_least_wide, particle_row};
 use super::views::load_particles;
 use crate::config::{InitialParticles, Settings};
+use crate::geometry::silhouette_iso::{Coverage, IsoChoice, silhouette_iso};
 use crate::geometry::volume_fill::{DensityGrid, FillSettings, surface_and_fill};
 use crate::metrics_log::MetricsLog;
 use crate::stage::Stage;
@@ -47,6 +48,10 @@ pub struct InitialReport {
     pub components: usize,
     /// The density threshold σ_iso.
     pub iso: f64,
+    /// With `initial.threshold = "silhouette"`: the chosen iso's mean intersection over union
+    /// with the warm-up views' coverage.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub silhouette_iou: Option<f64>,
     /// The grid spacing of the density samples.
     pub cell: f64,
     /// Digest of the settings it was made with (`[nerf]`, `[initial]`, seed, scene).
@@ -67,7 +72,10 @@ impl InitialReport {
             self.true_volume,
             self.components,
             self.iso
-        )
+        ) + &self
+            .silhouette_iou
+            .map(|iou| format!(" (the views' silhouettes matched at IoU {iou:.3})"))
+            .unwrap_or_default()
     }
 }
 
@@ -152,8 +160,15 @@ pub fn recover(run: &Run, log: &mut MetricsLog) -> anyhow::Result<InitialReport>
     tracing::info!(?dims, cell, "sampling the NeRF's density over the box");
     grid.values = nerf.density_at(&grid.points(), None)?;
     let max = grid.values.iter().copied().fold(0.0f32, f32::max);
-    let iso = cfg.iso(radius, f64::from(max));
-    tracing::info!(max_density = max, iso, "surface threshold");
+    let t0 = scene.frames(Role::Warmup).start;
+    let (iso, silhouette_iou) = match cfg.iso(radius, f64::from(max)) {
+        Some(iso) => (iso, None),
+        None => {
+            let choice = silhouette_threshold(run, &grid, t0)?;
+            (choice.iso, Some(choice.iou))
+        }
+    };
+    tracing::info!(max_density = max, iso, ?silhouette_iou, "surface threshold");
     let settings = FillSettings {
         iso,
         spacing: 2.0 * radius,
@@ -166,7 +181,6 @@ pub fn recover(run: &Run, log: &mut MetricsLog) -> anyhow::Result<InitialReport>
             cfg.threshold
         )
     })?;
-    let t0 = scene.frames(Role::Warmup).start;
     let truth = load_particles(scene, Role::Warmup, t0, "true particles of frame 0")?;
     let n = filled.particles.len();
     let recovered = Particles {
@@ -195,6 +209,7 @@ pub fn recover(run: &Run, log: &mut MetricsLog) -> anyhow::Result<InitialReport>
         true_volume: truth.pos.len() as f64 * (2.0 * radius).powi(3),
         components: filled.components,
         iso,
+        silhouette_iou,
         cell,
         settings: digest,
     };
@@ -209,4 +224,28 @@ pub fn recover(run: &Run, log: &mut MetricsLog) -> anyhow::Result<InitialReport>
         .with_context(|| format!("writing {}", particles_path(run).display()))?;
     tracing::info!("{}", report.line());
     Ok(report)
+}
+
+/// The iso whose body's silhouettes best match the warm-up views of frame `t0` (the views the
+/// NeRF was trained on).
+fn silhouette_threshold(run: &Run, grid: &DensityGrid, t0: usize) -> anyhow::Result<IsoChoice> {
+    let scene = &run.scene;
+    let names = run.exp.warmup.views(scene);
+    let mut views = Vec::with_capacity(names.len());
+    for name in &names {
+        views.push((
+            name.as_str(),
+            scene.camera(Role::Warmup, name, t0)?,
+            scene.image(Role::Warmup, name, t0)?,
+        ));
+    }
+    let coverage: Vec<Coverage> = views
+        .iter()
+        .map(|(name, camera, image)| Coverage {
+            camera,
+            alpha: &image.alpha,
+            name,
+        })
+        .collect();
+    silhouette_iso(grid, &coverage)
 }
