@@ -105,29 +105,29 @@ for step in $steps; do
     case $step in
     physnerf)
         log=$results/physnerf.log
-        timed "PhysNeRF step, wgpu" 200 "$log" "$bin/train_step" --bench --device wgpu
+        timed "PhysNeRF step, wgpu" 150 "$log" "$bin/train_step" --bench --device wgpu
         if (($? == 139)); then
             say "    the wgpu binary crashed (SIGSEGV): if in the Vulkan driver, rebuild the bundle" \
                 "without Vulkan's compiler (GPU_BUNDLE_FEATURES=neurofluid-train/wgpu)"
         fi
         report "$log" "step \(forward|MLPs alone|host–device|forward [0-9]"
         if has_cuda_torch; then
-            timed "PhysNeRF step, PyTorch reference on CUDA" 150 "$log" python3 \
+            timed "PhysNeRF step, PyTorch reference on CUDA" 100 "$log" python3 \
                 tests/data/physnerf/physnerf_reference.py bench --device cuda --repeats 3 \
                 --modes gated all --out "$results/physnerf_torch_cuda.json"
             report "$log" "^ *(gated|all):"
         else
             say "PhysNeRF step, PyTorch reference on CUDA: skipped, no python3 with torch and CUDA"
         fi
-        timed "PhysNeRF step, CPU" 150 "$log" "$bin/train_step" --bench --device cpu
+        timed "PhysNeRF step, CPU" 60 "$log" "$bin/train_step" --bench --device cpu
         report "$log" "step \(forward"
         ;;
     dlf)
         log=$results/dlf.log
         for d in wgpu cpu; do
-            timed "DLF step, $d" 180 "$log" "$bin/dlf_step" --device "$d" --repeats 3 \
+            timed "DLF step, $d" 150 "$log" "$bin/dlf_step" --device "$d" --repeats 3 \
                 --sizes 8000 32000
-            report "$log" "^\| [0-9]" "N = [0-9]+:"
+            report "$log" "^\| [0-9]" "N = [0-9]+:" "^check against"
         done
         ;;
     quick)

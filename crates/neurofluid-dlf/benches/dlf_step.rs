@@ -57,6 +57,43 @@ fn sync(t: &Tensor<2>) {
     let _ = transfer::read_data(t.clone());
 }
 
+/// The positions after one step and conv1's kernel gradient, on `device` (with autodiff).
+fn step_and_gradient(weights: &PathBuf, device: &Device, n: usize) -> (Vec<f32>, Vec<f32>) {
+    let net: DlfNet = load_dlf(weights, DlfConfig::default(), device).expect("weights");
+    let scene = block_in_box(n, dlf_wall_spacing(), [0.3, 0.0, 0.2], 0.002, 1, 0.05);
+    let boundary = net.boundary(&scene.box_points, &scene.box_normals, device);
+    let pos = points_tensor(&scene.pos, device);
+    let o = net.step(pos.clone(), points_tensor(&scene.vel, device), &boundary);
+    let loss = dlf_step_loss(o.pos.clone(), pos + 0.01, &o.num_fluid_neighbors);
+    let grads = loss.backward();
+    let g = net.conv1.kernel.val().grad(&grads).expect("grad");
+    let values = |t: Tensor<2>| {
+        transfer::read_data(t)
+            .convert::<f32>()
+            .try_into_vec::<f32>()
+            .unwrap()
+    };
+    (values(o.pos), values(g.reshape([1, -1])))
+}
+
+/// How far this device's step and gradient are from the CPU's (flex) on the same scene: the
+/// largest difference over the largest magnitude.
+fn check_against_cpu(weights: &PathBuf, device: &Device, n: usize) -> String {
+    let (pos, grad) = step_and_gradient(weights, device, n);
+    let (pos_cpu, grad_cpu) =
+        step_and_gradient(weights, &neurofluid_core::device::cpu().autodiff(), n);
+    let rel = |a: &[f32], b: &[f32]| {
+        let scale = b.iter().fold(1e-30f32, |m, v| m.max(v.abs()));
+        a.iter().zip(b).fold(0f32, |m, (x, y)| m.max((x - y).abs())) / scale
+    };
+    format!(
+        "check against the CPU at N = {n}: positions after one step differ by {:.2e}, conv1's \
+         kernel gradient by {:.2e} (largest difference over largest magnitude)",
+        rel(&pos, &pos_cpu),
+        rel(&grad, &grad_cpu)
+    )
+}
+
 /// The host–device copies of one call of `f`.
 fn copies_of<T>(f: impl FnOnce() -> T) -> Counts {
     let before = transfer::counts();
@@ -193,5 +230,8 @@ fn main() {
         run();
         let t = median((0..repeats).map(|_| time(run).1).collect());
         println!("  {name}: {t:.3} s");
+    }
+    if !neurofluid_core::device::is_host(&device) {
+        println!("\n{}", check_against_cpu(&weights, &ad, sizes[0]));
     }
 }
