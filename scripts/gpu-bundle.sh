@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Builds a bundle that runs NeuroFluid-rs on a GPU machine with no Rust toolchain and no network:
 # the trainer, the two step benchmarks and the backend-generic test binaries, built here with the
-# wgpu backend as a GPU needs it (the `wgpu` and `vulkan` features: autotune, fusion, Vulkan's
-# SPIR-V compiler; on NVIDIA through the driver's Vulkan ICD) in the `gpu` profile (release, no debug
+# wgpu backend as a GPU needs it (the `wgpu-base` and `vulkan` features: fusion, Vulkan's SPIR-V
+# compiler; on NVIDIA through the driver's Vulkan ICD) in the `gpu` profile (release, no debug
 # assertions: with them wgpu turns on its validation layers), stripped, packed with xz into parts
 # of at most 36 MiB, with `run-on-gpu.sh` to run them there. Part 1 (the trainer and the two step
 # benchmarks) is all that run-on-gpu.sh's default steps need.
@@ -20,9 +20,10 @@ set -euo pipefail
 out=${1:?usage: scripts/gpu-bundle.sh DIR}
 root=$(git rev-parse --show-toplevel)
 cd "$root"
-# wgpu with autotune and fusion, and Vulkan's SPIR-V compiler (tensor cores); where a driver
-# cannot take it (Mesa 22.3's lavapipe crashes), GPU_BUNDLE_FEATURES=neurofluid-train/wgpu
-features=${GPU_BUNDLE_FEATURES:-neurofluid-train/wgpu,neurofluid-train/vulkan}
+# wgpu with fusion and Vulkan's SPIR-V compiler, fixed kernel choices (autotune stalled on an
+# H100: neurofluid-core's Cargo.toml); where a driver cannot take the SPIR-V compiler (Mesa
+# 22.3's lavapipe crashes), GPU_BUNDLE_FEATURES=neurofluid-train/wgpu-base
+features=${GPU_BUNDLE_FEATURES:-neurofluid-train/wgpu-base,neurofluid-train/vulkan}
 # the backend-generic tests that check numbers on the device (the float64 ones are refused on wgpu)
 tests="dense_layer posenc indexed_rows backends conv_geometry fused_conv parity_forward
 parity_backward parity_rollout parity_e2e_f32 parity_stages options_and_weights nerf_fit

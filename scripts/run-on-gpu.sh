@@ -7,6 +7,7 @@
 #             with its host–device copies), the project's PyTorch reference of the same step on
 #             CUDA (where python3 has torch with CUDA), then the same step on this machine's CPU
 #   dlf       DLF forward and forward+backward at 8k and 32k fluid particles, wgpu then CPU
+#   physnerf-wgpu, dlf-wgpu  the same on wgpu alone (a second call, the references measured)
 #   quick     the quick main job on wgpu, GPU utilisation sampled every second (per stage in the
 #             summary)
 #   profile   one small PhysNeRF step with CUBECL_DEBUG_OPTION=profile: cubecl's log of every
@@ -45,15 +46,28 @@ if ! ldconfig -p | grep -q 'libvulkan\.so\.1'; then
     for f in "$bundle"/debs/*.deb; do [ -e "$f" ] && dpkg -x "$f" /; done
     ldconfig
 fi
-nv_icd=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
-if [ -z "${VK_DRIVER_FILES:-}" ] && [ -e "$nv_icd" ] &&
-    ! ls /usr/share/vulkan/icd.d/nvidia* /etc/vulkan/icd.d/nvidia* >/dev/null 2>&1; then
-    export VK_DRIVER_FILES=$nv_icd
+# NVIDIA's Vulkan ICD, headless: a manifest for the driver's EGL library (libEGL_nvidia.so.0
+# holds the Vulkan driver too). The driver's own manifest names libGLX_nvidia.so.0, which on an
+# H100 container without an X server gave the loader no vkCreateInstance ("Found no drivers",
+# wgpu: "no adapter found"); it is the fallback where the EGL library is absent.
+if [ -z "${VK_DRIVER_FILES:-}" ]; then
+    lib=$(ldconfig -p | awk '/libEGL_nvidia\.so\.0/{print $NF; exit}')
+    [ -z "$lib" ] && lib=$(find / -xdev -name 'libEGL_nvidia.so.0' 2>/dev/null | head -1)
+    if [ -n "$lib" ]; then
+        icd=/tmp/nvidia_egl_icd.json
+        printf '{"file_format_version":"1.0.0","ICD":{"library_path":"%s","api_version":"1.3.0"}}\n' \
+            "$lib" >"$icd"
+    else
+        icd=$(find /usr/share/vulkan/icd.d /etc/vulkan/icd.d /usr/local/nvidia \
+            /usr/local/share/vulkan -name 'nvidia*.json' 2>/dev/null | head -1)
+    fi
+    [ -n "$icd" ] && export VK_DRIVER_FILES=$icd
 fi
 export XDG_RUNTIME_DIR=${XDG_RUNTIME_DIR:-/tmp}
 bin=$bundle/bin
 say "commit $(cat "$bundle/commit"), profile and features $(cat "$bundle/profile" 2>/dev/null || echo dev); $(date -u +%FT%TZ); $(nproc) CPUs; budget ${budget} s"
 command -v nvidia-smi >/dev/null && say "$(nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader)"
+say "Vulkan ICD: ${VK_DRIVER_FILES:-none found}; NVIDIA_DRIVER_CAPABILITIES=${NVIDIA_DRIVER_CAPABILITIES:-unset}"
 
 deadline=$((SECONDS + budget))
 left() { echo $((deadline - SECONDS)); }
@@ -122,9 +136,16 @@ for step in $steps; do
         timed "PhysNeRF step, CPU" 60 "$log" "$bin/train_step" --bench --device cpu
         report "$log" "step \(forward"
         ;;
-    dlf)
+    physnerf-wgpu)
+        log=$results/physnerf.log
+        timed "PhysNeRF step, wgpu" 150 "$log" "$bin/train_step" --bench --device wgpu
+        report "$log" "step \(forward|MLPs alone|host–device|forward [0-9]"
+        ;;
+    dlf | dlf-wgpu)
         log=$results/dlf.log
-        for d in wgpu cpu; do
+        devices="wgpu cpu"
+        [ "$step" = dlf-wgpu ] && devices=wgpu
+        for d in $devices; do
             timed "DLF step, $d" 150 "$log" "$bin/dlf_step" --device "$d" --repeats 3 \
                 --sizes 8000 32000
             report "$log" "^\| [0-9]" "N = [0-9]+:" "^check against"
@@ -209,7 +230,7 @@ PY
             "${PAPER_SECONDS:-300}" "$results/paper.log" "$bin/neurofluid-train" run \
             experiments/paper-watercube.toml --device wgpu --set name=gpu-paper
         ;;
-    *) say "unknown step $step (physnerf, dlf, quick, profile, tests, paper)" ;;
+    *) say "unknown step $step (physnerf, physnerf-wgpu, dlf, dlf-wgpu, quick, profile, dlfprofile, tests, paper)" ;;
     esac
 done
 say "done at $(date -u +%FT%TZ), $SECONDS s"
