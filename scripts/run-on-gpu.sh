@@ -119,7 +119,7 @@ for step in $steps; do
     case $step in
     physnerf)
         log=$results/physnerf.log
-        timed "PhysNeRF step, wgpu" 150 "$log" "$bin/train_step" --bench --device wgpu
+        timed "PhysNeRF step, wgpu" 100 "$log" "$bin/train_step" --bench --device wgpu
         if (($? == 139)); then
             say "    the wgpu binary crashed (SIGSEGV): if in the Vulkan driver, rebuild the bundle" \
                 "without Vulkan's compiler (GPU_BUNDLE_FEATURES=neurofluid-train/wgpu)"
@@ -138,7 +138,7 @@ for step in $steps; do
         ;;
     physnerf-wgpu)
         log=$results/physnerf.log
-        timed "PhysNeRF step, wgpu" 150 "$log" "$bin/train_step" --bench --device wgpu
+        timed "PhysNeRF step, wgpu" 100 "$log" "$bin/train_step" --bench --device wgpu
         report "$log" "step \(forward|MLPs alone|host–device|forward [0-9]"
         ;;
     dlf | dlf-wgpu)
@@ -146,7 +146,7 @@ for step in $steps; do
         devices="wgpu cpu"
         [ "$step" = dlf-wgpu ] && devices=wgpu
         for d in $devices; do
-            timed "DLF step, $d" 150 "$log" "$bin/dlf_step" --device "$d" --repeats 3 \
+            timed "DLF step, $d" 100 "$log" "$bin/dlf_step" --device "$d" --repeats 3 \
                 --sizes 8000 32000
             report "$log" "^\| [0-9]" "N = [0-9]+:" "^check against"
         done
@@ -203,14 +203,14 @@ PY
         ;;
     profile)
         log=$results/profile.log
-        timed "one small PhysNeRF step, cubecl's kernel profile" 90 "$log" \
+        timed "one small PhysNeRF step, cubecl's kernel profile" 60 "$log" \
             env CUBECL_DEBUG_OPTION=profile "$bin/train_step" --device wgpu
         python3 scripts/cubecl-profile-summary.py "$log" --top 20 | sed 's/^/    /' |
             tee -a "$summary"
         ;;
     dlfprofile)
         log=$results/dlf-profile.log
-        timed "DLF steps at 8k, cubecl's kernel profile" 120 "$log" \
+        timed "DLF steps at 8k, cubecl's kernel profile" 60 "$log" \
             env CUBECL_DEBUG_OPTION=profile "$bin/dlf_step" --device wgpu --repeats 1 \
             --sizes 8000
         python3 scripts/cubecl-profile-summary.py "$log" --top 20 | sed 's/^/    /' |
