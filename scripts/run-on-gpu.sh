@@ -204,16 +204,17 @@ PY
     profile)
         log=$results/profile.log
         timed "one small PhysNeRF step, cubecl's kernel profile" 60 "$log" \
-            env CUBECL_DEBUG_OPTION=profile "$bin/train_step" --device wgpu
-        python3 scripts/cubecl-profile-summary.py "$log" --top 20 | sed 's/^/    /' |
+            env CUBECL_DEBUG_OPTION=profile CUBECL_DEBUG_LOG="$results/profile-kernels.log" \
+            "$bin/train_step" --device wgpu
+        python3 scripts/cubecl-profile-summary.py "$results/profile-kernels.log" --top 20 | sed 's/^/    /' |
             tee -a "$summary"
         ;;
     dlfprofile)
         log=$results/dlf-profile.log
         timed "DLF steps at 8k, cubecl's kernel profile" 60 "$log" \
-            env CUBECL_DEBUG_OPTION=profile "$bin/dlf_step" --device wgpu --repeats 1 \
-            --sizes 8000
-        python3 scripts/cubecl-profile-summary.py "$log" --top 20 | sed 's/^/    /' |
+            env CUBECL_DEBUG_OPTION=profile CUBECL_DEBUG_LOG="$results/dlf-kernels.log" \
+            "$bin/dlf_step" --device wgpu --repeats 1 --sizes 8000
+        python3 scripts/cubecl-profile-summary.py "$results/dlf-kernels.log" --top 20 | sed 's/^/    /' |
             tee -a "$summary"
         ;;
     tests)
