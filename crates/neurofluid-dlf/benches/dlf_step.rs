@@ -10,7 +10,7 @@
 //! `cargo bench --profile dev -p neurofluid-dlf --bench dlf_step -- [--repeats 5] [--sizes 2000 8000 32000] [--device wgpu]`
 //! (the dev profile builds every dependency at opt-level 3; `cargo bench` alone uses release).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use burn::prelude::*;
@@ -58,7 +58,7 @@ fn sync(t: &Tensor<2>) {
 }
 
 /// The positions after one step and conv1's kernel gradient, on `device` (with autodiff).
-fn step_and_gradient(weights: &PathBuf, device: &Device, n: usize) -> (Vec<f32>, Vec<f32>) {
+fn step_and_gradient(weights: &Path, device: &Device, n: usize) -> (Vec<f32>, Vec<f32>) {
     let net: DlfNet = load_dlf(weights, DlfConfig::default(), device).expect("weights");
     let scene = block_in_box(n, dlf_wall_spacing(), [0.3, 0.0, 0.2], 0.002, 1, 0.05);
     let boundary = net.boundary(&scene.box_points, &scene.box_normals, device);
@@ -78,7 +78,7 @@ fn step_and_gradient(weights: &PathBuf, device: &Device, n: usize) -> (Vec<f32>,
 
 /// How far this device's step and gradient are from the CPU's (flex) on the same scene: the
 /// largest difference over the largest magnitude.
-fn check_against_cpu(weights: &PathBuf, device: &Device, n: usize) -> String {
+fn check_against_cpu(weights: &Path, device: &Device, n: usize) -> String {
     let (pos, grad) = step_and_gradient(weights, device, n);
     let (pos_cpu, grad_cpu) =
         step_and_gradient(weights, &neurofluid_core::device::cpu().autodiff(), n);

@@ -39,9 +39,9 @@ pub use errors::{ConfigError, from_toml_str, line_col};
 pub(crate) use errors::{from_table, read_text};
 pub use preset::Preset;
 pub use sections::{
-    BuiltinScene, Containment, DlfSection, EvalSection, InitialParticles, InitialSection,
-    JointSection, NerfSection, PlyEncoding, SceneScale, SceneSection, SurfaceThreshold,
-    WarmupSection,
+    AnchorAlong, BuiltinScene, Containment, DlfSection, EvalSection, InitialParticles,
+    InitialSection, JointSection, NerfSection, PlyEncoding, SceneScale, SceneSection,
+    SurfaceThreshold, WarmupSection,
 };
 pub use settings::Settings;
 

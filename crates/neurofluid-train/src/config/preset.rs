@@ -59,6 +59,7 @@ pub fn apply(exp: &mut Experiment) -> Vec<Change> {
     j.silhouette_weight = paper.silhouette_weight;
     j.density_weight = paper.density_weight;
     j.anchor_weight = paper.anchor_weight;
+    j.anchor_along = paper.anchor_along;
     j.replay_rays = paper.replay_rays;
     j.extra_views = paper.extra_views;
     Settings::all(exp).changes_since(&before)

@@ -202,6 +202,20 @@ impl NerfSection {
     }
 }
 
+/// Which part of a grounded DLF step the anchor (`joint.anchor_weight`) holds to the pretrained
+/// step.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum AnchorAlong {
+    /// The whole difference between the two steps.
+    #[default]
+    All,
+    /// Only its component along the training camera's ray through each particle (at the frame
+    /// the step predicts): the depth that one view cannot see. Moves across the image, which
+    /// the image loss does see, go free.
+    Depth,
+}
+
 /// Where the surface of the NeRF's density lies.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -401,6 +415,8 @@ pub struct JointSection {
     /// kept near the pretrained DLF's step from the same state, in particle radii², where the
     /// images do not ask for a change. 0 = the reference's image loss alone.
     pub anchor_weight: f64,
+    /// Which part of a grounded step the anchor holds (`all`).
+    pub anchor_along: AnchorAlong,
     /// Rays per iteration replayed from the warm-up (its views in turn, rendered from its
     /// particles: PhysNeRF's gradients only), so that the renderer grounded on the training view
     /// keeps rendering the others. 0 = the reference's training view alone.
@@ -437,6 +453,7 @@ impl Default for JointSection {
             silhouette_cover: true,
             density_weight: 0.0,
             anchor_weight: 0.0,
+            anchor_along: AnchorAlong::All,
             replay_rays: 0,
             view: None,
             extra_views: Vec::new(),

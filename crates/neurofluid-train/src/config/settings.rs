@@ -38,6 +38,7 @@ const ADDED_KEYS: &[(&str, &str)] = &[
     ("nerf.model.density", "\"relu\""),
     ("joint.density_weight", "0.0"),
     ("joint.anchor_weight", "0.0"),
+    ("joint.anchor_along", "\"all\""),
     ("joint.replay_rays", "0"),
 ];
 

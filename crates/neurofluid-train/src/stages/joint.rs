@@ -40,7 +40,7 @@ use super::views::{
 };
 use super::warmup::{self, WarmupData};
 use crate::config::Cadenced;
-use crate::config::JointSection;
+use crate::config::{AnchorAlong, JointSection};
 use crate::density_prior::DensityPrior;
 use crate::focus::{image_foreground, mark_particles, sample_focused};
 use crate::metrics_log::{MetricsLog, psnr_from_mse};
@@ -78,20 +78,42 @@ pub fn boundary_penalty(pos: Tensor<2>, interior: &Aabb) -> Tensor<1> {
 
 /// The anchor term (`joint.anchor_weight`): the mean over particles of the squared distance
 /// between the grounded step's positions `pred` and the pretrained DLF's step `anchor` from the
-/// same state (a constant), in particle radii².
+/// same state (a constant), in particle radii². With `eye` (`joint.anchor_along = "depth"`)
+/// only the part of each difference along the ray from `eye` through the particle's anchored
+/// position counts.
 ///
 /// One view cannot tell where along its rays the fluid is, nor see where it is not: the image
 /// loss leaves DLF free to move mass there, and a grounded DLF does (the spray of the test bed:
 /// dense fluid where the truth has none, BENCHMARKS.md "Issue 34"). The anchor keeps each step
 /// near the pretrained physics wherever the images do not ask for a change: a trust region on
-/// DLF's step.
-pub fn anchor_penalty(pred: Tensor<2>, anchor: Tensor<2>, radius: f32) -> Tensor<1> {
+/// DLF's step; along the rays alone, it leaves free what the training view sees.
+pub fn anchor_penalty(
+    pred: Tensor<2>,
+    anchor: Tensor<2>,
+    radius: f32,
+    eye: Option<[f32; 3]>,
+) -> Tensor<1> {
     let n = pred.dims()[0].max(1) as f64;
     let r2 = f64::from(radius) * f64::from(radius);
-    (pred - anchor)
-        .powi_scalar(2)
-        .sum()
-        .mul_scalar(1.0 / (n * r2))
+    let diff = pred - anchor.clone();
+    let squares = match eye {
+        None => diff.powi_scalar(2),
+        Some(eye) => {
+            let device = anchor.device();
+            let eye = neurofluid_core::transfer::upload::<1, burn::tensor::Float, _>(eye, &device)
+                .cast(anchor.dtype())
+                .unsqueeze_dim::<2>(0);
+            let ray = anchor - eye;
+            let length = ray
+                .clone()
+                .powi_scalar(2)
+                .sum_dim(1)
+                .sqrt()
+                .clamp_min(1e-12);
+            (diff * (ray / length)).sum_dim(1).powi_scalar(2)
+        }
+    };
+    squares.sum().mul_scalar(1.0 / (n * r2))
 }
 
 /// What the joint stage trains on: the training view at every training frame, the true state of
@@ -519,7 +541,10 @@ impl Trainer for JointTrainer {
         if let Some(anchor) = &self.anchor {
             let (x, v) = (self.state.0.clone().detach(), self.state.1.clone().detach());
             let target = anchor.step(x, v, &self.boundary).pos.detach();
-            let term = anchor_penalty(pred.pos.clone(), target, self.data.radius)
+            // the training view's camera at the predicted frame
+            let eye = (self.cfg.anchor_along == AnchorAlong::Depth)
+                .then(|| self.data.views[0][t + 1].camera.origin());
+            let term = anchor_penalty(pred.pos.clone(), target, self.data.radius, eye)
                 .mul_scalar(self.cfg.anchor_weight);
             extra = extra + term.clone().detach();
             surrogate = surrogate + term;
@@ -899,4 +924,59 @@ pub fn load_trained(run: &Run) -> anyhow::Result<Grounded> {
     let dlf = run.load_dlf(&run.exp.dlf.weights)?;
     let dlf = checkpoint::load_module(dlf, &files::DLF.load_path(&ckpt))?;
     Ok(Grounded { physnerf, dlf })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn value(t: Tensor<1>) -> f64 {
+        f64::from(t.into_scalar::<f32>())
+    }
+
+    fn rows(v: &[[f32; 3]]) -> Tensor<2> {
+        let device = neurofluid_core::device::cpu().autodiff();
+        let flat: Vec<f32> = v.iter().flatten().copied().collect();
+        Tensor::<2>::from_data(TensorData::new(flat, [v.len(), 3]), &device)
+    }
+
+    #[test]
+    fn the_depth_anchor_counts_only_the_move_along_the_ray() {
+        // two particles 2 and 3 units in front of an eye at the origin looking down −z; radius 0.5
+        let anchor = [[0.0, 0.0, -2.0], [0.0, 0.0, -3.0]];
+        let eye = Some([0.0, 0.0, 0.0]);
+        // across the ray: free; all of it counts without the eye
+        let across = [[0.5, 0.0, -2.0], [0.0, -0.5, -3.0]];
+        let free = value(anchor_penalty(rows(&across), rows(&anchor), 0.5, eye));
+        assert!(free.abs() < 1e-12, "{free}");
+        let all = value(anchor_penalty(rows(&across), rows(&anchor), 0.5, None));
+        assert!((all - 1.0).abs() < 1e-6, "{all}");
+        // along the ray by one radius for one particle of two: mean 0.5 radii²
+        let along = [[0.0, 0.0, -2.5], [0.0, 0.0, -3.0]];
+        let p = value(anchor_penalty(rows(&along), rows(&anchor), 0.5, eye));
+        assert!((p - 0.5).abs() < 1e-6, "{p}");
+    }
+
+    #[test]
+    fn the_depth_anchors_gradient_points_along_the_ray() {
+        let eye = [1.0f32, 2.0, 3.0];
+        let anchor = [[2.0f32, 4.0, 5.0]];
+        let pred = rows(&[[2.3, 3.9, 5.4]]).require_grad();
+        let loss = anchor_penalty(pred.clone(), rows(&anchor), 0.1, Some(eye));
+        let g: Vec<f32> = pred
+            .grad(&loss.backward())
+            .unwrap()
+            .into_data()
+            .convert::<f32>()
+            .try_into_vec::<f32>()
+            .unwrap();
+        // the ray's unit direction (1, 2, 2)/3: the gradient is parallel to it
+        let u = [1.0f32 / 3.0, 2.0 / 3.0, 2.0 / 3.0];
+        let along: f32 = g.iter().zip(u).map(|(a, b)| a * b).sum();
+        let off: f32 = g.iter().zip(u).map(|(a, b)| (a - along * b).powi(2)).sum();
+        assert!(
+            along.abs() > 1.0 && off.sqrt() < 1e-4 * along.abs(),
+            "{g:?}"
+        );
+    }
 }
