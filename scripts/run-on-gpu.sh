@@ -7,7 +7,8 @@
 #             with its host–device copies), the project's PyTorch reference of the same step on
 #             CUDA (where python3 has torch with CUDA), then the same step on this machine's CPU
 #   dlf       DLF forward and forward+backward at 8k and 32k fluid particles, wgpu then CPU
-#   physnerf-wgpu, dlf-wgpu  the same on wgpu alone (a second call, the references measured)
+#   physnerf-wgpu, dlf-wgpu  the same on wgpu alone (a second call, the references measured);
+#             physnerf-wgpu also with the dense layers in one matmul over every row (--split-rows 0)
 #   quick     the quick main job on wgpu, GPU utilisation sampled every second (per stage in the
 #             summary)
 #   profile   one small PhysNeRF step with CUBECL_DEBUG_OPTION=profile: cubecl's log of every
@@ -140,6 +141,9 @@ for step in $steps; do
         log=$results/physnerf.log
         timed "PhysNeRF step, wgpu" 100 "$log" "$bin/train_step" --bench --device wgpu
         report "$log" "step \(forward|MLPs alone|host–device|forward [0-9]"
+        timed "PhysNeRF step, wgpu, dense layers in one matmul" 100 "$log" "$bin/train_step" \
+            --bench --device wgpu --split-rows 0
+        report "$log" "step \(forward|MLPs alone"
         ;;
     dlf | dlf-wgpu)
         log=$results/dlf.log

@@ -354,8 +354,9 @@ pub fn linear(layer: &Linear, x: Tensor<2>, act: Activation) -> Tensor<2> {
 }
 
 /// `act(layer(cat[x₁, x₂, …]))` (column blocks side by side, as the MLP's skip and direction
-/// inputs): on flex one host operation that reads the blocks in place ([`Blocks`]); Burn's
-/// `cat` and ops otherwise.
+/// inputs): on flex one host operation that reads the blocks in place ([`Blocks`]); on an
+/// accelerator Burn's ops with the rows in blocks ([`linear_in_row_blocks`]) when there are
+/// more than [`split_rows`] of them; Burn's `cat` and ops otherwise.
 ///
 /// # Panics
 /// When `xs` is empty.
@@ -370,7 +371,63 @@ pub fn linear_of_cat(layer: &Linear, xs: Vec<Tensor<2>>, act: Activation) -> Ten
     } else {
         Tensor::cat(xs, 1)
     };
+    let block = split_rows();
+    if block > 0 && x.dims()[0] > block && !crate::device::is_host(&x.device()) {
+        return linear_in_row_blocks(layer, x, act, block);
+    }
     act.apply(layer.forward(x))
+}
+
+/// Rows per block of [`linear_in_row_blocks`] on an accelerator (0: off); see [`set_split_rows`].
+static SPLIT_ROWS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(4096);
+
+/// The rows per block of a dense layer on an accelerator (4,096 unless set).
+pub fn split_rows() -> usize {
+    SPLIT_ROWS.load(std::sync::atomic::Ordering::Relaxed)
+}
+
+/// Sets the rows per block of a dense layer on an accelerator; 0 turns the blocks off (one
+/// matmul over every row). For benchmarks that compare the two.
+pub fn set_split_rows(rows: usize) {
+    SPLIT_ROWS.store(rows, std::sync::atomic::Ordering::Relaxed);
+}
+
+/// `act(layer(x))` with the rows of `x [m, k]` cut into blocks of `block` (the last padded with
+/// zero rows): one batched matmul `[B, block, k]·[1, k, n]` whose weight gradient is `B`
+/// products `x_bᵀ·dz_b` summed over the batch — the split of the reduction over the rows that a
+/// GPU needs. A single matmul's weight gradient has an inner dimension of every row (PhysNeRF's
+/// 150k samples), which the fixed matmul kernel runs on a few workgroups: on an H100 the MLPs'
+/// backward took 48 times their forward (BENCHMARKS.md, "Issue 30, first H100 session").
+/// The same values as `act(layer.forward(x))` up to the order of the sums.
+pub fn linear_in_row_blocks(
+    layer: &Linear,
+    x: Tensor<2>,
+    act: Activation,
+    block: usize,
+) -> Tensor<2> {
+    let [m, k] = x.dims();
+    let block = block.max(1);
+    let blocks = m.div_ceil(block);
+    let padded = blocks * block;
+    let x = if padded > m {
+        let device = x.device();
+        let pad = Tensor::<2>::zeros([padded - m, k], (&device, x.dtype()));
+        Tensor::cat(vec![x, pad], 0)
+    } else {
+        x
+    };
+    let w = layer.weight.val();
+    let n = w.dims()[1];
+    let z = x
+        .reshape([blocks, block, k])
+        .matmul(w.unsqueeze_dim::<3>(0))
+        .reshape([padded, n]);
+    let z = if padded > m { z.slice([0..m, 0..n]) } else { z };
+    let z = match &layer.bias {
+        Some(b) => z + b.val().unsqueeze_dim::<2>(0),
+        None => z,
+    };
+    act.apply(z)
 }
 
 /// The host dense layer `act(cat[xᵢ]·w + b)` when the inputs (one or two blocks of at least

@@ -2,13 +2,16 @@
 //! pass on flex) against Burn's own `Linear` + activation and Burn's gradients, in float64:
 //! outputs and the gradients of the input, the weight and the bias, for both activations,
 //! every subset of tracked inputs, sizes that cross the kernels' row splits, and the input
-//! given whole or as two column blocks (`linear_of_cat`, the MLP's skip and direction layers).
+//! given whole or as two column blocks (`linear_of_cat`, the MLP's skip and direction layers),
+//! and the accelerators' path with the rows in blocks (`linear_in_row_blocks`).
 
 use burn::module::Param;
 use burn::nn::Linear;
 use burn::prelude::*;
 use burn::tensor::{DType, TensorCreationOptions, TensorData};
-use neurofluid_core::dense::{Activation, linear, linear_of_cat, try_host_linear};
+use neurofluid_core::dense::{
+    Activation, linear, linear_in_row_blocks, linear_of_cat, try_host_linear,
+};
 use neurofluid_core::device::{test_device, test_device_name};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -62,6 +65,8 @@ enum Path {
     Host,
     /// `linear_of_cat` on the input's first `k₁` columns and the rest.
     Blocks(usize),
+    /// `linear_in_row_blocks` with blocks of this many rows (an accelerator's path).
+    RowBlocks(usize),
 }
 
 impl Case {
@@ -116,6 +121,7 @@ impl Case {
                 let blocks = blocks.clone().expect("two column blocks");
                 linear_of_cat(&layer, blocks.to_vec(), act)
             }
+            Path::RowBlocks(rows) => linear_in_row_blocks(&layer, x.clone(), act, rows),
         };
         let loss = (y.clone() * tensor(&self.coeff, [self.m, self.n], &ad)).sum();
         let grads = loss.backward();
@@ -157,7 +163,8 @@ fn check(m: usize, k: usize, n: usize) {
             [true, false, false],
             [false, false, true],
         ] {
-            let mut paths = vec![Path::Host];
+            // row blocks: one, and about three with the last one padded
+            let mut paths = vec![Path::Host, Path::RowBlocks(m), Path::RowBlocks(m / 3 + 1)];
             if k >= 2 {
                 paths.push(Path::Blocks(k / 3 + 1));
             }

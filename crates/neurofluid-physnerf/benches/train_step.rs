@@ -8,7 +8,9 @@
 //! are host clocks around asynchronous GPU work (the neighbour search, host work, is exact); the
 //! step, the backward and the MLPs alone end with a read-back, so they are exact. It also
 //! prints the step's host–device copies (`neurofluid_core::transfer`: reads and uploads, count
-//! and bytes, the closing read-back of the particle gradient's sum included).
+//! and bytes, the closing read-back of the particle gradient's sum included). `--split-rows N`
+//! sets the rows per block of the dense layers on an accelerator
+//! (`neurofluid_core::dense::set_split_rows`; 0: one matmul over every row).
 //! The weights are the reference case's test weights (opaque, textured), the particles a
 //! 22×22×21 lattice (spacing 0.05, jitter ±0.003, randomly permuted: 10,164 particles), the
 //! camera 4 units away (400×400, as in NeuroFluid), the rays 1024 random pixels of the view.
@@ -55,6 +57,23 @@ fn main() {
             std::process::exit(2);
         }
     };
+    if let Some(rows) = args
+        .iter()
+        .position(|a| a == "--split-rows")
+        .and_then(|i| args.get(i + 1))
+    {
+        match rows.parse() {
+            Ok(r) => neurofluid_core::dense::set_split_rows(r),
+            Err(_) => {
+                eprintln!("--split-rows: expected a row count, got {rows}");
+                std::process::exit(2);
+            }
+        }
+    }
+    println!(
+        "dense layers on an accelerator: {} rows per block",
+        neurofluid_core::dense::split_rows()
+    );
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
     let mut particles = Vec::new();
     for i in 0..22 {
