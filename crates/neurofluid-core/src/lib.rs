@@ -12,6 +12,7 @@ pub mod device;
 #[cfg(feature = "flex")]
 pub mod flex_host;
 pub mod limits;
+pub mod logging;
 pub mod malloc;
 pub mod matmul;
 pub mod metrics;

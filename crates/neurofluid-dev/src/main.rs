@@ -6,7 +6,7 @@ use neurofluid_dev::{cli, commands};
 fn main() -> std::process::ExitCode {
     neurofluid_core::malloc::keep_freed_memory();
     let cli = cli::Cli::parse();
-    cli::init_logging(cli.verbose);
+    neurofluid_core::logging::init(cli.verbose, &[]);
     match commands::dispatch(cli.command) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(err) => {

@@ -7,7 +7,8 @@ use neurofluid_train::{cli, commands};
 fn main() -> std::process::ExitCode {
     neurofluid_core::malloc::keep_freed_memory();
     let cli = cli::Cli::parse();
-    cli::init_logging(cli.verbose);
+    // splashsurf narrates every reconstruction at `info`
+    neurofluid_core::logging::init(cli.verbose, &["splashsurf_lib"]);
     tracing::debug!(
         "allocator: {}",
         neurofluid_core::malloc::allocator_setting()

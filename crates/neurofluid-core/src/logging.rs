@@ -1,0 +1,20 @@
+//! The programs' log: `tracing` on stderr at the level `-v` asks for (or `RUST_LOG`).
+
+/// Sets up `tracing` on stderr: `info`, `debug` (`verbose` = 1) or `trace` (2 and more), with
+/// the crates in `quiet` at `warn` (libraries that narrate at `info`); `RUST_LOG` overrides it.
+/// Colours only on a terminal. A second call does nothing.
+pub fn init(verbose: u8, quiet: &[&str]) {
+    let level = ["info", "debug", "trace"][usize::from(verbose.min(2))];
+    let directives = std::iter::once(level.to_string())
+        .chain(quiet.iter().map(|c| format!("{c}=warn")))
+        .collect::<Vec<_>>()
+        .join(",");
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(directives));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .with_target(false)
+        .try_init();
+}
