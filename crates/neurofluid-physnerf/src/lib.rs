@@ -30,6 +30,7 @@ pub mod hierarchical;
 pub mod mlp;
 pub mod neighbors;
 pub mod nerf;
+pub mod pass;
 pub mod real;
 pub mod renderer;
 pub mod safetensors_file;

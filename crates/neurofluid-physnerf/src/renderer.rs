@@ -4,18 +4,14 @@ use std::time::{Duration, Instant};
 
 use burn::prelude::*;
 use burn::tensor::DType;
-use neurofluid_core::rows::{RowIndex, add_rows};
 use rand::RngCore;
 
 use crate::config::PhysNerfConfig;
-use crate::encoding::encode_inputs;
 use crate::error::{PhysNerfError, Result};
-use crate::features::{gather_neighbors, host_tensor, local_features, rows_tensor, valid_tensor};
 use crate::hierarchical::{Pass, read, render_hierarchical};
 use crate::mlp::NerfMlp;
-use crate::neighbors::{Neighbors, ball_query};
+use crate::pass;
 use crate::real::Real;
-use crate::volume::{deltas, volume_render};
 
 /// The renderer R_φ: two NeRF networks and the configuration.
 #[derive(Module, Debug)]
@@ -322,7 +318,9 @@ impl PhysNerf {
         )
     }
 
-    #[allow(clippy::too_many_arguments)]
+    /// One pass (coarse or fine) at the depths `z` (`s` per ray), in the stages of
+    /// [`crate::pass`]: neighbours → gate → features → field → composite.
+    #[allow(clippy::too_many_arguments)] // the pass's inputs: two host views of the same rays
     fn run_pass<T: Real>(
         &self,
         net: &NerfMlp,
@@ -335,87 +333,25 @@ impl PhysNerf {
         timings: &mut Timings,
     ) -> Result<PassOutput> {
         let cfg = &self.config;
-        let device = particles.device();
-        let r = dirs.len();
-        let k = cfg.k;
+        let rays = pass::Rays {
+            origins,
+            dirs,
+            z,
+            s,
+        };
         let t0 = Instant::now();
-        let mut x = Vec::with_capacity(r * s);
-        for ray in 0..r {
-            let (o, d) = (origins[ray], dirs[ray]);
-            for &zi in &z[ray * s..(ray + 1) * s] {
-                x.push([o[0] + d[0] * zi, o[1] + d[1] * zi, o[2] + d[2] * zi]);
-            }
-        }
-        let nb: Neighbors<T> = ball_query(p_host, &x, cfg.search_radius, k, cfg.selection);
-        let q_all = r * s;
-        let num_nn: Vec<u8> = (0..q_all).map(|q| nb.num_valid(q) as u8).collect();
-        let mask: Vec<bool> = num_nn.iter().map(|&n| n as usize == k).collect();
-        let nbr_idx_sum: Vec<u32> = (0..q_all).map(|q| nb.index_sum(q) as u32).collect();
-        let selected: Vec<usize> = if cfg.gated_only {
-            (0..q_all).filter(|&q| mask[q]).collect()
-        } else {
-            (0..q_all).collect()
-        };
+        let x = pass::sample_points(&rays);
+        let gate = pass::Gate::of(pass::neighbours(p_host, &x, cfg), x.len(), cfg);
         timings.neighbors += t0.elapsed();
-
-        let g = selected.len();
-        let (rgb, sigma) = if g == 0 {
-            (
-                Tensor::<2>::zeros([q_all, 3], (&device, T::DTYPE)),
-                Tensor::<2>::zeros([q_all, 1], (&device, T::DTYPE)),
-            )
-        } else {
-            let t1 = Instant::now();
-            let xs: Vec<[T; 3]> = selected.iter().map(|&q| x[q]).collect();
-            let os: Vec<[T; 3]> = selected.iter().map(|&q| origins[q / s]).collect();
-            let ds: Vec<[T; 3]> = selected.iter().map(|&q| dirs[q / s]).collect();
-            let mut idx = Vec::with_capacity(g * k);
-            let mut d2 = Vec::with_capacity(g * k);
-            for &q in &selected {
-                idx.extend_from_slice(&nb.idx[q * k..(q + 1) * k]);
-                d2.extend_from_slice(&nb.dist2[q * k..(q + 1) * k]);
-            }
-            let x_t = rows_tensor(&xs, &device);
-            let nbr = gather_neighbors(particles, &idx, k);
-            let feats = local_features(
-                x_t.clone(),
-                nbr,
-                valid_tensor(&d2, k, &device),
-                rows_tensor(&os, &device),
-                cfg.search_radius,
-            );
-            let (e_x, e_d) = encode_inputs(x_t, rows_tensor(&ds, &device), &feats, cfg);
-            timings.encoding += t1.elapsed();
-            let t2 = Instant::now();
-            let (rgb_g, sigma_g) = net.forward(e_x, e_d);
-            // softplus must come before the gate, which zeroes the density of ungated samples
-            let sigma_g = cfg.density.before_mask(sigma_g);
-            timings.mlp += t2.elapsed();
-            if cfg.gated_only {
-                let ids = RowIndex::new(selected.iter().copied(), &device);
-                let zeros3 = Tensor::<2>::zeros([q_all, 3], (&device, T::DTYPE));
-                let zeros1 = Tensor::<2>::zeros([q_all, 1], (&device, T::DTYPE));
-                (
-                    add_rows(zeros3, &ids, rgb_g),
-                    add_rows(zeros1, &ids, sigma_g),
-                )
-            } else {
-                let m: Vec<T> = mask
-                    .iter()
-                    .map(|&b| if b { T::one() } else { T::zero() })
-                    .collect();
-                let m = host_tensor(m, [q_all, 1], &device);
-                (rgb_g * m.clone(), sigma_g * m)
-            }
-        };
+        let t1 = Instant::now();
+        let inputs = pass::features(particles, &rays, &x, &gate, cfg);
+        timings.encoding += t1.elapsed();
+        let t2 = Instant::now();
+        let field = inputs.map(|(e_x, e_d)| pass::field(net, e_x, e_d, cfg));
+        timings.mlp += t2.elapsed();
+        let (rgb, sigma) = pass::place(field, &gate, &particles.device(), T::DTYPE, cfg);
         let t3 = Instant::now();
-        let dl = host_tensor(deltas(z, s, dirs), [r, s], &device);
-        let comp = volume_render(
-            rgb.reshape([r, s, 3]),
-            sigma.reshape([r, s]),
-            dl,
-            cfg.white_background,
-        );
+        let comp = pass::composite::<T>(rgb, sigma, &rays, &particles.device(), cfg);
         timings.composite += t3.elapsed();
         Ok(PassOutput {
             samples: s,
@@ -424,10 +360,10 @@ impl PhysNerf {
             weights: comp.weights,
             alpha: comp.alpha,
             acc: comp.acc,
-            num_nn,
-            mask,
-            nbr_idx_sum,
-            evaluated: g,
+            evaluated: gate.selected.len(),
+            num_nn: gate.num_nn,
+            mask: gate.mask,
+            nbr_idx_sum: gate.nbr_idx_sum,
         })
     }
 }
