@@ -247,16 +247,16 @@ impl ConvGeometry {
             }
             let (p0, p1) = (offsets[q0], offsets[q1]);
             let n8 = (p1 - p0) * CORNERS;
-            let mut in_rows = Vec::with_capacity(n8);
+            let mut in_rows = Vec::with_capacity(p1 - p0);
             let mut out_cell_rows = Vec::with_capacity(n8);
             let mut in_cell_rows = Vec::with_capacity(n8);
             let mut out_rows = Vec::with_capacity(n8);
             for p in p0..p1 {
                 let q = (host.query_of_pair[p] as usize - q0) as i64;
                 let i = host.pairs.indices[p] as i64;
+                in_rows.push(i);
                 for c in 0..CORNERS {
                     let cell = host.cells[p * CORNERS + c] as i64;
-                    in_rows.push(i);
                     out_rows.push(q);
                     out_cell_rows.push(q * KERNEL_CELLS as i64 + cell);
                     in_cell_rows.push(i * KERNEL_CELLS as i64 + cell);
@@ -270,9 +270,8 @@ impl ConvGeometry {
                     device,
                 ),
             };
-            let pair_in_rows = int(in_rows.iter().step_by(CORNERS).copied().collect());
             chunks.push(GeometryChunk {
-                pair_in_rows,
+                pair_in_rows: int(in_rows),
                 out_cell_rows: int(out_cell_rows),
                 out_start: q0,
                 out_len: q1 - q0,

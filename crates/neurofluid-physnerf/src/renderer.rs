@@ -313,49 +313,45 @@ impl PhysNerf {
                     Pass::Coarse => &self.coarse,
                     Pass::Fine => &self.fine,
                 };
-                self.run_pass(net, particles, &p_host, &origins, &dirs, z, s, timings)
+                let rays = pass::Rays {
+                    origins: &origins,
+                    dirs: &dirs,
+                    z,
+                    s,
+                };
+                self.run_pass(net, particles, &p_host, &rays, timings)
             },
         )
     }
 
-    /// One pass (coarse or fine) at the depths `z` (`s` per ray), in the stages of
-    /// [`crate::pass`]: neighbours → gate → features → field → composite.
-    #[allow(clippy::too_many_arguments)] // the pass's inputs: two host views of the same rays
+    /// One pass (coarse or fine) along `rays`, in the stages of [`crate::pass`]: neighbours →
+    /// gate → features → field → composite.
     fn run_pass<T: Real>(
         &self,
         net: &NerfMlp,
         particles: &Tensor<2>,
         p_host: &[[T; 3]],
-        origins: &[[T; 3]],
-        dirs: &[[T; 3]],
-        z: &[T],
-        s: usize,
+        rays: &pass::Rays<'_, T>,
         timings: &mut Timings,
     ) -> Result<PassOutput> {
         let cfg = &self.config;
-        let rays = pass::Rays {
-            origins,
-            dirs,
-            z,
-            s,
-        };
         let t0 = Instant::now();
-        let x = pass::sample_points(&rays);
+        let x = pass::sample_points(rays);
         let gate = pass::Gate::of(pass::neighbours(p_host, &x, cfg), x.len(), cfg);
         timings.neighbors += t0.elapsed();
         let t1 = Instant::now();
-        let inputs = pass::features(particles, &rays, &x, &gate, cfg);
+        let inputs = pass::features(particles, rays, &x, &gate, cfg);
         timings.encoding += t1.elapsed();
         let t2 = Instant::now();
         let field = inputs.map(|(e_x, e_d)| pass::field(net, e_x, e_d, cfg));
         timings.mlp += t2.elapsed();
         let (rgb, sigma) = pass::place(field, &gate, &particles.device(), T::DTYPE, cfg);
         let t3 = Instant::now();
-        let comp = pass::composite::<T>(rgb, sigma, &rays, &particles.device(), cfg);
+        let comp = pass::composite::<T>(rgb, sigma, rays, &particles.device(), cfg);
         timings.composite += t3.elapsed();
         Ok(PassOutput {
-            samples: s,
-            z: z.iter().map(|v| v.f64()).collect(),
+            samples: rays.s,
+            z: rays.z.iter().map(|v| v.f64()).collect(),
             rgb_map: comp.rgb_map,
             weights: comp.weights,
             alpha: comp.alpha,

@@ -66,8 +66,7 @@ impl DensityGrid {
                 w *= if up { frac[a] } else { 1.0 - frac[a] };
             }
             if w > 0.0 {
-                let flat = idx[0] + self.dims[0] * (idx[1] + self.dims[1] * idx[2]);
-                v += w * f64::from(self.values[flat]);
+                v += w * f64::from(self.values[self.index(idx[0], idx[1], idx[2])]);
             }
         }
         v as f32

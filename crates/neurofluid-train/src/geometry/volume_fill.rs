@@ -96,7 +96,8 @@ impl DensityGrid {
         out
     }
 
-    fn index(&self, i: usize, j: usize, k: usize) -> usize {
+    /// The position in `values` of point (i, j, k).
+    pub(crate) fn index(&self, i: usize, j: usize, k: usize) -> usize {
         i + self.dims[0] * (j + self.dims[1] * k)
     }
 
