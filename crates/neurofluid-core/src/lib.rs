@@ -21,6 +21,7 @@ pub mod npz;
 pub mod params;
 pub mod paths;
 pub mod posenc;
+pub mod program;
 pub mod real;
 pub mod rows;
 pub mod scene;

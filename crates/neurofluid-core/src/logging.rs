@@ -1,5 +1,20 @@
 //! The programs' log: `tracing` on stderr at the level `-v` asks for (or `RUST_LOG`).
 
+/// The log options every program of the workspace takes (flattened into its command line).
+#[derive(Debug, Clone, Copy, Default, clap::Args)]
+pub struct LogArgs {
+    /// More log output (-v debug, -vv trace). `RUST_LOG` overrides it.
+    #[arg(short, long, action = clap::ArgAction::Count, global = true)]
+    pub verbose: u8,
+}
+
+impl LogArgs {
+    /// Sets up the log at this verbosity ([`init`]).
+    pub fn init(&self, quiet: &[&str]) {
+        init(self.verbose, quiet);
+    }
+}
+
 /// Sets up `tracing` on stderr: `info`, `debug` (`verbose` = 1) or `trace` (2 and more), with
 /// the crates in `quiet` at `warn` (libraries that narrate at `info`); `RUST_LOG` overrides it.
 /// Colours only on a terminal. A second call does nothing.

@@ -21,6 +21,7 @@
 //! range query does not give, and the hashed grid is faster for the dense, uniform-radius
 //! queries of both models (BENCHMARKS.md). kiddo still serves the evaluation's nearest distances.
 
+use num_traits::Float;
 use rayon::prelude::*;
 
 /// Fixed-radius neighbour lists in compressed-row form.
@@ -77,18 +78,18 @@ pub enum NeighborSelection {
 
 /// Result of a capped ball query: K slots per query.
 #[derive(Debug, Clone, Default, PartialEq)]
-pub struct BallQuery {
+pub struct BallQuery<T = f32> {
     /// Slots per query.
     pub k: usize,
     /// `[queries × k]` point indices; `-1` marks an empty slot.
     pub idx: Vec<i32>,
     /// `[queries × k]` squared distances; `0` in empty slots.
-    pub dist2: Vec<f32>,
+    pub dist2: Vec<T>,
     /// Filled slots per query (≤ k).
     pub count: Vec<u32>,
 }
 
-impl BallQuery {
+impl<T> BallQuery<T> {
     /// Number of queries.
     pub fn num_queries(&self) -> usize {
         self.count.len()
@@ -134,9 +135,9 @@ fn hash_cell(c: [i64; 3], mask: u64) -> usize {
     (h & mask) as usize
 }
 
-/// Squared distance in float32, summed as (dx² + dy²) + dz².
+/// Squared distance, summed as (dx² + dy²) + dz².
 #[inline]
-fn dist2(a: [f32; 3], b: [f32; 3]) -> f32 {
+fn dist2<T: Float>(a: [T; 3], b: [T; 3]) -> T {
     let dx = a[0] - b[0];
     let dy = a[1] - b[1];
     let dz = a[2] - b[2];
@@ -636,6 +637,68 @@ pub fn ball_query(
     NeighborGrid::new(points, radius).ball_query(queries, radius, k, selection)
 }
 
+/// The capped ball query of [`NeighborGrid::ball_query`] in any float type, exact and without a
+/// grid: every point against every query, after a bounding-box test that skips queries far from
+/// all points. The grid's oracle in tests, and the search of f64 renders (precision checks).
+pub fn exact_ball_query<T: Float + Send + Sync>(
+    points: &[[T; 3]],
+    queries: &[[T; 3]],
+    radius: T,
+    k: usize,
+    selection: NeighborSelection,
+) -> BallQuery<T> {
+    let r2 = radius * radius;
+    let mut lo = [T::infinity(); 3];
+    let mut hi = [T::neg_infinity(); 3];
+    for p in points {
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
+        }
+    }
+    let mut idx = vec![-1i32; queries.len() * k];
+    let mut d2 = vec![T::zero(); queries.len() * k];
+    let count = idx
+        .par_chunks_mut(k.max(1))
+        .zip(d2.par_chunks_mut(k.max(1)))
+        .zip(queries.par_iter())
+        .map(|((idx, d2), &q)| {
+            if (0..3).any(|a| q[a] < lo[a] - radius || q[a] > hi[a] + radius) {
+                return 0;
+            }
+            let mut inside: Vec<(usize, T)> = Vec::new();
+            for (i, &p) in points.iter().enumerate() {
+                let d = dist2(p, q);
+                if d < r2 {
+                    inside.push((i, d));
+                    if selection == NeighborSelection::LowestIndex && inside.len() == k {
+                        break;
+                    }
+                }
+            }
+            if selection == NeighborSelection::Nearest {
+                inside.sort_by(|a, b| {
+                    a.1.partial_cmp(&b.1)
+                        .unwrap_or(std::cmp::Ordering::Equal)
+                        .then(a.0.cmp(&b.0))
+                });
+                inside.truncate(k);
+            }
+            for (s, &(i, d)) in inside.iter().enumerate() {
+                idx[s] = i as i32;
+                d2[s] = d;
+            }
+            inside.len() as u32
+        })
+        .collect();
+    BallQuery {
+        k,
+        idx,
+        dist2: d2,
+        count,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -677,39 +740,6 @@ mod tests {
         out
     }
 
-    /// All-pairs version of `ball_query`.
-    fn brute_ball(
-        points: &[[f32; 3]],
-        queries: &[[f32; 3]],
-        r: f32,
-        k: usize,
-        sel: NeighborSelection,
-    ) -> BallQuery {
-        let mut out = BallQuery {
-            k,
-            ..BallQuery::default()
-        };
-        for &q in queries {
-            let mut inside: Vec<(u32, f32)> = points
-                .iter()
-                .enumerate()
-                .map(|(i, &p)| (i as u32, dist2(p, q)))
-                .filter(|&(_, d)| d < r * r)
-                .collect();
-            if sel == NeighborSelection::Nearest {
-                inside.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
-            }
-            inside.truncate(k);
-            out.count.push(inside.len() as u32);
-            for s in 0..k {
-                let (i, d) = inside.get(s).map_or((-1, 0.0), |&(i, d)| (i as i32, d));
-                out.idx.push(i);
-                out.dist2.push(d);
-            }
-        }
-        out
-    }
-
     fn check_all(points: &[[f32; 3]], queries: &[[f32; 3]], r: f32, k: usize) {
         for ignore in [false, true] {
             assert_eq!(
@@ -721,7 +751,7 @@ mod tests {
         for sel in [NeighborSelection::LowestIndex, NeighborSelection::Nearest] {
             assert_eq!(
                 ball_query(points, queries, r, k, sel),
-                brute_ball(points, queries, r, k, sel),
+                exact_ball_query(points, queries, r, k, sel),
                 "ball query {sel:?}"
             );
         }

@@ -1,19 +1,19 @@
 //! Command-line surface: one subcommand per reference-case runner.
 
-use clap::{Parser, Subcommand};
+use clap::Subcommand;
+use neurofluid_core::program::Program;
 
 use crate::commands;
 
-/// NeuroFluid-rs developer tools: run the reference cases of the DLF and PhysNeRF parity checks.
-#[derive(Debug, Parser)]
-#[command(name = "neurofluid-dev", version, about, long_about = None)]
-pub struct Cli {
-    /// More log output (-v debug, -vv trace). `RUST_LOG` overrides it.
-    #[arg(short, long, action = clap::ArgAction::Count, global = true)]
-    pub verbose: u8,
-    /// The tool to run.
-    #[command(subcommand)]
-    pub command: Command,
+/// The command line of `neurofluid-dev`.
+pub type Cli = Program<Command>;
+
+/// What `--help` says the program is: the package's description.
+const ABOUT: &str = env!("CARGO_PKG_DESCRIPTION");
+
+/// The process's arguments, read as `neurofluid-dev`'s.
+pub fn parse() -> Cli {
+    Cli::parse_named("neurofluid-dev", ABOUT)
 }
 
 /// The developer tools.
@@ -30,10 +30,9 @@ pub enum Command {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use clap::CommandFactory;
 
     #[test]
     fn the_cli_is_consistent() {
-        Cli::command().debug_assert();
+        Cli::named("neurofluid-dev", ABOUT).debug_assert();
     }
 }

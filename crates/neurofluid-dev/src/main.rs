@@ -1,12 +1,11 @@
 //! `neurofluid-dev`: the reference-case runners of NeuroFluid-rs.
 
-use clap::Parser;
 use neurofluid_dev::{cli, commands};
 
 fn main() -> std::process::ExitCode {
     neurofluid_core::malloc::keep_freed_memory();
-    let cli = cli::Cli::parse();
-    neurofluid_core::logging::init(cli.verbose, &[]);
+    let cli = cli::parse();
+    cli.log.init(&[]);
     match commands::dispatch(cli.command) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(err) => {

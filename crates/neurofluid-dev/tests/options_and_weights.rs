@@ -11,6 +11,26 @@ use neurofluid_physnerf::{EncodingTerms, NeighborSelection, PhysNerf, PhysNerfCo
 use rand::SeedableRng;
 
 /// The 6×6 centre block of the case's rays.
+/// The case's renderer under `config`, with the case's reference weights.
+fn case_model(
+    inputs: &neurofluid_dev::physnerf_case::CaseInputs,
+    config: PhysNerfConfig,
+    device: &burn::tensor::Device,
+) -> PhysNerf {
+    PhysNerf::from_nerf_pl(inputs.weights_path(), config, device, DType::F32).unwrap()
+}
+
+/// The error of loading the weights file `path` under `config`.
+fn load_error(
+    path: &std::path::Path,
+    config: PhysNerfConfig,
+    device: &burn::tensor::Device,
+) -> String {
+    PhysNerf::from_nerf_pl(path, config, device, DType::F32)
+        .unwrap_err()
+        .to_string()
+}
+
 fn centre_rays(inputs: &neurofluid_dev::physnerf_case::CaseInputs) -> RayBatch {
     let all = inputs.rays::<f32>();
     let ids: Vec<usize> = (5..11)
@@ -34,8 +54,7 @@ fn gated_only_evaluation_gives_the_same_colours_and_gradients() {
             gated_only,
             ..inputs.config.clone()
         };
-        let model =
-            PhysNerf::from_nerf_pl(inputs.weights_path(), cfg, &device, DType::F32).unwrap();
+        let model = case_model(&inputs, cfg, &device);
         let p = inputs.particles_tensor(&device, DType::F32).require_grad();
         let out = model.render_rays(&p, &rays, None).unwrap();
         let evaluated = out.coarse.evaluated;
@@ -64,8 +83,7 @@ fn stratified_jitter_needs_an_rng_and_stays_in_its_intervals() {
         stratified: true,
         ..inputs.config.clone()
     };
-    let model =
-        PhysNerf::from_nerf_pl(inputs.weights_path(), cfg.clone(), &device, DType::F32).unwrap();
+    let model = case_model(&inputs, cfg.clone(), &device);
     let p = inputs.particles_tensor(&device, DType::F32);
     assert!(
         model.render_rays(&p, &rays, None).is_err(),
@@ -141,35 +159,25 @@ fn ablations_change_the_input_widths_and_nearest_k_changes_the_picture() {
         let out = model.render_rays(&p, &rays, None).unwrap();
         assert_eq!(out.final_rgb().dims(), [rays.len(), 3]);
         // the case's full-width weights do not fit an ablated network: a clear error
-        let err = PhysNerf::from_nerf_pl(
-            inputs.weights_path(),
+        let err = load_error(
+            &inputs.weights_path(),
             PhysNerfConfig {
                 encoding: flags,
                 ..inputs.config.clone()
             },
             &device,
-            DType::F32,
-        )
-        .unwrap_err()
-        .to_string();
+        );
         assert!(
             err.contains("nerf_coarse.") && err.contains("expected shape"),
             "{err}"
         );
     }
-    let lowest = PhysNerf::from_nerf_pl(
-        inputs.weights_path(),
-        inputs.config.clone(),
-        &device,
-        DType::F32,
-    )
-    .unwrap();
+    let lowest = case_model(&inputs, inputs.config.clone(), &device);
     let nearest_cfg = PhysNerfConfig {
         selection: NeighborSelection::Nearest,
         ..inputs.config.clone()
     };
-    let nearest =
-        PhysNerf::from_nerf_pl(inputs.weights_path(), nearest_cfg, &device, DType::F32).unwrap();
+    let nearest = case_model(&inputs, nearest_cfg, &device);
     let a = lowest.render_rays(&p, &rays, None).unwrap();
     let b = nearest.render_rays(&p, &rays, None).unwrap();
     assert_eq!(
@@ -185,13 +193,7 @@ fn weights_roundtrip_and_bad_files_are_reported() {
     let (inputs, _) = case();
     let device = neurofluid_core::device::test_device();
     let dir = std::env::temp_dir().join(format!("nf_weights_{}", std::process::id()));
-    let model = PhysNerf::from_nerf_pl(
-        inputs.weights_path(),
-        inputs.config.clone(),
-        &device,
-        DType::F32,
-    )
-    .unwrap();
+    let model = case_model(&inputs, inputs.config.clone(), &device);
     let path = dir.join("ours.safetensors");
     model.save(&path).unwrap();
     let back = PhysNerf::load(&path, &device, DType::F32).unwrap();
@@ -233,9 +235,7 @@ fn weights_roundtrip_and_bad_files_are_reported() {
     }
     let missing = dir.join("missing.safetensors");
     w.write(&missing).unwrap();
-    let err = PhysNerf::from_nerf_pl(&missing, inputs.config.clone(), &device, DType::F32)
-        .unwrap_err()
-        .to_string();
+    let err = load_error(&missing, inputs.config.clone(), &device);
     assert!(
         err.contains("missing.safetensors")
             && err.contains("nerf_fine.rgb.0.bias")
@@ -250,9 +250,7 @@ fn weights_roundtrip_and_bad_files_are_reported() {
     w.f32("nerf_coarse.extra.weight", &[1], &[0.0]);
     let extra = dir.join("extra.safetensors");
     w.write(&extra).unwrap();
-    let err = PhysNerf::from_nerf_pl(&extra, inputs.config.clone(), &device, DType::F32)
-        .unwrap_err()
-        .to_string();
+    let err = load_error(&extra, inputs.config.clone(), &device);
     assert!(err.contains("nerf_coarse.extra.weight"), "{err}");
     std::fs::remove_dir_all(dir).ok();
 }
@@ -264,13 +262,7 @@ fn a_render_given_the_particles_on_the_host_reads_one_less_and_gives_the_same_bi
     let device = neurofluid_core::device::test_device().autodiff();
     let rays = centre_rays(&inputs);
     let target = Tensor::<2>::full([rays.len(), 3], 0.3, &device);
-    let model = PhysNerf::from_nerf_pl(
-        inputs.weights_path(),
-        inputs.config.clone(),
-        &device,
-        DType::F32,
-    )
-    .unwrap();
+    let model = case_model(&inputs, inputs.config.clone(), &device);
     let host: Vec<[f32; 3]> = inputs
         .particles
         .iter()

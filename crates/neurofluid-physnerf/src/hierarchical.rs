@@ -5,12 +5,60 @@
 use std::time::Instant;
 
 use burn::prelude::*;
+use burn::tensor::DType;
 use rand::RngCore;
 
 use crate::error::{PhysNerfError, Result};
+use crate::mlp::{MlpShape, NerfMlp};
 use crate::real::Real;
 use crate::renderer::{PassOutput, RenderOutput, Timings};
 use crate::sampling::{coarse_depths, fine_u, jitter_depths, merge_sorted, midpoints, sample_pdf};
+
+/// The constants of a hierarchical renderer as its networks see them: their shape, and whether
+/// the values hold together.
+pub trait NetworkPlan: Clone + std::fmt::Debug + Send + Sync + 'static {
+    /// `Err("field: what was expected")` for the first invalid value.
+    fn check(&self) -> std::result::Result<(), String>;
+    /// The shape of the coarse and of the fine network.
+    fn shape(&self) -> MlpShape;
+}
+
+/// A hierarchical renderer: the coarse and the fine network and the constants `C` that say how
+/// they render (PhysNeRF's, [`crate::PhysNerf`], or NeRF's, [`crate::Nerf`]).
+#[derive(Module, Debug)]
+pub struct CoarseFine<C: NetworkPlan> {
+    /// The coarse network (the coarse depths).
+    pub coarse: NerfMlp,
+    /// The fine network (the coarse and the importance depths, merged).
+    pub fine: NerfMlp,
+    /// Constants and switches.
+    #[module(skip)]
+    pub config: C,
+}
+
+impl<C: NetworkPlan> CoarseFine<C> {
+    /// Randomly initialised networks (f32) on `device`, the coarse one's weights drawn first.
+    pub fn new(config: C, device: &Device) -> Result<Self> {
+        config.check().map_err(PhysNerfError::Invalid)?;
+        let coarse = NerfMlp::new(&config.shape(), device);
+        let fine = NerfMlp::new(&config.shape(), device);
+        Ok(Self {
+            coarse,
+            fine,
+            config,
+        })
+    }
+
+    /// The device of the weights.
+    pub fn device(&self) -> Device {
+        self.coarse.sigma.weight.val().device()
+    }
+
+    /// The float dtype of the weights.
+    pub fn dtype(&self) -> DType {
+        self.coarse.sigma.weight.val().dtype()
+    }
+}
 
 /// Which network a pass runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

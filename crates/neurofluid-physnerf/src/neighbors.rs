@@ -1,10 +1,9 @@
 //! The capped ball query in the working precision: f32 goes through
-//! `neurofluid_core::neighbors` (uniform grid); f64 (precision tests) uses an exact brute-force
-//! search with the same semantics: `d² = (dx² + dy²) + dz² < r²` strict, `r² = r·r` in the
+//! `neurofluid_core::neighbors` (uniform grid); f64 (precision tests) its exact all-pairs search
+//! (`exact_ball_query`), with the same semantics: `d² = (dx² + dy²) + dz² < r²` strict, `r² = r·r` in the
 //! working precision, K lowest indices (or K nearest), empty slots `idx = −1`, `d² = 0`.
 
-use neurofluid_core::neighbors::{NeighborGrid, NeighborSelection};
-use rayon::prelude::*;
+use neurofluid_core::neighbors::{NeighborGrid, NeighborSelection, exact_ball_query};
 
 use crate::real::Real;
 
@@ -72,68 +71,13 @@ pub fn ball_query<T: Real>(
             dist2: bq.dist2.into_iter().map(|d| T::of(d as f64)).collect(),
         }
     } else {
-        brute_force(points, queries, radius, k, selection)
-    }
-}
-
-fn dist2<T: Real>(a: [T; 3], b: [T; 3]) -> T {
-    let dx = a[0] - b[0];
-    let dy = a[1] - b[1];
-    let dz = a[2] - b[2];
-    dx * dx + dy * dy + dz * dz
-}
-
-/// Exact all-pairs ball query in T (with a bounding-box pre-filter); for small test cases.
-pub fn brute_force<T: Real>(
-    points: &[[T; 3]],
-    queries: &[[T; 3]],
-    radius: f64,
-    k: usize,
-    selection: NeighborSelection,
-) -> Neighbors<T> {
-    let r = T::of(radius);
-    let r2 = r * r;
-    let mut lo = [T::infinity(); 3];
-    let mut hi = [T::neg_infinity(); 3];
-    for p in points {
-        for a in 0..3 {
-            lo[a] = lo[a].min(p[a]);
-            hi[a] = hi[a].max(p[a]);
+        let bq = exact_ball_query(points, queries, T::of(radius), k, selection);
+        Neighbors {
+            k,
+            idx: bq.idx,
+            dist2: bq.dist2,
         }
     }
-    let mut idx = vec![-1i32; queries.len() * k];
-    let mut d2 = vec![T::zero(); queries.len() * k];
-    idx.par_chunks_mut(k.max(1))
-        .zip(d2.par_chunks_mut(k.max(1)))
-        .zip(queries.par_iter())
-        .for_each(|((idx, d2), &q)| {
-            if (0..3).any(|a| q[a] < lo[a] - r || q[a] > hi[a] + r) {
-                return;
-            }
-            let mut found: Vec<(usize, T)> = Vec::new();
-            for (i, &p) in points.iter().enumerate() {
-                let d = dist2(p, q);
-                if d < r2 {
-                    found.push((i, d));
-                    if selection == NeighborSelection::LowestIndex && found.len() == k {
-                        break;
-                    }
-                }
-            }
-            if selection == NeighborSelection::Nearest {
-                found.sort_by(|a, b| {
-                    a.1.partial_cmp(&b.1)
-                        .unwrap_or(std::cmp::Ordering::Equal)
-                        .then(a.0.cmp(&b.0))
-                });
-                found.truncate(k);
-            }
-            for (s, (i, d)) in found.into_iter().enumerate() {
-                idx[s] = i as i32;
-                d2[s] = d;
-            }
-        });
-    Neighbors { k, idx, dist2: d2 }
 }
 
 #[cfg(test)]
@@ -142,7 +86,7 @@ mod tests {
     use rand::{Rng, SeedableRng};
 
     #[test]
-    fn grid_and_brute_force_agree() {
+    fn the_f32_path_matches_the_exact_search() {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
         let pts: Vec<[f32; 3]> = (0..2000)
             .map(|_| [rng.random::<f32>(), rng.random(), rng.random()])
@@ -152,7 +96,7 @@ mod tests {
             .collect();
         for sel in [NeighborSelection::LowestIndex, NeighborSelection::Nearest] {
             let a = ball_query(&pts, &qs, 0.1, 20, sel);
-            let b = brute_force(&pts, &qs, 0.1, 20, sel);
+            let b = exact_ball_query(&pts, &qs, 0.1, 20, sel);
             assert_eq!(a.idx, b.idx);
             assert_eq!(a.dist2, b.dist2);
         }

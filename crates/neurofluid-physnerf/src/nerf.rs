@@ -19,7 +19,7 @@ use crate::config::{DensityActivation, encoded_width};
 use crate::encoding::{posenc, posenc_cat};
 use crate::error::{PhysNerfError, Result};
 use crate::features::host_tensor;
-use crate::hierarchical::{DepthPlan, Pass, read, render_hierarchical};
+use crate::hierarchical::{CoarseFine, DepthPlan, NetworkPlan, Pass, read, render_hierarchical};
 use crate::mlp::{MlpShape, NerfMlp};
 use crate::real::Real;
 use crate::renderer::{PassOutput, RayBatch, RenderOutput, Timings};
@@ -120,6 +120,14 @@ impl NerfConfig {
         }
     }
 
+    /// Checks the values for consistency (`"field: what was expected"`).
+    pub fn validate(&self) -> std::result::Result<(), String> {
+        match self.problem() {
+            Some((field, message)) => Err(format!("{field}: {message}")),
+            None => Ok(()),
+        }
+    }
+
     /// The first field with an invalid value, and what was expected.
     pub fn problem(&self) -> Option<(&'static str, String)> {
         if let Some(p) = self.depth_plan().problem() {
@@ -127,6 +135,14 @@ impl NerfConfig {
         }
         if let Some(p) = self.mlp_shape().problem() {
             return Some(p);
+        }
+        if self.density == DensityActivation::Softplus && self.bounds.is_none() {
+            return Some((
+                "density",
+                "a softplus density needs box bounds (without them every ray's last, infinite \
+                 interval would be opaque)"
+                    .into(),
+            ));
         }
         if self.chunk == 0 {
             return Some(("chunk", "expected at least 1 ray per chunk".into()));
@@ -148,42 +164,18 @@ impl NerfConfig {
 }
 
 /// A NeRF or NeRF-T: coarse and fine networks.
-#[derive(Module, Debug)]
-pub struct Nerf {
-    /// Coarse network.
-    pub coarse: NerfMlp,
-    /// Fine network.
-    pub fine: NerfMlp,
-    /// Constants.
-    #[module(skip)]
-    pub config: NerfConfig,
+pub type Nerf = CoarseFine<NerfConfig>;
+
+impl NetworkPlan for NerfConfig {
+    fn check(&self) -> std::result::Result<(), String> {
+        self.validate()
+    }
+    fn shape(&self) -> MlpShape {
+        self.mlp_shape()
+    }
 }
 
 impl Nerf {
-    /// A randomly initialised NeRF (f32) on `device`.
-    pub fn new(config: NerfConfig, device: &Device) -> Result<Self> {
-        if let Some((field, message)) = config.problem() {
-            return Err(PhysNerfError::Invalid(format!("{field}: {message}")));
-        }
-        if config.density == DensityActivation::Softplus && config.bounds.is_none() {
-            return Err(PhysNerfError::Invalid(
-                "density: a softplus density needs box bounds (without them every ray's last, \
-                 infinite interval would be opaque)"
-                    .into(),
-            ));
-        }
-        Ok(Self {
-            coarse: NerfMlp::new(&config.mlp_shape(), device),
-            fine: NerfMlp::new(&config.mlp_shape(), device),
-            config,
-        })
-    }
-
-    /// The device of the weights.
-    pub fn device(&self) -> Device {
-        self.coarse.sigma.weight.val().device()
-    }
-
     /// Renders `rays`; `times` holds one time per ray for NeRF-T and must be `None` for NeRF.
     /// With `rng` the depths are jittered (stratified sampling, for training), without it the
     /// render is deterministic.

@@ -8,21 +8,21 @@ use rand::RngCore;
 
 use crate::config::PhysNerfConfig;
 use crate::error::{PhysNerfError, Result};
-use crate::hierarchical::{Pass, read, render_hierarchical};
+use crate::hierarchical::{CoarseFine, NetworkPlan, Pass, read, render_hierarchical};
 use crate::mlp::NerfMlp;
 use crate::pass;
 use crate::real::Real;
 
 /// The renderer R_φ: two NeRF networks and the configuration.
-#[derive(Module, Debug)]
-pub struct PhysNerf {
-    /// Coarse network (64 depths).
-    pub coarse: NerfMlp,
-    /// Fine network (the sorted 64 + 128 depths).
-    pub fine: NerfMlp,
-    /// Constants and switches.
-    #[module(skip)]
-    pub config: PhysNerfConfig,
+pub type PhysNerf = CoarseFine<PhysNerfConfig>;
+
+impl NetworkPlan for PhysNerfConfig {
+    fn check(&self) -> std::result::Result<(), String> {
+        self.validate()
+    }
+    fn shape(&self) -> crate::mlp::MlpShape {
+        self.mlp_shape()
+    }
 }
 
 /// A batch of rays in world units. Kept in f64 on the host; the renderer rounds them to the
@@ -154,21 +154,6 @@ pub fn mse(rgb: Tensor<2>, target: Tensor<2>) -> Tensor<1> {
 }
 
 impl PhysNerf {
-    /// A randomly initialised renderer (f32) on `device`.
-    pub fn new(config: PhysNerfConfig, device: &Device) -> Result<Self> {
-        config.validate().map_err(PhysNerfError::Invalid)?;
-        Ok(Self {
-            coarse: NerfMlp::new(&config.mlp_shape(), device),
-            fine: NerfMlp::new(&config.mlp_shape(), device),
-            config,
-        })
-    }
-
-    /// The float dtype of the weights.
-    pub fn dtype(&self) -> DType {
-        self.coarse.sigma.weight.val().dtype()
-    }
-
     /// The MSE loss of a render against `target [R, 3]` (the same rays, same order).
     pub fn loss(&self, out: &RenderOutput, target: Tensor<2>) -> Loss {
         out.loss(target)

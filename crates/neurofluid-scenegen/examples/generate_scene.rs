@@ -21,21 +21,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let t = std::time::Instant::now();
     let r = generate::generate(&preset, std::path::Path::new(&out), true)?;
     println!(
-        "{} {}: {} particles, {} wall particles, {} frames, {} images {}x{}, {} substeps, {} clamps | \
-         simulate {:.1} s, render {:.1} s, write {:.1} s, total {:.1} s",
+        "{} {}: {r}, total {:.1} s",
         kind.name(),
         scale.name(),
-        r.particles,
-        r.wall_particles,
-        r.frames,
-        r.images,
-        preset.image_size,
-        preset.image_size,
-        r.substeps,
-        r.clamped,
-        r.simulate_s,
-        r.render_s,
-        r.write_s,
         t.elapsed().as_secs_f64()
     );
     Ok(())

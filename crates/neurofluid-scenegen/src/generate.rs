@@ -211,6 +211,8 @@ pub struct Report {
     pub frames: usize,
     /// Images written.
     pub images: usize,
+    /// Their width and height in pixels.
+    pub image_size: u32,
     /// Seconds spent simulating.
     pub simulate_s: f64,
     /// Seconds spent building fields and rendering.
@@ -221,6 +223,29 @@ pub struct Report {
     pub substeps: usize,
     /// Total position clamps at the walls (safety net, ideally 0).
     pub clamped: usize,
+}
+
+impl std::fmt::Display for Report {
+    /// One line: what was written, where, and the time of each phase.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} particles, {} wall particles, {} frames ({} substeps, {} clamps), {} images of \
+             {}×{} → {} [simulate {:.1} s, render {:.1} s, write {:.1} s]",
+            self.particles,
+            self.wall_particles,
+            self.frames,
+            self.substeps,
+            self.clamped,
+            self.images,
+            self.image_size,
+            self.image_size,
+            self.out.display(),
+            self.simulate_s,
+            self.render_s,
+            self.write_s
+        )
+    }
 }
 
 /// Seconds spent rendering (density fields and rays) and writing files.
@@ -435,6 +460,7 @@ pub fn generate(p: &Preset, out: &Path, progress: bool) -> Result<Report, SceneE
         wall_particles: sim.walls.len(),
         frames: n_frames,
         images,
+        image_size: p.image_size,
         simulate_s,
         render_s,
         write_s,

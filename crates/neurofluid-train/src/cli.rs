@@ -1,19 +1,19 @@
 //! Command-line surface: the stages of the pipeline as subcommands.
 
-use clap::{Parser, Subcommand};
+use clap::Subcommand;
+use neurofluid_core::program::Program;
 
 use crate::commands;
 
-/// NeuroFluid-rs: learn fluid dynamics from images with DLF + PhysNeRF.
-#[derive(Debug, Parser)]
-#[command(name = "neurofluid-train", version, about, long_about = None)]
-pub struct Cli {
-    /// More log output (-v debug, -vv trace). `RUST_LOG` overrides it.
-    #[arg(short, long, action = clap::ArgAction::Count, global = true)]
-    pub verbose: u8,
-    /// The stage to run.
-    #[command(subcommand)]
-    pub command: Command,
+/// The command line of `neurofluid-train`.
+pub type Cli = Program<Command>;
+
+/// What `--help` says the program is: the package's description.
+const ABOUT: &str = env!("CARGO_PKG_DESCRIPTION");
+
+/// The process's arguments, read as `neurofluid-train`'s.
+pub fn parse() -> Cli {
+    Cli::parse_named("neurofluid-train", ABOUT)
 }
 
 /// The stages of the pipeline; each can run alone.
@@ -66,5 +66,15 @@ impl Command {
             | Self::Devices(_)
             | Self::Mesh(_) => false,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_cli_is_consistent() {
+        Cli::named("neurofluid-train", ABOUT).debug_assert();
     }
 }

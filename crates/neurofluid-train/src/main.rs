@@ -1,14 +1,13 @@
 //! `neurofluid-train`: one binary for every stage of NeuroFluid-rs.
 
-use clap::Parser;
 use neurofluid_train::trainer::stop;
 use neurofluid_train::{cli, commands};
 
 fn main() -> std::process::ExitCode {
     neurofluid_core::malloc::keep_freed_memory();
-    let cli = cli::Cli::parse();
+    let cli = cli::parse();
     // splashsurf narrates every reconstruction at `info`
-    neurofluid_core::logging::init(cli.verbose, &["splashsurf_lib"]);
+    cli.log.init(&["splashsurf_lib"]);
     tracing::debug!(
         "allocator: {}",
         neurofluid_core::malloc::allocator_setting()

@@ -99,22 +99,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let dir = cfg.out_dir();
         let r = generate::generate(&preset, &dir, !args.no_progress)
             .with_context(|| format!("generating {} ({})", cfg.name.name(), cfg.scale.name()))?;
-        println!(
-            "{} ({}): {} particles, {} wall particles, {} frames, {} images of {}×{} → {} \
-             [simulate {:.1} s, render {:.1} s, write {:.1} s]",
-            cfg.name.name(),
-            cfg.scale.name(),
-            r.particles,
-            r.wall_particles,
-            r.frames,
-            r.images,
-            preset.image_size,
-            preset.image_size,
-            dir.display(),
-            r.simulate_s,
-            r.render_s,
-            r.write_s
-        );
+        println!("{} ({}): {r}", cfg.name.name(), cfg.scale.name());
         if let Some(pdir) = &args.preview {
             let png = pdir.join(format!("{}_{}.png", cfg.name.name(), cfg.scale.name()));
             preview::contact_sheet(&dir, &png)
