@@ -3,6 +3,8 @@
 //! a model that cannot learn (the paper's ReLU density starting dead) is stopped with a message
 //! instead of training nothing.
 
+use burn::module::Module;
+use neurofluid_core::metrics::{RgbImage, psnr};
 use neurofluid_core::scene::Role;
 use neurofluid_tests::{params, seeded_turn, tiny_experiment};
 use neurofluid_train::stage::Stage;
@@ -133,6 +135,48 @@ fn the_ci_experiment_learns() {
         rows * (panel as usize * cam.height as usize / cam.width as usize
             + neurofluid_train::pictures::LABEL_HEIGHT as usize)
     );
+
+    // the renderer on the true particles (`eval.render_truth`): a row of the novel-view table,
+    // one score per NeuroFluid render, each the grounded renderer's image of the true particles
+    drop((log, run));
+    let mut e = tiny_experiment(tmp.path(), "learns");
+    e.apply_override("eval.render_truth=true").unwrap();
+    let again = Run::prepare(e, Start::Resume, &[Stage::Eval]).unwrap();
+    let report = eval::run(&again, &grounded).unwrap();
+    let on_truth = report
+        .nvs_baselines
+        .iter()
+        .find(|b| b.model == eval::RENDERER_ON_TRUTH)
+        .expect("a row of the renderer on the true particles");
+    let steps = |s: &[neurofluid_train::report::ImageScore]| -> Vec<(String, usize)> {
+        s.iter().map(|i| (i.view.clone(), i.t)).collect()
+    };
+    assert_eq!(steps(&on_truth.images), steps(&report.images));
+    let first = &on_truth.images[0];
+    let at = again.scene.frames(Role::Test).start + first.t;
+    let frame = ViewFrame::load(&again.scene, Role::Test, &first.view, at).unwrap();
+    let truth = again.scene.particles(Role::Test, at).unwrap();
+    let physnerf = grounded.physnerf.valid();
+    let image = physnerf
+        .render_image(
+            &frame.camera,
+            &points_tensor(&truth.pos, &again.device),
+            physnerf.config.chunk,
+        )
+        .unwrap();
+    let (w, h) = (frame.camera.width as usize, frame.camera.height as usize);
+    let rendered = RgbImage::new(w, h, image.best().to_vec())
+        .unwrap()
+        .quantised();
+    let target = RgbImage::new(w, h, frame.image.rgb.clone())
+        .unwrap()
+        .quantised();
+    assert_eq!(first.psnr, psnr(&rendered, &target).unwrap());
+    assert!(
+        on_truth.images != report.images,
+        "the true particles' renders scored as NeuroFluid's at every step"
+    );
+    assert!(report.markdown().contains(eval::RENDERER_ON_TRUTH));
 }
 
 #[test]

@@ -525,6 +525,11 @@ pub struct EvalSection {
     /// Test views; unset = the scene manifest's (view_5).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub views: Option<Vec<String>>,
+    /// Also render the true particles of every rendered step with the grounded renderer and
+    /// score them beside NeuroFluid's (a row of the novel-view table): what the renderer would
+    /// score with perfect dynamics, which splits a novel-view gap into the renderer's part and
+    /// the dynamics' part. Doubles the evaluation's renders.
+    pub render_truth: bool,
 }
 
 impl EvalSection {
@@ -549,6 +554,7 @@ impl Default for EvalSection {
             animate: true,
             viewer: true,
             views: None,
+            render_truth: false,
         }
     }
 }

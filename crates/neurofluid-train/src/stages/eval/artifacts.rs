@@ -72,15 +72,19 @@ pub fn write_particles(
     Ok(())
 }
 
+/// The model name of the renders of the true particles (`eval.render_truth`) in the tables.
+pub const RENDERER_ON_TRUTH: &str = "PhysNeRF on the true particles";
+
 /// Renders NeuroFluid's particles from every evaluated view at the rendered steps, writes each
 /// beside the truth (and, with `eval.animate`, the animation and the particle pictures of the
-/// view) and returns the renders' scores.
+/// view) and returns the renders' scores; with `eval.render_truth`, also the scores of the
+/// renderer on the true particles of the same steps (else an empty list).
 pub fn render_views(
     run: &Run,
     physnerf: &PhysNerf,
     rollouts: &Rollouts,
     dir: &Path,
-) -> anyhow::Result<Vec<ImageScore>> {
+) -> anyhow::Result<(Vec<ImageScore>, Vec<ImageScore>)> {
     let scene = &run.scene;
     let cfg = &run.exp.eval;
     let test = scene.frames(Role::Test);
@@ -89,6 +93,7 @@ pub fn render_views(
     let frames = rendered_steps(test.len(), cfg.render_every);
     let lpips = Lpips::new(&neurofluid_core::device::cpu())?;
     let mut scores = Vec::new();
+    let mut on_truth = Vec::new();
     for view in &cfg.views(scene) {
         let bar =
             indicatif::ProgressBar::new(frames.len() as u64).with_prefix(format!("render {view}"));
@@ -102,6 +107,10 @@ pub fn render_views(
             let png = dir.join(format!("renders/{view}/t{t:04}.png"));
             save_png(&png, side.width, side.height, &side.rgb)?;
             scores.push(score(view, t, &pred, &truth, &lpips)?);
+            if cfg.render_truth {
+                let ceiling = render(physnerf, &cam, &rollouts.truth[t].pos)?;
+                on_truth.push(score(view, t, &ceiling, &truth, &lpips)?);
+            }
             if cfg.animate {
                 let mut panels = vec![("truth", picture(&truth))];
                 if let Some(b) = &rollouts.baseline {
@@ -151,7 +160,7 @@ pub fn render_views(
             )?;
         }
     }
-    Ok(scores)
+    Ok((scores, on_truth))
 }
 
 /// Renders `particles` with PhysNeRF from `camera` (8-bit quantised, as saved PNGs are).

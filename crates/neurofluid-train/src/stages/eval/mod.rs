@@ -17,7 +17,7 @@ use burn::module::Module;
 use neurofluid_core::scene::Role;
 
 pub use super::scoring::rendered_steps;
-pub use artifacts::{ANIMATIONS, DISTANCE_PLOT, VIEWER_FILE, picture_frames};
+pub use artifacts::{ANIMATIONS, DISTANCE_PLOT, RENDERER_ON_TRUTH, VIEWER_FILE, picture_frames};
 use rollouts::Rollouts;
 
 use super::joint::Grounded;
@@ -58,7 +58,14 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
     }
     if cfg.render {
         let physnerf = models.physnerf.valid();
-        report.images = artifacts::render_views(run, &physnerf, &rollouts, &dir)?;
+        let (images, on_truth) = artifacts::render_views(run, &physnerf, &rollouts, &dir)?;
+        report.images = images;
+        if !on_truth.is_empty() {
+            report.nvs_baselines.push(crate::report::BaselineScores {
+                model: artifacts::RENDERER_ON_TRUTH.into(),
+                images: on_truth,
+            });
+        }
     }
     if cfg.viewer {
         artifacts::write_viewer(run, &rollouts, &report, &dir)?;
