@@ -120,14 +120,6 @@ impl NerfConfig {
         }
     }
 
-    /// Checks the values for consistency (`"field: what was expected"`).
-    pub fn validate(&self) -> std::result::Result<(), String> {
-        match self.problem() {
-            Some((field, message)) => Err(format!("{field}: {message}")),
-            None => Ok(()),
-        }
-    }
-
     /// The first field with an invalid value, and what was expected.
     pub fn problem(&self) -> Option<(&'static str, String)> {
         if let Some(p) = self.depth_plan().problem() {
@@ -135,14 +127,6 @@ impl NerfConfig {
         }
         if let Some(p) = self.mlp_shape().problem() {
             return Some(p);
-        }
-        if self.density == DensityActivation::Softplus && self.bounds.is_none() {
-            return Some((
-                "density",
-                "a softplus density needs box bounds (without them every ray's last, infinite \
-                 interval would be opaque)"
-                    .into(),
-            ));
         }
         if self.chunk == 0 {
             return Some(("chunk", "expected at least 1 ray per chunk".into()));
@@ -167,8 +151,20 @@ impl NerfConfig {
 pub type Nerf = CoarseFine<NerfConfig>;
 
 impl NetworkPlan for NerfConfig {
+    /// The values' own rules ([`NerfConfig::problem`]) and what rendering adds: a softplus
+    /// density needs the box bounds, which the trainer fills in from the scene.
     fn check(&self) -> std::result::Result<(), String> {
-        self.validate()
+        if let Some((field, message)) = self.problem() {
+            return Err(format!("{field}: {message}"));
+        }
+        if self.density == DensityActivation::Softplus && self.bounds.is_none() {
+            return Err(
+                "density: a softplus density needs box bounds (without them every \
+                        ray's last, infinite interval would be opaque)"
+                    .into(),
+            );
+        }
+        Ok(())
     }
     fn shape(&self) -> MlpShape {
         self.mlp_shape()
