@@ -4,12 +4,14 @@
     python3 scripts/bed-table.py [experiments/bed/table-runs.txt]
 
 The runs file lists `scene seed run_folder` per line (`#` starts a comment). Each run folder's
-`eval/report.md` gives d and d′ over t = 1–49 and t = 50–59, (d + d′)/2, PSNR/SSIM/LPIPS and the
-DLF (and, where evaluated with `eval.supervised_dlf`, DLF†) rows; its `metrics.csv` gives the
-warm-up's and the joint stage's seconds (stage time; a run whose warm-up was shared with the
-other variants of its sweep shows that warm-up's) (the largest `time_s` of each). Prints two markdown
-tables: every run, then per scene the mean ± sd over seeds beside DLF and DLF†, with the issue's
-targets (d at least 10 % below DLF's, 30 % on honey; d′ not above DLF's) checked per window.
+`eval/report.md` gives d and d′ over t = 1–49 and t = 50–59, (d + d′)/2, PSNR/SSIM/LPIPS, the
+DLF (and, where evaluated with `eval.supervised_dlf`, DLF†) rows, the particles through the
+walls and, where present, the novel-view table; its `metrics.csv` gives the warm-up's and the
+joint stage's seconds (the largest `time_s` of each; a run whose warm-up was shared with the
+other variants of its sweep shows that warm-up's). Prints markdown tables: every run; per scene
+the mean ± sd over seeds beside DLF and DLF†, with the issue's targets checked per window (d at
+least 10 % below DLF's, on honey 30 % over t < 50; d′ not above DLF's); and the novel-view rows
+(NeuroFluid, NeRF-T, the renderer on the true particles) of the runs whose report has them.
 """
 
 import csv
@@ -23,25 +25,27 @@ def cells(line):
 
 
 def report_rows(path):
-    """{label: [floats or None]} of the report's two particle tables (first and second)."""
-    first, second = {}, {}
-    table = 0
+    """{label: [floats or None]} of the report's tables (d, d′, novel views), and the walls line."""
+    first, second, views = {}, {}, {}
+    table = None
     walls = None
     for line in open(path, encoding="utf-8"):
         if line.startswith("Particles through the walls"):
             walls = line.split("NeuroFluid")[1].strip(" .\n")
         if line.startswith("| model |"):
-            table += 1
+            # each table is known by its first column after the model's
+            head = cells(line)[1]
+            table = first if head.startswith("d_avg") else second if head.startswith("d′") else views
             continue
-        if not line.startswith("| ") or line.startswith("|---"):
+        if table is None or not line.startswith("| ") or line.startswith("|---"):
             continue
         c = cells(line)
         if c[0] == "view":
             break
         vals = [None if v in ("–", "") else float(v) for v in c[1:]]
         label = c[0].split(" (")[0]
-        (first if table == 1 else second)[label] = vals
-    return first, second, walls
+        table[label] = vals
+    return first, second, views, walls
 
 
 def stage_seconds(path):
@@ -66,16 +70,33 @@ def load(runs_file):
         if not os.path.exists(report):
             print(f"<!-- {scene} seed {seed}: no {report} yet -->")
             continue
-        first, second, walls = report_rows(report)
+        first, second, views, walls = report_rows(report)
         warm, joint = stage_seconds(os.path.join(folder, "metrics.csv"))
         runs.append(
-            dict(scene=scene, seed=int(seed), first=first, second=second, walls=walls, warm=warm, joint=joint)
+            dict(
+                scene=scene,
+                seed=int(seed),
+                first=first,
+                second=second,
+                views=views,
+                walls=walls,
+                warm=warm,
+                joint=joint,
+            )
         )
     return runs
 
 
 def f2(v):
     return "–" if v is None else f"{v:.2f}"
+
+
+def f4(v):
+    return "–" if v is None else f"{v:.4f}"
+
+
+def f0(v):
+    return "–" if v is None else f"{v:.0f}"
 
 
 def msd(vs):
@@ -96,8 +117,8 @@ def main():
         nf, nfp = r["first"]["NeuroFluid"], r["second"]["NeuroFluid"]
         print(
             f"| {r['scene']} | {r['seed']} | {f2(nf[0])} / {f2(nf[2])} | {f2(nfp[0])} / {f2(nfp[2])} | "
-            f"{f2(nfp[4])} / {f2(nfp[5])} | {nf[4]:.2f} / {nf[5]:.4f} / {nf[6]:.4f} | "
-            f"{r['walls'] or '–'} | {r['warm']:.0f} / {r['joint']:.0f} |"
+            f"{f2(nfp[4])} / {f2(nfp[5])} | {f2(nf[4])} / {f4(nf[5])} / {f4(nf[6])} | "
+            f"{r['walls'] or '–'} | {f0(r['warm'])} / {f0(r['joint'])} |"
         )
     print()
     print("| scene | model | seeds | d (t<50) | d (t≥50) | d′ (t<50) | d′ (t≥50) | targets (d, d′ per window) |")
@@ -105,9 +126,10 @@ def main():
     for scene in dict.fromkeys(r["scene"] for r in runs):
         rs = [r for r in runs if r["scene"] == scene]
         dlf, dlfp = rs[0]["first"]["DLF"], rs[0]["second"]["DLF"]
-        cut = 0.7 if scene.startswith("honey") else 0.9
+        honey = scene.startswith("honey")
         ok = []
         for w, col in (("t<50", 0), ("t≥50", 2)):
+            cut = 0.7 if honey and col == 0 else 0.9
             d = [r["first"]["NeuroFluid"][col] for r in rs]
             dp = [r["second"]["NeuroFluid"][col] for r in rs]
             d_ok = all(v <= cut * dlf[col] for v in d)
@@ -123,6 +145,18 @@ def main():
         if dag:
             a, b = dag[0]["first"]["DLF†"], dag[0]["second"]["DLF†"]
             print(f"| {scene} | DLF† (supervised, t<50) | – | {f2(a[0])} | {f2(a[2])} | {f2(b[0])} | {f2(b[2])} | |")
+
+    with_views = [r for r in runs if r["views"]]
+    if with_views:
+        print()
+        print("| scene | seed | model | PSNR / SSIM / LPIPS (t<50) | PSNR / SSIM / LPIPS (t≥50) |")
+        print("|---|---:|---|---|---|")
+        for r in with_views:
+            for model, v in r["views"].items():
+                print(
+                    f"| {r['scene']} | {r['seed']} | {model} | {f2(v[0])} / {f4(v[1])} / {f4(v[2])} | "
+                    f"{f2(v[3])} / {f4(v[4])} / {f4(v[5])} |"
+                )
 
 
 if __name__ == "__main__":

@@ -16,6 +16,9 @@
 //!   prove that nothing farther is nearer; it falls back to the hashed grid when the points are
 //!   spread too far for a dense one.
 //!
+//! [`exact_ball_query`] answers the capped ball query without a grid, in any float type: the
+//! grid's oracle in tests, and the search of PhysNeRF's f64 renders.
+//!
 //! Why not a crate (kiddo, rstar): parity needs exactly these two semantics — Open3D's inclusive
 //! float32 test and pytorch3d's strict, index-ordered cap of K — which a k-d tree's nearest-K or
 //! range query does not give, and the hashed grid is faster for the dense, uniform-radius
@@ -647,6 +650,14 @@ pub fn exact_ball_query<T: Float + Send + Sync>(
     k: usize,
     selection: NeighborSelection,
 ) -> BallQuery<T> {
+    if k == 0 {
+        return BallQuery {
+            k,
+            idx: Vec::new(),
+            dist2: Vec::new(),
+            count: vec![0; queries.len()],
+        };
+    }
     let r2 = radius * radius;
     let mut lo = [T::infinity(); 3];
     let mut hi = [T::neg_infinity(); 3];
@@ -778,6 +789,16 @@ mod tests {
         check_all(&lattice, &queries, 0.225, 20);
         check_all(&lattice, &queries, 0.225, 1);
         check_all(&lattice, &queries, 0.1, 60);
+    }
+
+    #[test]
+    fn no_slots_is_an_empty_answer_per_query() {
+        let points = cloud(50, 0.5, 4);
+        for sel in [NeighborSelection::LowestIndex, NeighborSelection::Nearest] {
+            let q = exact_ball_query(&points, &points[..7], 0.2, 0, sel);
+            assert_eq!((q.num_queries(), q.idx.len()), (7, 0));
+            assert!(q.neighbors(6).is_empty());
+        }
     }
 
     #[test]

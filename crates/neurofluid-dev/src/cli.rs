@@ -1,19 +1,23 @@
 //! Command-line surface: one subcommand per reference-case runner.
 
 use clap::Subcommand;
-use neurofluid_core::program::Program;
+use neurofluid_core::program::{Identity, Program};
 
 use crate::commands;
 
 /// The command line of `neurofluid-dev`.
 pub type Cli = Program<Command>;
 
-/// What `--help` says the program is: the package's description.
-const ABOUT: &str = env!("CARGO_PKG_DESCRIPTION");
+/// What `--help` and `--version` say the program is: its package's name, version and description.
+const IDENTITY: Identity = Identity {
+    name: "neurofluid-dev",
+    version: env!("CARGO_PKG_VERSION"),
+    about: env!("CARGO_PKG_DESCRIPTION"),
+};
 
 /// The process's arguments, read as `neurofluid-dev`'s.
 pub fn parse() -> Cli {
-    Cli::parse_named("neurofluid-dev", ABOUT)
+    Cli::parse_named(IDENTITY)
 }
 
 /// The developer tools.
@@ -33,6 +37,6 @@ mod tests {
 
     #[test]
     fn the_cli_is_consistent() {
-        Cli::named("neurofluid-dev", ABOUT).debug_assert();
+        Cli::named(IDENTITY).debug_assert();
     }
 }

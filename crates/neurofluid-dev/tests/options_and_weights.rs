@@ -10,7 +10,6 @@ use neurofluid_physnerf::safetensors_file::{StFile, StWriter};
 use neurofluid_physnerf::{EncodingTerms, NeighborSelection, PhysNerf, PhysNerfConfig, RayBatch};
 use rand::SeedableRng;
 
-/// The 6×6 centre block of the case's rays.
 /// The case's renderer under `config`, with the case's reference weights.
 fn case_model(
     inputs: &neurofluid_dev::physnerf_case::CaseInputs,
@@ -31,6 +30,7 @@ fn load_error(
         .to_string()
 }
 
+/// The 6×6 centre block of the case's rays.
 fn centre_rays(inputs: &neurofluid_dev::physnerf_case::CaseInputs) -> RayBatch {
     let all = inputs.rays::<f32>();
     let ids: Vec<usize> = (5..11)

@@ -1,6 +1,7 @@
 //! The hierarchical sampling every renderer here shares (NeRF's): coarse depths (optionally
 //! jittered), a coarse pass, importance depths drawn from its weights, and a fine pass on the
-//! merged, sorted depths. What a pass does at its samples is the caller's.
+//! merged, sorted depths. What a pass does at its samples is the caller's. [`CoarseFine`] is the
+//! pair of networks every such renderer holds, with its constants ([`CoarseFineConfig`]).
 
 use std::time::Instant;
 
@@ -16,7 +17,7 @@ use crate::sampling::{coarse_depths, fine_u, jitter_depths, merge_sorted, midpoi
 
 /// The constants of a hierarchical renderer as its networks see them: their shape, and whether
 /// the values hold together.
-pub trait NetworkPlan: Clone + std::fmt::Debug + Send + Sync + 'static {
+pub trait CoarseFineConfig: Clone + std::fmt::Debug + Send + Sync + 'static {
     /// `Err("field: what was expected")` for the first invalid value.
     fn check(&self) -> std::result::Result<(), String>;
     /// The shape of the coarse and of the fine network.
@@ -26,7 +27,7 @@ pub trait NetworkPlan: Clone + std::fmt::Debug + Send + Sync + 'static {
 /// A hierarchical renderer: the coarse and the fine network and the constants `C` that say how
 /// they render (PhysNeRF's, [`crate::PhysNerf`], or NeRF's, [`crate::Nerf`]).
 #[derive(Module, Debug)]
-pub struct CoarseFine<C: NetworkPlan> {
+pub struct CoarseFine<C: CoarseFineConfig> {
     /// The coarse network (the coarse depths).
     pub coarse: NerfMlp,
     /// The fine network (the coarse and the importance depths, merged).
@@ -36,7 +37,7 @@ pub struct CoarseFine<C: NetworkPlan> {
     pub config: C,
 }
 
-impl<C: NetworkPlan> CoarseFine<C> {
+impl<C: CoarseFineConfig> CoarseFine<C> {
     /// Randomly initialised networks (f32) on `device`, the coarse one's weights drawn first.
     pub fn new(config: C, device: &Device) -> Result<Self> {
         config.check().map_err(PhysNerfError::Invalid)?;

@@ -1,7 +1,8 @@
 //! The capped ball query in the working precision: f32 goes through
-//! `neurofluid_core::neighbors` (uniform grid); f64 (precision tests) its exact all-pairs search
-//! (`exact_ball_query`), with the same semantics: `d² = (dx² + dy²) + dz² < r²` strict, `r² = r·r` in the
-//! working precision, K lowest indices (or K nearest), empty slots `idx = −1`, `d² = 0`.
+//! `neurofluid_core::neighbors` (uniform grid); f64 (precision tests) through its exact
+//! all-pairs search (`exact_ball_query`), with the same semantics: `d² = (dx² + dy²) + dz² < r²`
+//! strict, `r² = r·r` in the working precision, K lowest indices (or K nearest), empty slots
+//! `idx = −1`, `d² = 0`.
 
 use neurofluid_core::neighbors::{NeighborGrid, NeighborSelection, exact_ball_query};
 

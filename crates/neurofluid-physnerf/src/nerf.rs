@@ -19,7 +19,9 @@ use crate::config::{DensityActivation, encoded_width};
 use crate::encoding::{posenc, posenc_cat};
 use crate::error::{PhysNerfError, Result};
 use crate::features::host_tensor;
-use crate::hierarchical::{CoarseFine, DepthPlan, NetworkPlan, Pass, read, render_hierarchical};
+use crate::hierarchical::{
+    CoarseFine, CoarseFineConfig, DepthPlan, Pass, read, render_hierarchical,
+};
 use crate::mlp::{MlpShape, NerfMlp};
 use crate::real::Real;
 use crate::renderer::{PassOutput, RayBatch, RenderOutput, Timings};
@@ -150,7 +152,7 @@ impl NerfConfig {
 /// A NeRF or NeRF-T: coarse and fine networks.
 pub type Nerf = CoarseFine<NerfConfig>;
 
-impl NetworkPlan for NerfConfig {
+impl CoarseFineConfig for NerfConfig {
     /// The values' own rules ([`NerfConfig::problem`]) and what rendering adds: a softplus
     /// density needs the box bounds, which the trainer fills in from the scene.
     fn check(&self) -> std::result::Result<(), String> {

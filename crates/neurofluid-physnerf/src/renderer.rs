@@ -8,7 +8,7 @@ use rand::RngCore;
 
 use crate::config::PhysNerfConfig;
 use crate::error::{PhysNerfError, Result};
-use crate::hierarchical::{CoarseFine, NetworkPlan, Pass, read, render_hierarchical};
+use crate::hierarchical::{CoarseFine, CoarseFineConfig, Pass, read, render_hierarchical};
 use crate::mlp::NerfMlp;
 use crate::pass;
 use crate::real::Real;
@@ -16,7 +16,7 @@ use crate::real::Real;
 /// The renderer R_φ: two NeRF networks and the configuration.
 pub type PhysNerf = CoarseFine<PhysNerfConfig>;
 
-impl NetworkPlan for PhysNerfConfig {
+impl CoarseFineConfig for PhysNerfConfig {
     fn check(&self) -> std::result::Result<(), String> {
         self.validate()
     }

@@ -1,19 +1,23 @@
 //! Command-line surface: the stages of the pipeline as subcommands.
 
 use clap::Subcommand;
-use neurofluid_core::program::Program;
+use neurofluid_core::program::{Identity, Program};
 
 use crate::commands;
 
 /// The command line of `neurofluid-train`.
 pub type Cli = Program<Command>;
 
-/// What `--help` says the program is: the package's description.
-const ABOUT: &str = env!("CARGO_PKG_DESCRIPTION");
+/// What `--help` and `--version` say the program is: its package's name, version and description.
+const IDENTITY: Identity = Identity {
+    name: "neurofluid-train",
+    version: env!("CARGO_PKG_VERSION"),
+    about: env!("CARGO_PKG_DESCRIPTION"),
+};
 
 /// The process's arguments, read as `neurofluid-train`'s.
 pub fn parse() -> Cli {
-    Cli::parse_named("neurofluid-train", ABOUT)
+    Cli::parse_named(IDENTITY)
 }
 
 /// The stages of the pipeline; each can run alone.
@@ -75,6 +79,6 @@ mod tests {
 
     #[test]
     fn the_cli_is_consistent() {
-        Cli::named("neurofluid-train", ABOUT).debug_assert();
+        Cli::named(IDENTITY).debug_assert();
     }
 }

@@ -248,7 +248,8 @@ pub struct EvalReport {
     /// The rollouts started from particles recovered from images (not the true frame 0).
     #[serde(default)]
     pub initial_from_images: bool,
-    /// Novel-view baselines scored on the same test views and frames.
+    /// Novel-view rows scored on the same test views and frames beside NeuroFluid's: the
+    /// baselines (NeRF, NeRF-T) and, with `eval.render_truth`, the renderer on the true particles.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub nvs_baselines: Vec<BaselineScores>,
     /// Per rollout (its table label), the most predicted particles at any step farther than one
@@ -273,7 +274,7 @@ pub fn count_outside(
         .count()
 }
 
-/// A novel-view baseline's image metrics (NeRF, NeRF-T).
+/// A novel-view row's image metrics (NeRF, NeRF-T, the renderer on the true particles).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct BaselineScores {
     /// The model's name in tables.
@@ -524,7 +525,8 @@ impl EvalReport {
     }
 
     /// The novel-view table (the paper's Tables 3–4): PSNR, SSIM and LPIPS over the observed
-    /// frames and over the predicted ones, for NeuroFluid and every baseline.
+    /// frames and over the predicted ones, for NeuroFluid and every other row (the baselines, the
+    /// renderer on the true particles).
     pub fn nvs_markdown(&self) -> String {
         let (g, p) = (self.windows.grounding, self.windows.prediction);
         let seen = (0, g.1);

@@ -528,7 +528,7 @@ pub struct EvalSection {
     /// Also render the true particles of every rendered step with the grounded renderer and
     /// score them beside NeuroFluid's (a row of the novel-view table): what the renderer would
     /// score with perfect dynamics, which splits a novel-view gap into the renderer's part and
-    /// the dynamics' part. Doubles the evaluation's renders.
+    /// the dynamics' part. One more render per rendered step.
     pub render_truth: bool,
 }
 
