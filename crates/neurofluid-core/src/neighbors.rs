@@ -670,8 +670,8 @@ pub fn exact_ball_query<T: Float + Send + Sync>(
     let mut idx = vec![-1i32; queries.len() * k];
     let mut d2 = vec![T::zero(); queries.len() * k];
     let count = idx
-        .par_chunks_mut(k.max(1))
-        .zip(d2.par_chunks_mut(k.max(1)))
+        .par_chunks_mut(k)
+        .zip(d2.par_chunks_mut(k))
         .zip(queries.par_iter())
         .map(|((idx, d2), &q)| {
             if (0..3).any(|a| q[a] < lo[a] - radius || q[a] > hi[a] + radius) {
