@@ -9,6 +9,8 @@
 #   dlf       DLF forward and forward+backward at 8k and 32k fluid particles, wgpu then CPU
 #   physnerf-wgpu, dlf-wgpu  the same on wgpu alone (a second call, the references measured);
 #             physnerf-wgpu also with the dense layers in one matmul over every row (--split-rows 0)
+#   split     the PhysNeRF step on wgpu with the dense layers' rows in blocks of each of
+#             SPLIT_ROWS (default "2048 8192 16384"; the default block is 4,096)
 #   quick     the quick main job on wgpu, GPU utilisation sampled every second (per stage in the
 #             summary)
 #   profile   one small PhysNeRF step with CUBECL_DEBUG_OPTION=profile: cubecl's log of every
@@ -145,6 +147,14 @@ for step in $steps; do
             --bench --device wgpu --split-rows 0
         report "$log" "step \(forward|MLPs alone"
         ;;
+    split)
+        log=$results/physnerf.log
+        for rows in ${SPLIT_ROWS:-2048 8192 16384}; do
+            timed "PhysNeRF step, wgpu, dense layers in blocks of $rows rows" 60 "$log" \
+                "$bin/train_step" --bench --device wgpu --split-rows "$rows"
+            report "$log" "step \(forward|MLPs alone"
+        done
+        ;;
     dlf | dlf-wgpu)
         log=$results/dlf.log
         devices="wgpu cpu"
@@ -235,7 +245,7 @@ PY
             "${PAPER_SECONDS:-300}" "$results/paper.log" "$bin/neurofluid-train" run \
             experiments/paper-watercube.toml --device wgpu --set name=gpu-paper
         ;;
-    *) say "unknown step $step (physnerf, physnerf-wgpu, dlf, dlf-wgpu, quick, profile, dlfprofile, tests, paper)" ;;
+    *) say "unknown step $step (physnerf, physnerf-wgpu, split, dlf, dlf-wgpu, quick, profile, dlfprofile, tests, paper)" ;;
     esac
 done
 say "done at $(date -u +%FT%TZ), $SECONDS s"

@@ -3,10 +3,10 @@
 use burn::module::Param;
 use burn::prelude::*;
 use burn::tensor::Distribution;
-use neurofluid_core::rows::{add_rows, gather_rows};
+use neurofluid_core::rows::gather_rows;
 
 use crate::fused;
-use crate::geometry::{CORNERS, ConvGeometry};
+use crate::geometry::{ConvGeometry, GeometryChunk};
 use crate::mapping::{KERNEL_CELLS, KERNEL_SIZE};
 
 /// A continuous convolution: kernel `[4, 4, 4, Cin, Cout]` indexed `[z, y, x, ..]`, bias `[Cout]`.
@@ -54,8 +54,8 @@ impl ContinuousConv {
     /// - another CPU backend, features and weights without gradient (inference, or constant
     ///   features such as the box normals): the sparse part on the host, the dense part as
     ///   matmuls (tracked in K when the kernel is trained) ([`crate::fused::conv_forward`]);
-    /// - otherwise (an accelerator, or gradients to the features or the weights): gather and
-    ///   scatter with Burn ops over chunks of output points, on the device
+    /// - otherwise (an accelerator, or gradients to the features or the weights): gathers and
+    ///   batched matmuls over padded chunks of output points, on the device
     ///   ([`Self::forward_composed`]).
     pub fn forward(&self, features: Tensor<2>, geometry: &ConvGeometry) -> Tensor<2> {
         let [n_in, cin] = features.dims();
@@ -93,48 +93,54 @@ impl ContinuousConv {
         self.forward_composed(features, geometry) + bias
     }
 
-    /// The conv (without bias) built from Burn's gather and scatter-add over chunks of output
-    /// points: gather first (`G = S·F`, then `G·K`) or, for narrow outputs (64 → 3), kernel first
-    /// (`H[N, 64·Cout] = F·K`, then gather rows of H). Any backend, any tracking.
+    /// The conv (without bias) built from Burn ops over the geometry's padded chunks
+    /// ([`crate::geometry::GeometryChunk`]): per output point `m`, its neighbours' rows gathered
+    /// into `width` slots and contracted with the slots' kernel-cell weights `W[m]` as batched
+    /// matmuls; gather first (`G[m] = W[m]ᵀ · F[slots]`, then `G · K`) or, for narrow outputs
+    /// (64 → 3), kernel first (`H = F · K` for every cell, then `W[m] · H[slots]`). No scatter: the
+    /// only sum into rows is the gather's gradient, in the fixed order of [`gather_rows`]. Any
+    /// backend, any tracking.
     pub fn forward_composed(&self, features: Tensor<2>, geometry: &ConvGeometry) -> Tensor<2> {
         let [_, cin] = features.dims();
         let cout = self.out_channels();
-        let n_in = geometry.num_in();
-        let device = features.device();
         let dtype = features.dtype();
+        let cell_weights = |ch: &GeometryChunk| {
+            let w = ch.cell_weights.clone();
+            if w.dtype() == dtype { w } else { w.cast(dtype) }
+        };
         let chunks = geometry.chunks();
         let outs: Vec<Tensor<2>> = if fused::gather_first(cin, cout) {
-            // gather first: G = S·F per chunk, then G·K
             let k = self.kernel.val().reshape([KERNEL_CELLS * cin, cout]);
             chunks
                 .iter()
                 .map(|ch| {
-                    // one gather per pair, weighted for its 8 corners, summed into G in one pass
-                    let pairs = ch.pair_in_rows.len();
-                    let fp = gather_rows(features.clone(), &ch.pair_in_rows).unsqueeze_dim::<3>(1);
-                    let w = ch.weights.clone().reshape([pairs, CORNERS, 1]);
-                    let vals = (fp * w).reshape([pairs * CORNERS, cin]);
-                    let g = Tensor::<2>::zeros([ch.out_len * KERNEL_CELLS, cin], (&device, dtype));
-                    add_rows(g, &ch.out_cell_rows, vals)
-                        .reshape([ch.out_len, KERNEL_CELLS * cin])
+                    let (m, width) = (ch.out_len, ch.width);
+                    let f = gather_rows(features.clone(), &ch.inputs).reshape([m, width, cin]);
+                    let w = cell_weights(ch).reshape([m, width, KERNEL_CELLS]);
+                    w.swap_dims(1, 2)
+                        .matmul(f)
+                        .reshape([m, KERNEL_CELLS * cin])
                         .matmul(k.clone())
                 })
                 .collect()
         } else {
-            // kernel first: H = F·K (all cells), then gather the rows of H
             let kt = self
                 .kernel
                 .val()
                 .reshape([KERNEL_CELLS, cin, cout])
                 .swap_dims(0, 1)
                 .reshape([cin, KERNEL_CELLS * cout]);
-            let h = features.matmul(kt).reshape([n_in * KERNEL_CELLS, cout]);
+            let h = features.matmul(kt);
             chunks
                 .iter()
                 .map(|ch| {
-                    let vals = gather_rows(h.clone(), &ch.in_cell_rows) * ch.weights.clone();
-                    let zeros = Tensor::<2>::zeros([ch.out_len, cout], (&device, dtype));
-                    add_rows(zeros, &ch.out_rows, vals)
+                    let (m, width) = (ch.out_len, ch.width);
+                    let h =
+                        gather_rows(h.clone(), &ch.inputs).reshape([m, width * KERNEL_CELLS, cout]);
+                    cell_weights(ch)
+                        .reshape([m, 1, width * KERNEL_CELLS])
+                        .matmul(h)
+                        .reshape([m, cout])
                 })
                 .collect()
         };

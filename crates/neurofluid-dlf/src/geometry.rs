@@ -10,12 +10,14 @@ use std::sync::{Arc, OnceLock};
 
 use burn::prelude::*;
 use burn::tensor::DType;
+use burn::tensor::Float;
 use neurofluid_core::neighbors::{NeighborGrid, PairList};
-use neurofluid_core::rows::RowIndex;
+use neurofluid_core::rows::{RowIndex, gather_rows};
+use neurofluid_core::transfer::upload;
 use rayon::prelude::*;
 
 use crate::mapping::{
-    KERNEL_CELLS, MappingBranches, filter_coordinates, trilinear_corners, window_poly6,
+    KERNEL_CELLS, KERNEL_SIZE, MappingBranches, filter_coordinates, trilinear_corners, window_poly6,
 };
 
 /// Corners per pair (trilinear interpolation).
@@ -120,45 +122,44 @@ pub fn build_host_geometry(
     }
 }
 
-/// Pair corners per chunk of the composed path on a CPU backend: bounds the `[entries, C]`
-/// temporaries of the gather/scatter (2^16 · 96 floats = 25 MB for the widest conv: below
-/// glibc's largest mmap threshold, so freed blocks are reused instead of page-faulting fresh
-/// memory).
-pub const HOST_CHUNK_ENTRIES: usize = 1 << 16;
+/// Neighbour slots per chunk of the padded path on a CPU backend: bounds its largest
+/// temporaries (the slots' kernel-cell weights, 2^14 · 64 floats; the gathered features, 2^14 · 96)
+/// below glibc's largest mmap threshold, so freed blocks are reused instead of page-faulting fresh
+/// memory.
+pub const HOST_CHUNK_SLOTS: usize = 1 << 14;
 
-/// Pair corners per chunk on an accelerator (wgpu, CUDA): 2^21 · 96 floats = 0.8 GB for the
-/// widest conv's largest temporary. Every chunk costs a few dozen kernel launches, and the
-/// features' gradient of each chunk's gather is as long as the whole input, so small chunks
-/// made a GPU step launch-bound and super-linear in N (the first H200 run: 172 chunks per conv
-/// at 32k particles); a 32k-particle step (11M pair corners) now takes 6.
-pub const DEVICE_CHUNK_ENTRIES: usize = 1 << 21;
+/// Neighbour slots per chunk on an accelerator (wgpu, CUDA): 2^20 slots' kernel-cell weights are
+/// 2^26 floats (256 MB in f32), the widest conv's `G` about as much; a 32k-particle step (about 50
+/// neighbours each) takes two chunks. Every chunk costs a few kernel launches.
+pub const DEVICE_CHUNK_SLOTS: usize = 1 << 20;
 
-/// Pair corners per chunk of the composed path on `device`.
-pub fn chunk_entries(device: &Device) -> usize {
+/// Neighbour slots per chunk of the padded path on `device`.
+pub fn chunk_slots(device: &Device) -> usize {
     if neurofluid_core::device::is_host(device) {
-        HOST_CHUNK_ENTRIES
+        HOST_CHUNK_SLOTS
     } else {
-        DEVICE_CHUNK_ENTRIES
+        DEVICE_CHUNK_SLOTS
     }
 }
 
-/// The device tensors of a run of consecutive output points (the autodiff path).
+/// A run of consecutive output points with their neighbours in `width` slots each (the run's
+/// largest neighbour count; the slots past a point's count are padding), as device tensors: the
+/// conv over the chunk is then dense, `G[m] = Wᵀ[m] · F[inputs[m]]` as one batched matmul, with no
+/// scatter and no atomic adds.
 #[derive(Debug, Clone)]
 pub struct GeometryChunk {
     /// First output point of the chunk.
     pub out_start: usize,
     /// Output points in the chunk.
     pub out_len: usize,
-    /// `input·64 + cell` of every pair corner (rows of `F·K` viewed as `[N·64, Cout]`).
-    pub in_cell_rows: RowIndex,
-    /// Local query index of every pair corner.
-    pub out_rows: RowIndex,
-    /// Weight of every pair corner `[entries, 1]`; tracked when the geometry is differentiable.
-    pub weights: Tensor<2>,
-    /// Input index of every pair `[pairs]`.
-    pub pair_in_rows: RowIndex,
-    /// `local query·64 + cell` of every pair corner (rows of G viewed as `[M·64, Cin]`).
-    pub out_cell_rows: RowIndex,
+    /// Neighbour slots per output point.
+    pub width: usize,
+    /// Input row of every slot `[out_len · width]` (a padding slot's is a real row, with zero
+    /// weight).
+    pub inputs: RowIndex,
+    /// Weight of every slot on every kernel cell `[out_len · width, 64]`: the sum of its pair's
+    /// corner weights on that cell, zero on padding; tracked when the geometry is differentiable.
+    pub cell_weights: Tensor<2>,
 }
 
 /// A geometry ready for [`crate::ContinuousConv`]: the host arrays (used directly by the
@@ -171,7 +172,7 @@ pub struct ConvGeometry {
     /// Differentiable weights `[8P, 1]` (the differentiable-geometry mode), else `None`.
     pub weights_override: Option<Tensor<2>>,
     device: Device,
-    chunk_entries: usize,
+    chunk_slots: usize,
     chunks: OnceLock<Vec<GeometryChunk>>,
     host_weights: OnceLock<Tensor<2>>,
 }
@@ -187,7 +188,7 @@ impl ConvGeometry {
             host: host.into(),
             weights_override: weights,
             device: device.clone(),
-            chunk_entries: chunk_entries(device),
+            chunk_slots: chunk_slots(device),
             chunks: OnceLock::new(),
             host_weights: OnceLock::new(),
         }
@@ -219,10 +220,10 @@ impl ConvGeometry {
             .is_some_and(|w| w.is_tracked())
     }
 
-    /// The same geometry cut into chunks of at most `entries` pair corners (at least one output
-    /// point each) instead of the device's [`chunk_entries`]; the sums do not depend on it.
-    pub fn with_chunk_entries(mut self, entries: usize) -> Self {
-        self.chunk_entries = entries;
+    /// The same geometry cut into chunks of at most `slots` neighbour slots (at least one output
+    /// point each) instead of the device's [`chunk_slots`]; the sums do not depend on it.
+    pub fn with_chunk_slots(mut self, slots: usize) -> Self {
+        self.chunk_slots = slots;
         self.chunks = OnceLock::new();
         self
     }
@@ -234,54 +235,80 @@ impl ConvGeometry {
 
     fn build_chunks(&self) -> Vec<GeometryChunk> {
         let host = &self.host;
-        let device = &self.device;
         let offsets = &host.pairs.offsets;
+        let count = |q: usize| offsets[q + 1] - offsets[q];
         let mut chunks = Vec::new();
         let mut q0 = 0;
         while q0 < host.num_out {
+            let mut width = count(q0).max(1);
             let mut q1 = q0 + 1;
-            while q1 < host.num_out
-                && (offsets[q1 + 1] - offsets[q0]) * CORNERS <= self.chunk_entries
-            {
+            while q1 < host.num_out {
+                let wider = width.max(count(q1));
+                if (q1 + 1 - q0) * wider > self.chunk_slots {
+                    break;
+                }
+                width = wider;
                 q1 += 1;
             }
-            let (p0, p1) = (offsets[q0], offsets[q1]);
-            let n8 = (p1 - p0) * CORNERS;
-            let mut in_rows = Vec::with_capacity(p1 - p0);
-            let mut out_cell_rows = Vec::with_capacity(n8);
-            let mut in_cell_rows = Vec::with_capacity(n8);
-            let mut out_rows = Vec::with_capacity(n8);
-            for p in p0..p1 {
-                let q = (host.query_of_pair[p] as usize - q0) as i64;
-                let i = host.pairs.indices[p] as i64;
-                in_rows.push(i);
-                for c in 0..CORNERS {
-                    let cell = host.cells[p * CORNERS + c] as i64;
-                    out_rows.push(q);
-                    out_cell_rows.push(q * KERNEL_CELLS as i64 + cell);
-                    in_cell_rows.push(i * KERNEL_CELLS as i64 + cell);
-                }
-            }
-            let int = |v: Vec<i64>| RowIndex::new(v.into_iter().map(|i| i as usize), device);
-            let weights = match &self.weights_override {
-                Some(w) => w.clone().narrow(0, p0 * CORNERS, n8),
-                None => neurofluid_core::transfer::upload::<2, burn::tensor::Float, _>(
-                    TensorData::new(host.weights[p0 * CORNERS..p1 * CORNERS].to_vec(), [n8, 1]),
-                    device,
-                ),
-            };
-            chunks.push(GeometryChunk {
-                pair_in_rows: int(in_rows),
-                out_cell_rows: int(out_cell_rows),
-                out_start: q0,
-                out_len: q1 - q0,
-                in_cell_rows: int(in_cell_rows),
-                out_rows: int(out_rows),
-                weights,
-            });
+            chunks.push(self.padded_chunk(q0, q1, width));
             q0 = q1;
         }
         chunks
+    }
+
+    /// The chunk of output points `q0..q1` in `width` slots each. The padding slots repeat their
+    /// point's pairs in turn (a point without pairs: pairs picked by its index) with zero weight,
+    /// so their terms are exact zeros and the gathers' gradients have no row that collects many
+    /// padding slots (one zero row for every padding slot made a sum of 10⁵ rows, which the
+    /// device ran serially: 12–29 ms per gather at 8k particles on an H100).
+    fn padded_chunk(&self, q0: usize, q1: usize, width: usize) -> GeometryChunk {
+        let host = &self.host;
+        let device = &self.device;
+        let offsets = &host.pairs.offsets;
+        let slots = (q1 - q0) * width;
+        let num_pairs = host.num_pairs();
+        // the pair in every slot, and whether it is the slot's own (not padding)
+        let mut pair = vec![0usize; slots];
+        let mut real = vec![false; slots];
+        for q in q0..q1 {
+            let (a, b) = (offsets[q], offsets[q + 1]);
+            let row = (q - q0) * width;
+            for k in 0..width {
+                (pair[row + k], real[row + k]) = match b - a {
+                    0 => ((q + k) % num_pairs, false),
+                    c => (a + k % c, k < c),
+                };
+            }
+        }
+        let inputs = RowIndex::new(pair.iter().map(|&p| host.pairs.indices[p] as usize), device);
+        let corner_weights = match &self.weights_override {
+            Some(w) => {
+                let w = w.clone().reshape([num_pairs, CORNERS]);
+                let real: Vec<f32> = real.iter().map(|&r| f32::from(u8::from(r))).collect();
+                let real = upload::<2, Float, _>(TensorData::new(real, [slots, 1]), device);
+                gather_rows(w.clone(), &RowIndex::new(pair.clone(), device)) * real.cast(w.dtype())
+            }
+            None => {
+                let mut w = vec![0f32; slots * CORNERS];
+                for (slot, &p) in pair.iter().enumerate().filter(|&(slot, _)| real[slot]) {
+                    w[slot * CORNERS..][..CORNERS]
+                        .copy_from_slice(&host.weights[p * CORNERS..][..CORNERS]);
+                }
+                upload::<2, Float, _>(TensorData::new(w, [slots, CORNERS]), device)
+            }
+        };
+        let lower: Vec<f32> = pair
+            .iter()
+            .flat_map(|&p| host.lower[p].map(f32::from))
+            .collect();
+        let lower = upload::<2, Float, _>(TensorData::new(lower, [slots, 3]), device);
+        GeometryChunk {
+            out_start: q0,
+            out_len: q1 - q0,
+            width,
+            inputs,
+            cell_weights: cell_weights(corner_weights, lower),
+        }
     }
 
     /// Output points.
@@ -303,4 +330,35 @@ impl ConvGeometry {
     pub fn device(&self) -> &Device {
         &self.device
     }
+}
+
+/// `[S, 64]` kernel-cell weights of slots with trilinear corner weights `[S, 8]` (z outer, x
+/// inner, as [`crate::mapping::trilinear_corners`]) and lower corners `[S, 3]` (x, y, z, as
+/// floats): corner `(dz, dy, dx)` lies in cell `(min(z + dz, 3), min(y + dy, 3), min(x + dx, 3))`,
+/// and corners in one cell add up. Float ops only (a one-hot by comparison), so it runs and
+/// differentiates the same on every backend.
+pub fn cell_weights(corner_weights: Tensor<2>, lower: Tensor<2>) -> Tensor<2> {
+    let [slots, _] = corner_weights.dims();
+    let device = corner_weights.device();
+    let dtype = corner_weights.dtype();
+    let top = (KERNEL_SIZE - 1) as f32;
+    let axis = |a: usize, step: f32| (lower.clone().narrow(1, a, 1) + step).clamp_max(top);
+    let cells: Vec<f32> = (0..KERNEL_CELLS).map(|c| c as f32).collect();
+    let cells = upload::<2, Float, _>(TensorData::new(cells, [1, KERNEL_CELLS]), &device)
+        .expand([slots, KERNEL_CELLS]);
+    let k = KERNEL_SIZE as f32;
+    let mut out = Tensor::<2>::zeros([slots, KERNEL_CELLS], (&device, dtype));
+    let mut corner = 0;
+    for dz in [0.0, 1.0] {
+        for dy in [0.0, 1.0] {
+            for dx in [0.0, 1.0] {
+                let cell = (axis(2, dz) * k + axis(1, dy)) * k + axis(0, dx);
+                let hit = cell.expand([slots, KERNEL_CELLS]).equal(cells.clone());
+                let w = corner_weights.clone().narrow(1, corner, 1);
+                out = out + hit.float().cast(dtype) * w;
+                corner += 1;
+            }
+        }
+    }
+    out
 }
