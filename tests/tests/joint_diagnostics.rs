@@ -422,6 +422,56 @@ fn anchor_costs_nothing_at_the_start_and_holds_dlf_near_the_pretrained_step() {
 }
 
 #[test]
+fn the_horizon_holds_dlf_near_the_pretrained_step_past_the_training_window() {
+    // two anchored runs that differ only in the horizon: with it, the grounded DLF's step from a
+    // state past the training window (the pretrained rollout's, three steps on) stays nearer the
+    // pretrained DLF's step from that state
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let mut runs = Vec::new();
+    for horizon in [0, 6] {
+        let mut e = tiny_experiment(tmp.path(), &format!("horizon{horizon}"));
+        e.apply_overrides(&[
+            "joint.anchor_weight=1.0".into(),
+            "joint.epochs=3".into(),
+            format!("joint.anchor_horizon={horizon}"),
+        ])
+        .unwrap();
+        runs.push(ground(e));
+    }
+    let run = &runs[0].run;
+    let data = JointData::load(&run.scene, &run.exp.joint).unwrap();
+    let pretrained = run.load_dlf(&run.exp.dlf.weights).unwrap();
+    let device = pretrained.device();
+    let boundary = pretrained.boundary(&data.walls.0, &data.walls.1, &device);
+    let mut state = (
+        points_tensor(&data.initial.pos, &device),
+        points_tensor(&data.initial.vel, &device),
+    );
+    for _ in 0..data.transitions() + 3 {
+        let next = pretrained.step(state.0, state.1, &boundary);
+        state = (next.pos, next.vel);
+    }
+    let step = |net: &neurofluid_dlf::DlfNet| {
+        tensor_points(&net.step(state.0.clone(), state.1.clone(), &boundary).pos)
+    };
+    let reference = step(&pretrained);
+    let moved = |g: &Grounding| {
+        step(&g.grounded.dlf)
+            .iter()
+            .zip(&reference)
+            .map(|(a, b)| (0..3).map(|k| f64::from(a[k] - b[k]).powi(2)).sum::<f64>())
+            .sum::<f64>()
+    };
+    let (window, horizon) = (moved(&runs[0]), moved(&runs[1]));
+    assert!(window > 0.0, "the grounded DLF did not move");
+    assert!(
+        horizon < window,
+        "with the horizon the step past the window moved {horizon} vs {window} without"
+    );
+}
+
+#[test]
 fn replay_keeps_the_renderer_rendering_the_warmup_views() {
     // two runs that differ only in the replayed warm-up rays: the renderer grounded with the
     // replay renders the warm-up's views of the first frame closer to their images

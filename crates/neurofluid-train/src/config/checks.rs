@@ -191,6 +191,13 @@ impl Section for JointSection {
         if !(self.anchor_weight.is_finite() && self.anchor_weight >= 0.0) {
             return problem("anchor_weight", "expected a finite weight ≥ 0");
         }
+        if self.anchor_horizon > 0 && self.anchor_weight == 0.0 {
+            return problem(
+                "anchor_horizon",
+                "expected 0 without the anchor (joint.anchor_weight = 0): the horizon's steps \
+                 are anchored with that weight",
+            );
+        }
         None
     }
 }

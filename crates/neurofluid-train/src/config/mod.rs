@@ -512,6 +512,10 @@ mod tests {
                 "joint.anchor_weight",
             ),
             (
+                "[scene]\nbuiltin = \"watercube\"\n[joint]\nanchor_horizon = 5\n",
+                "joint.anchor_horizon",
+            ),
+            (
                 "[scene]\nbuiltin = \"watercube\"\n[joint.physnerf_optim.schedule]\nkind = \"multi_step\"\nmilestones = [5, 3]\ngamma = 0.5\n",
                 "joint.physnerf_optim.schedule",
             ),

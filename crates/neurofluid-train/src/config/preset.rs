@@ -60,6 +60,7 @@ pub fn apply(exp: &mut Experiment) -> Vec<Change> {
     j.density_weight = paper.density_weight;
     j.anchor_weight = paper.anchor_weight;
     j.anchor_along = paper.anchor_along;
+    j.anchor_horizon = paper.anchor_horizon;
     j.replay_rays = paper.replay_rays;
     j.extra_views = paper.extra_views;
     Settings::all(exp).changes_since(&before)

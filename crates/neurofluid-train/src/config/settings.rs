@@ -39,6 +39,7 @@ const ADDED_KEYS: &[(&str, &str)] = &[
     ("joint.density_weight", "0.0"),
     ("joint.anchor_weight", "0.0"),
     ("joint.anchor_along", "\"all\""),
+    ("joint.anchor_horizon", "0"),
     ("joint.replay_rays", "0"),
 ];
 

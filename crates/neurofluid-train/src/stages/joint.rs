@@ -472,6 +472,27 @@ fn initial_state(data: &JointData, device: &Device) -> State {
     )
 }
 
+impl JointTrainer {
+    /// `joint.anchor_horizon`: the grounded DLF rolled on from the last training prediction
+    /// `(pos, vel)`, each step's anchor term (in full: no camera there) and boundary term, the
+    /// state detached between steps.
+    fn horizon_penalty(&self, anchor: &DlfNet, pos: &Tensor<2>, vel: &Tensor<2>) -> Tensor<1> {
+        let (mut x, mut v) = (pos.clone().detach(), vel.clone().detach());
+        let mut total = Tensor::<1>::zeros([1], (&x.device(), x.dtype()));
+        for _ in 0..self.cfg.anchor_horizon {
+            let next = self.dlf.step(x.clone(), v.clone(), &self.boundary);
+            let target = anchor.step(x, v, &self.boundary).pos.detach();
+            let held = anchor_penalty(next.pos.clone(), target, self.data.radius, None)
+                .mul_scalar(self.cfg.anchor_weight);
+            let inside = boundary_penalty(next.pos.clone(), &self.data.interior)
+                .mul_scalar(self.cfg.boundary_weight);
+            total = total + held + inside;
+            (x, v) = (next.pos.detach(), next.vel.detach());
+        }
+        total
+    }
+}
+
 impl Trainer for JointTrainer {
     fn stage(&self) -> &'static str {
         STAGE.folder()
@@ -546,6 +567,14 @@ impl Trainer for JointTrainer {
                 .then(|| self.data.views[0][t + 1].camera.origin());
             let term = anchor_penalty(pred.pos.clone(), target, self.data.radius, eye)
                 .mul_scalar(self.cfg.anchor_weight);
+            extra = extra + term.clone().detach();
+            surrogate = surrogate + term;
+        }
+        if let Some(anchor) = &self.anchor
+            && self.cfg.anchor_horizon > 0
+            && (t + 1) as u64 == transitions
+        {
+            let term = self.horizon_penalty(anchor, &pred.pos, &pred.vel);
             extra = extra + term.clone().detach();
             surrogate = surrogate + term;
         }
