@@ -406,6 +406,9 @@ pub struct JointTrainer {
     density: Option<DensityPrior>,
     /// `joint.anchor_weight` > 0: the pretrained DLF (frozen), whose step anchors DLF's.
     anchor: Option<DlfNet>,
+    /// `joint.anchor_horizon` > 0: where the horizon's rollouts start, the pretrained DLF's state
+    /// at the end of the training window (from the true first state; no images).
+    horizon_start: Option<State>,
     /// `joint.replay_rays` > 0: the warm-up's particles on the device (uploaded once).
     replay_particles: Option<Tensor<2>>,
 }
@@ -429,6 +432,17 @@ impl JointTrainer {
             .transpose()?;
         // `dlf` is the pretrained model here (a resumed run loads its own weights later)
         let anchor = (cfg.anchor_weight > 0.0).then(|| dlf.clone().no_grad());
+        let horizon_start = anchor
+            .as_ref()
+            .filter(|_| cfg.anchor_horizon > 0)
+            .map(|net| {
+                let mut s = initial_state(&data, &device);
+                for _ in 0..data.transitions() {
+                    let next = net.step(s.0, s.1, &boundary);
+                    s = (next.pos.detach(), next.vel.detach());
+                }
+                s
+            });
         let replay_particles = data
             .replay
             .as_ref()
@@ -452,6 +466,7 @@ impl JointTrainer {
             last_target: 1,
             density,
             anchor,
+            horizon_start,
             replay_particles,
         })
     }
@@ -473,9 +488,9 @@ fn initial_state(data: &JointData, device: &Device) -> State {
 }
 
 impl JointTrainer {
-    /// `joint.anchor_horizon`: the grounded DLF rolled on from the last training prediction
-    /// `(pos, vel)`, each step's anchor term (in full: no camera there) and boundary term, the
-    /// state detached between steps.
+    /// `joint.anchor_horizon`: the grounded DLF rolled on from `(pos, vel)` past the training
+    /// window, each step's anchor term (in full: no camera there) and boundary term, the state
+    /// detached between steps.
     fn horizon_penalty(&self, anchor: &DlfNet, pos: &Tensor<2>, vel: &Tensor<2>) -> Tensor<1> {
         let (mut x, mut v) = (pos.clone().detach(), vel.clone().detach());
         let mut total = Tensor::<1>::zeros([1], (&x.device(), x.dtype()));
@@ -570,11 +585,15 @@ impl Trainer for JointTrainer {
             extra = extra + term.clone().detach();
             surrogate = surrogate + term;
         }
-        if let Some(anchor) = &self.anchor
-            && self.cfg.anchor_horizon > 0
-            && (t + 1) as u64 == transitions
+        let Updates {
+            physnerf: window_end,
+            dlf: dlf_end,
+        } = updates_after(&self.cfg, transitions, self.total_steps(), step);
+        if let (Some(anchor), Some((x, v))) = (&self.anchor, &self.horizon_start)
+            && window_end
+            && dlf_end
         {
-            let term = self.horizon_penalty(anchor, &pred.pos, &pred.vel);
+            let term = self.horizon_penalty(anchor, x, v);
             extra = extra + term.clone().detach();
             surrogate = surrogate + term;
         }
@@ -593,10 +612,6 @@ impl Trainer for JointTrainer {
         });
         self.state = (pred.pos, pred.vel);
         self.state_host = Some(pred_host);
-        let Updates {
-            physnerf: window_end,
-            dlf: dlf_end,
-        } = updates_after(&self.cfg, transitions, self.total_steps(), step);
         // at the end of a window the gradients too, so that the step reads its values back once
         // (a non-finite loss is not used to update: the guard stops the run on it)
         let mut g_physnerf = None;
