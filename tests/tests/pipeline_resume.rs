@@ -191,3 +191,40 @@ fn resume_refuses_changed_settings_and_records_safe_changes() {
     let history = std::fs::read_to_string(run3.dir.join("config.history")).unwrap();
     assert!(history.contains("warmup.log_every"), "{history}");
 }
+
+#[test]
+fn resumed_run_with_the_horizon_matches_uninterrupted_run() {
+    // the horizon's start (the last prediction of the latest finished epoch) goes into the
+    // checkpoint: stopped inside the second epoch and resumed, the models end the same
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let horizon = |name: &str| {
+        let mut e = experiment(tmp.path(), name);
+        e.apply_overrides(&[
+            "joint.epochs=2",
+            "joint.anchor_weight=1.0",
+            "joint.anchor_horizon=3",
+        ])
+        .unwrap();
+        Run::prepare(e, Start::Resume, &[Stage::Warmup, Stage::Joint]).unwrap()
+    };
+    let straight = horizon("horizon-straight");
+    let mut log = MetricsLog::open(&straight.dir).unwrap();
+    warmup::run(&straight, &mut log).unwrap();
+    let a = joint::run(&straight, &mut log).unwrap();
+
+    let pieces = horizon("horizon-pieces");
+    let mut log = MetricsLog::open(&pieces.dir).unwrap();
+    warmup::run(&pieces, &mut log).unwrap();
+    // the tiny scene has 3 transitions: step 4 is inside the second epoch
+    joint::run_until(&pieces, &mut log, Some(4)).unwrap();
+    let b = joint::run(&pieces, &mut log).unwrap();
+    assert!(
+        params(&a.dlf) == params(&b.dlf),
+        "DLF parameters differ after resuming"
+    );
+    assert!(
+        params(&a.physnerf) == params(&b.physnerf),
+        "PhysNeRF parameters differ after resuming"
+    );
+}

@@ -418,10 +418,10 @@ pub struct JointSection {
     /// Which part of a grounded step the anchor holds (`all`).
     pub anchor_along: AnchorAlong,
     /// Steps past the training window that the anchor also holds (needs `anchor_weight` > 0):
-    /// at every DLF update the grounded DLF also rolls this many steps on from the pretrained
-    /// DLF's state at the end of the training window (rolled once from the true first state; no
-    /// images there), each step anchored in full to the pretrained DLF's step from the same state
-    /// and kept inside the walls (the boundary term). The images ground the dynamics of the
+    /// at every DLF update the grounded DLF also rolls this many steps on from the last
+    /// prediction of its latest finished training rollout (before the first ends: the pretrained
+    /// DLF's state there), with no images there, each step anchored in full to the pretrained
+    /// DLF's step from the same state and kept inside the walls (the boundary term). The images ground the dynamics of the
     /// frames they show; this keeps the pretrained physics where they show nothing. 0 = the
     /// anchor on the training window alone.
     pub anchor_horizon: usize,

@@ -406,8 +406,9 @@ pub struct JointTrainer {
     density: Option<DensityPrior>,
     /// `joint.anchor_weight` > 0: the pretrained DLF (frozen), whose step anchors DLF's.
     anchor: Option<DlfNet>,
-    /// `joint.anchor_horizon` > 0: where the horizon's rollouts start, the pretrained DLF's state
-    /// at the end of the training window (from the true first state; no images).
+    /// `joint.anchor_horizon` > 0: where the horizon's rollouts start: the grounded rollout's last
+    /// prediction of the latest finished epoch (before the first ends, the pretrained DLF's state
+    /// at the end of the training window, rolled from the true first state; no images).
     horizon_start: Option<State>,
     /// `joint.replay_rays` > 0: the warm-up's particles on the device (uploaded once).
     replay_particles: Option<Tensor<2>>,
@@ -589,6 +590,9 @@ impl Trainer for JointTrainer {
             physnerf: window_end,
             dlf: dlf_end,
         } = updates_after(&self.cfg, transitions, self.total_steps(), step);
+        if self.horizon_start.is_some() && (t + 1) as u64 == transitions {
+            self.horizon_start = Some((pred.pos.clone().detach(), pred.vel.clone().detach()));
+        }
         if let (Some(anchor), Some((x, v))) = (&self.anchor, &self.horizon_start)
             && window_end
             && dlf_end
@@ -730,6 +734,10 @@ impl Trainer for JointTrainer {
         let mut w = NpzWriter::new();
         w.add_points("pos", &tensor_points(&self.state.0));
         w.add_points("vel", &tensor_points(&self.state.1));
+        if let Some((x, v)) = &self.horizon_start {
+            w.add_points("horizon_pos", &tensor_points(x));
+            w.add_points("horizon_vel", &tensor_points(v));
+        }
         w.write(dir.join("carried_state.npz"))?;
         Ok(own)
     }
@@ -753,6 +761,13 @@ impl Trainer for JointTrainer {
                 points_tensor(&r.points("vel")?, &device),
             );
             self.state_host = None;
+        }
+        if self.horizon_start.is_some() && done > 0 {
+            let mut r = NpzReader::open(dir.join("carried_state.npz"))?;
+            self.horizon_start = Some((
+                points_tensor(&r.points("horizon_pos")?, &device),
+                points_tensor(&r.points("horizon_vel")?, &device),
+            ));
         }
         Ok(())
     }
