@@ -104,6 +104,9 @@ impl ContinuousConv {
         let [_, cin] = features.dims();
         let cout = self.out_channels();
         let dtype = features.dtype();
+        if geometry.num_entries() == 0 {
+            return Tensor::<2>::zeros([geometry.num_out(), cout], (&features.device(), dtype));
+        }
         let cell_weights = |ch: &GeometryChunk| {
             let w = ch.cell_weights.clone();
             if w.dtype() == dtype { w } else { w.cast(dtype) }
