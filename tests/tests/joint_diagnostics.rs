@@ -373,6 +373,38 @@ fn silhouette_term_joins_the_loss_and_moves_dlf() {
     assert!(params(&runs[0].grounded.dlf) != params(&runs[1].grounded.dlf));
 }
 
+/// For each run, the squared distance (summed over particles) between its grounded DLF's step
+/// and the pretrained DLF's step from one state: the pretrained rollout's from the first training
+/// frame, `past` steps after the end of the training window (`None`: the first frame itself).
+fn moved_from_pretrained(runs: &[Grounding], past: Option<u64>) -> Vec<f64> {
+    let run = &runs[0].run;
+    let data = JointData::load(&run.scene, &run.exp.joint).unwrap();
+    let pretrained = run.load_dlf(&run.exp.dlf.weights).unwrap();
+    let device = pretrained.device();
+    let boundary = pretrained.boundary(&data.walls.0, &data.walls.1, &device);
+    let mut state = (
+        points_tensor(&data.initial.pos, &device),
+        points_tensor(&data.initial.vel, &device),
+    );
+    for _ in 0..past.map_or(0, |p| data.transitions() + p) {
+        let next = pretrained.step(state.0, state.1, &boundary);
+        state = (next.pos, next.vel);
+    }
+    let step = |net: &neurofluid_dlf::DlfNet| {
+        tensor_points(&net.step(state.0.clone(), state.1.clone(), &boundary).pos)
+    };
+    let reference = step(&pretrained);
+    runs.iter()
+        .map(|g| {
+            step(&g.grounded.dlf)
+                .iter()
+                .zip(&reference)
+                .map(|(a, b)| (0..3).map(|k| f64::from(a[k] - b[k]).powi(2)).sum::<f64>())
+                .sum::<f64>()
+        })
+        .collect()
+}
+
 #[test]
 fn anchor_costs_nothing_at_the_start_and_holds_dlf_near_the_pretrained_step() {
     // two runs that differ only in the anchor's weight: the first window's loss is the same (the
@@ -390,30 +422,8 @@ fn anchor_costs_nothing_at_the_start_and_holds_dlf_near_the_pretrained_step() {
     let first_loss = |g: &Grounding| rows_of(&g.jsonl, "joint")[0].loss;
     assert_eq!(first_loss(&runs[0]), first_loss(&runs[1]));
 
-    let run = &runs[0].run;
-    let data = JointData::load(&run.scene, &run.exp.joint).unwrap();
-    let pretrained = run.load_dlf(&run.exp.dlf.weights).unwrap();
-    let device = pretrained.device();
-    let boundary = pretrained.boundary(&data.walls.0, &data.walls.1, &device);
-    let step = |net: &neurofluid_dlf::DlfNet| {
-        tensor_points(
-            &net.step(
-                points_tensor(&data.initial.pos, &device),
-                points_tensor(&data.initial.vel, &device),
-                &boundary,
-            )
-            .pos,
-        )
-    };
-    let reference = step(&pretrained);
-    let moved = |g: &Grounding| {
-        step(&g.grounded.dlf)
-            .iter()
-            .zip(&reference)
-            .map(|(a, b)| (0..3).map(|k| f64::from(a[k] - b[k]).powi(2)).sum::<f64>())
-            .sum::<f64>()
-    };
-    let (free, anchored) = (moved(&runs[0]), moved(&runs[1]));
+    let moved = moved_from_pretrained(&runs, None);
+    let (free, anchored) = (moved[0], moved[1]);
     assert!(free > 0.0, "the free DLF did not move");
     assert!(
         anchored < 0.5 * free,
@@ -439,31 +449,8 @@ fn the_horizon_holds_dlf_near_the_pretrained_step_past_the_training_window() {
         .unwrap();
         runs.push(ground(e));
     }
-    let run = &runs[0].run;
-    let data = JointData::load(&run.scene, &run.exp.joint).unwrap();
-    let pretrained = run.load_dlf(&run.exp.dlf.weights).unwrap();
-    let device = pretrained.device();
-    let boundary = pretrained.boundary(&data.walls.0, &data.walls.1, &device);
-    let mut state = (
-        points_tensor(&data.initial.pos, &device),
-        points_tensor(&data.initial.vel, &device),
-    );
-    for _ in 0..data.transitions() + 3 {
-        let next = pretrained.step(state.0, state.1, &boundary);
-        state = (next.pos, next.vel);
-    }
-    let step = |net: &neurofluid_dlf::DlfNet| {
-        tensor_points(&net.step(state.0.clone(), state.1.clone(), &boundary).pos)
-    };
-    let reference = step(&pretrained);
-    let moved = |g: &Grounding| {
-        step(&g.grounded.dlf)
-            .iter()
-            .zip(&reference)
-            .map(|(a, b)| (0..3).map(|k| f64::from(a[k] - b[k]).powi(2)).sum::<f64>())
-            .sum::<f64>()
-    };
-    let (window, horizon) = (moved(&runs[0]), moved(&runs[1]));
+    let moved = moved_from_pretrained(&runs, Some(3));
+    let (window, horizon) = (moved[0], moved[1]);
     assert!(window > 0.0, "the grounded DLF did not move");
     assert!(
         horizon < window,

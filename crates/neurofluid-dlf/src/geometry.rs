@@ -283,10 +283,11 @@ impl ConvGeometry {
         let inputs = RowIndex::new(pair.iter().map(|&p| host.pairs.indices[p] as usize), device);
         let corner_weights = match &self.weights_override {
             Some(w) => {
+                let dtype = w.dtype();
                 let w = w.clone().reshape([num_pairs, CORNERS]);
                 let real: Vec<f32> = real.iter().map(|&r| f32::from(u8::from(r))).collect();
                 let real = upload::<2, Float, _>(TensorData::new(real, [slots, 1]), device);
-                gather_rows(w.clone(), &RowIndex::new(pair.clone(), device)) * real.cast(w.dtype())
+                gather_rows(w, &RowIndex::new(pair.clone(), device)) * real.cast(dtype)
             }
             None => {
                 let mut w = vec![0f32; slots * CORNERS];

@@ -421,9 +421,9 @@ pub struct JointSection {
     /// at every DLF update the grounded DLF also rolls this many steps on from the last
     /// prediction of its latest finished training rollout (before the first ends: the pretrained
     /// DLF's state there), with no images there, each step anchored in full to the pretrained
-    /// DLF's step from the same state and kept inside the walls (the boundary term). The images ground the dynamics of the
-    /// frames they show; this keeps the pretrained physics where they show nothing. 0 = the
-    /// anchor on the training window alone.
+    /// DLF's step from the same state and kept inside the walls (the boundary term). The images
+    /// ground the dynamics of the frames they show; this keeps the pretrained physics where they
+    /// show nothing. 0 = the anchor on the training window alone.
     pub anchor_horizon: usize,
     /// Rays per iteration replayed from the warm-up (its views in turn, rendered from its
     /// particles: PhysNeRF's gradients only), so that the renderer grounded on the training view

@@ -488,27 +488,6 @@ fn initial_state(data: &JointData, device: &Device) -> State {
     )
 }
 
-impl JointTrainer {
-    /// `joint.anchor_horizon`: the grounded DLF rolled on from `(pos, vel)` past the training
-    /// window, each step's anchor term (in full: no camera there) and boundary term, the state
-    /// detached between steps.
-    fn horizon_penalty(&self, anchor: &DlfNet, pos: &Tensor<2>, vel: &Tensor<2>) -> Tensor<1> {
-        let (mut x, mut v) = (pos.clone().detach(), vel.clone().detach());
-        let mut total = Tensor::<1>::zeros([1], (&x.device(), x.dtype()));
-        for _ in 0..self.cfg.anchor_horizon {
-            let next = self.dlf.step(x.clone(), v.clone(), &self.boundary);
-            let target = anchor.step(x, v, &self.boundary).pos.detach();
-            let held = anchor_penalty(next.pos.clone(), target, self.data.radius, None)
-                .mul_scalar(self.cfg.anchor_weight);
-            let inside = boundary_penalty(next.pos.clone(), &self.data.interior)
-                .mul_scalar(self.cfg.boundary_weight);
-            total = total + held + inside;
-            (x, v) = (next.pos.detach(), next.vel.detach());
-        }
-        total
-    }
-}
-
 impl Trainer for JointTrainer {
     fn stage(&self) -> &'static str {
         STAGE.folder()
@@ -754,26 +733,48 @@ impl Trainer for JointTrainer {
         let adam = files::JOINT_DLF_ADAM.load_path(dir);
         checkpoint::load_group(d, &self.dlf, &adam, "dlf", &state, || implied.1)?;
         self.rng = Rng::from_stage_state(&state, dir)?;
-        if !done.is_multiple_of(self.data.transitions()) {
+        let mid_epoch = !done.is_multiple_of(self.data.transitions());
+        let horizon = self.horizon_start.is_some() && done > 0;
+        if mid_epoch || horizon {
             let mut r = NpzReader::open(dir.join("carried_state.npz"))?;
-            self.state = (
-                points_tensor(&r.points("pos")?, &device),
-                points_tensor(&r.points("vel")?, &device),
-            );
-            self.state_host = None;
-        }
-        if self.horizon_start.is_some() && done > 0 {
-            let mut r = NpzReader::open(dir.join("carried_state.npz"))?;
-            self.horizon_start = Some((
-                points_tensor(&r.points("horizon_pos")?, &device),
-                points_tensor(&r.points("horizon_vel")?, &device),
-            ));
+            let mut pair = |pos: &str, vel: &str| -> anyhow::Result<State> {
+                Ok((
+                    points_tensor(&r.points(pos)?, &device),
+                    points_tensor(&r.points(vel)?, &device),
+                ))
+            };
+            if mid_epoch {
+                self.state = pair("pos", "vel")?;
+                self.state_host = None;
+            }
+            if horizon {
+                self.horizon_start = Some(pair("horizon_pos", "horizon_vel")?);
+            }
         }
         Ok(())
     }
 }
 
 impl JointTrainer {
+    /// `joint.anchor_horizon`: the grounded DLF rolled on from `(pos, vel)` past the training
+    /// window, each step's anchor term (in full: no camera there) and boundary term, the state
+    /// detached between steps.
+    fn horizon_penalty(&self, anchor: &DlfNet, pos: &Tensor<2>, vel: &Tensor<2>) -> Tensor<1> {
+        let (mut x, mut v) = (pos.clone().detach(), vel.clone().detach());
+        let mut total = Tensor::<1>::zeros([1], (&x.device(), x.dtype()));
+        for _ in 0..self.cfg.anchor_horizon {
+            let next = self.dlf.step(x.clone(), v.clone(), &self.boundary);
+            let target = anchor.step(x, v, &self.boundary).pos.detach();
+            let held = anchor_penalty(next.pos.clone(), target, self.data.radius, None)
+                .mul_scalar(self.cfg.anchor_weight);
+            let inside = boundary_penalty(next.pos.clone(), &self.data.interior)
+                .mul_scalar(self.cfg.boundary_weight);
+            total = total + held + inside;
+            (x, v) = (next.pos.detach(), next.vel.detach());
+        }
+        total
+    }
+
     /// The replayed warm-up loss of iteration `step` (`joint.replay_rays` rays from one warm-up
     /// view in turn, rendered from the warm-up's particles; detached, to be read with the step's
     /// other values) and PhysNeRF's gradients of it.
