@@ -177,6 +177,37 @@ fn the_ci_experiment_learns() {
         "the true particles' renders scored as NeuroFluid's at every step"
     );
     assert!(report.markdown().contains(eval::RENDERER_ON_TRUTH));
+
+    drop(again);
+    // `eval.weight_interpolation`: at 0 NeuroFluid's DLF is the pretrained one, so its rollout
+    // is DLF's at every frame; halfway it is neither, and the report says which model it scored
+    let interpolated = |fraction: &str| {
+        let mut e = tiny_experiment(tmp.path(), "learns");
+        e.apply_override("eval.render=false").unwrap();
+        e.apply_override(&format!("eval.weight_interpolation={fraction}"))
+            .unwrap();
+        let run = Run::prepare(e, Start::Resume, &[Stage::Eval]).unwrap();
+        eval::run(&run, &grounded).unwrap()
+    };
+    let at_zero = interpolated("0.0");
+    assert!(
+        at_zero
+            .frames
+            .iter()
+            .all(|f| Some(f.neurofluid) == f.dlf && f.reverse.neurofluid == f.reverse.dlf),
+        "at weight_interpolation 0 NeuroFluid's rollout is not the pretrained DLF's"
+    );
+    let halfway = interpolated("0.5");
+    let d = |r: &neurofluid_train::report::EvalReport| -> Vec<f64> {
+        r.frames.iter().map(|f| f.neurofluid).collect()
+    };
+    assert!(d(&halfway) != d(&at_zero) && d(&halfway) != d(&report));
+    assert!(
+        halfway
+            .markdown()
+            .contains("plus 0.5 of what grounding changed")
+    );
+    assert!(!report.markdown().contains("eval.weight_interpolation"));
 }
 
 #[test]

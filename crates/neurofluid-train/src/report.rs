@@ -260,6 +260,10 @@ pub struct EvalReport {
     /// describes the run only while that checkpoint is the joint stage's latest.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub scored_seal: Option<String>,
+    /// `eval.weight_interpolation` where it was not 1: NeuroFluid's DLF was the pretrained
+    /// weights plus this fraction of grounding's change.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub weight_interpolation: Option<f64>,
 }
 
 /// The number of `points` farther than `margin` outside `interior` (on any axis).
@@ -312,6 +316,7 @@ impl EvalReport {
             initial_from_images: false,
             nvs_baselines: Vec::new(),
             scored_seal: None,
+            weight_interpolation: None,
             windows,
             frames: Vec::new(),
             images: Vec::new(),
@@ -450,6 +455,13 @@ impl EvalReport {
              (25 = one particle radius); PSNR/SSIM/LPIPS (AlexNet, v0.1) over the test views' \
              renders."
         );
+        if let Some(fraction) = self.weight_interpolation {
+            let _ = writeln!(
+                md,
+                "\nNeuroFluid's DLF: the pretrained weights plus {fraction} of what grounding \
+                 changed (`eval.weight_interpolation`)."
+            );
+        }
         md.push_str(&self.reverse_markdown());
         if !self.escaped.is_empty() {
             let counts: Vec<String> = self

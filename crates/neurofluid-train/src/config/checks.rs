@@ -270,6 +270,9 @@ impl Section for EvalSection {
         if self.views.as_ref().is_some_and(Vec::is_empty) {
             return problem("views", "expected at least one view");
         }
+        if !(0.0..=1.0).contains(&self.weight_interpolation) {
+            return problem("weight_interpolation", "expected a fraction in [0, 1]");
+        }
         None
     }
 }

@@ -516,6 +516,10 @@ mod tests {
                 "joint.anchor_horizon",
             ),
             (
+                "[scene]\nbuiltin = \"watercube\"\n[eval]\nweight_interpolation = 1.5\n",
+                "eval.weight_interpolation",
+            ),
+            (
                 "[scene]\nbuiltin = \"watercube\"\n[joint.physnerf_optim.schedule]\nkind = \"multi_step\"\nmilestones = [5, 3]\ngamma = 0.5\n",
                 "joint.physnerf_optim.schedule",
             ),

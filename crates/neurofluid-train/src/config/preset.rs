@@ -6,14 +6,14 @@
 //! DLF geometry and open walls, the lowest-index neighbour rule, ReLU density and the paper's encoding
 //! frequencies, the warm-up's and the joint stage's optimisers and schedules, one-step truncated
 //! BPTT with DLF stepping every transition, uniform rays, one view, no silhouette term, the
-//! boundary weight 1. Budgets (iterations, epochs, rays, samples, network widths) stay the
+//! boundary weight 1, and the grounded DLF evaluated as trained. Budgets (iterations, epochs, rays, samples, network widths) stay the
 //! file's: they are the scale of the experiment, not its rules. Each value the preset changes is
 //! logged.
 
 use serde::{Deserialize, Serialize};
 
 use super::settings::Change;
-use super::{DlfSection, Experiment, JointSection, Settings, WarmupSection};
+use super::{DlfSection, EvalSection, Experiment, JointSection, Settings, WarmupSection};
 use neurofluid_physnerf::PhysNerfConfig;
 
 /// A named set of training rules.
@@ -63,5 +63,6 @@ pub fn apply(exp: &mut Experiment) -> Vec<Change> {
     j.anchor_horizon = paper.anchor_horizon;
     j.replay_rays = paper.replay_rays;
     j.extra_views = paper.extra_views;
+    exp.eval.weight_interpolation = EvalSection::default().weight_interpolation;
     Settings::all(exp).changes_since(&before)
 }

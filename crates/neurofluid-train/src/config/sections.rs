@@ -539,6 +539,11 @@ pub struct EvalSection {
     /// score with perfect dynamics, which splits a novel-view gap into the renderer's part and
     /// the dynamics' part. One more render per rendered step.
     pub render_truth: bool,
+    /// NeuroFluid's DLF as evaluated: the pretrained weights (`dlf.weights`) plus this fraction
+    /// of what grounding changed, parameter by parameter (a weight-space interpolation, as
+    /// WiSE-FT does for fine-tuned networks). 1 = the grounded DLF as trained (the paper), 0 =
+    /// the pretrained DLF. The renderer stays the grounded one.
+    pub weight_interpolation: f64,
 }
 
 impl EvalSection {
@@ -564,6 +569,7 @@ impl Default for EvalSection {
             viewer: true,
             views: None,
             render_truth: false,
+            weight_interpolation: 1.0,
         }
     }
 }

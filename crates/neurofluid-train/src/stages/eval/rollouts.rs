@@ -43,10 +43,11 @@ impl Rollouts {
         // both rollouts start from the same state: the truth, or the particles from images
         let start = starting_particles(run, Role::Test, test.start, "first test frame")?;
         tracing::info!(steps, "evaluating: rollouts from the first test frame");
-        let grounded = positions(run, &models.dlf, &start, steps, "NeuroFluid")?;
+        let pretrained = run.load_dlf(&run.exp.dlf.weights)?;
+        let evaluated = evaluated_dlf(&pretrained, &models.dlf, cfg.weight_interpolation)?;
+        let grounded = positions(run, &evaluated, &start, steps, "NeuroFluid")?;
         let baseline = if cfg.baseline {
-            let net = run.load_dlf(&run.exp.dlf.weights)?;
-            Some(positions(run, &net, &start, steps, "DLF")?)
+            Some(positions(run, &pretrained, &start, steps, "DLF")?)
         } else {
             None
         };
@@ -116,6 +117,24 @@ impl Rollouts {
         .flatten()
         .collect()
     }
+}
+
+/// NeuroFluid's DLF as evaluated (`eval.weight_interpolation`): `pretrained` plus `fraction` of
+/// the change from it to `grounded`.
+pub fn evaluated_dlf(
+    pretrained: &DlfNet,
+    grounded: &DlfNet,
+    fraction: f64,
+) -> anyhow::Result<DlfNet> {
+    if fraction == 1.0 {
+        return Ok(grounded.clone());
+    }
+    tracing::info!(
+        fraction,
+        "NeuroFluid's DLF: the pretrained weights plus this fraction of grounding's change"
+    );
+    neurofluid_core::params::interpolate(pretrained, grounded.clone(), fraction)
+        .context("eval.weight_interpolation: the grounded DLF against dlf.weights")
 }
 
 /// `net`'s rollout of `steps` steps from `start` against the scene's boundary.
