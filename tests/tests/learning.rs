@@ -7,6 +7,7 @@ use burn::module::Module;
 use neurofluid_core::metrics::{RgbImage, psnr};
 use neurofluid_core::scene::Role;
 use neurofluid_tests::{params, seeded_turn, tiny_experiment};
+use neurofluid_train::report::FrameDistance;
 use neurofluid_train::stage::Stage;
 use neurofluid_train::stages::views::{ViewFrame, points_tensor, render_beside_truth};
 use neurofluid_train::stages::{Run, Start, eval, joint, warmup};
@@ -181,15 +182,15 @@ fn the_ci_experiment_learns() {
     drop(again);
     // `eval.weight_interpolation`: at 0 NeuroFluid's DLF is the pretrained one, so its rollout
     // is DLF's at every frame; halfway it is neither, and the report says which model it scored
-    let interpolated = |fraction: &str| {
+    let interpolated = |key: &str, fraction: &str| {
         let mut e = tiny_experiment(tmp.path(), "learns");
         e.apply_override("eval.render=false").unwrap();
-        e.apply_override(&format!("eval.weight_interpolation={fraction}"))
-            .unwrap();
+        e.apply_override(&format!("eval.{key}={fraction}")).unwrap();
         let run = Run::prepare(e, Start::Resume, &[Stage::Eval]).unwrap();
-        eval::run(&run, &grounded).unwrap()
+        let report = eval::run(&run, &grounded).unwrap();
+        (report, run.stage_dir(eval::STAGE))
     };
-    let at_zero = interpolated("0.0");
+    let (at_zero, _) = interpolated("weight_interpolation", "0.0");
     assert!(
         at_zero
             .frames
@@ -197,7 +198,7 @@ fn the_ci_experiment_learns() {
             .all(|f| Some(f.neurofluid) == f.dlf && f.reverse.neurofluid == f.reverse.dlf),
         "at weight_interpolation 0 NeuroFluid's rollout is not the pretrained DLF's"
     );
-    let halfway = interpolated("0.5");
+    let (halfway, _) = interpolated("weight_interpolation", "0.5");
     let d = |r: &neurofluid_train::report::EvalReport| -> Vec<f64> {
         r.frames.iter().map(|f| f.neurofluid).collect()
     };
@@ -208,6 +209,45 @@ fn the_ci_experiment_learns() {
             .contains("plus 0.5 of what grounding changed")
     );
     assert!(!report.markdown().contains("eval.weight_interpolation"));
+
+    // `eval.interpolation_sweep`: the grounded model's report gains d and d′ per window at each
+    // fraction, the same figures as evaluating each fraction on its own (0: the pretrained DLF,
+    // 1: NeuroFluid as trained), and a picture of them
+    let means = |r: &neurofluid_train::report::EvalReport, of: fn(&FrameDistance) -> [f64; 2]| {
+        let window = |(a, b): (usize, usize)| {
+            let rows: Vec<[f64; 2]> = r
+                .frames
+                .iter()
+                .filter(|f| (a..=b).contains(&f.t))
+                .map(of)
+                .collect();
+            let n = rows.len() as f64;
+            [0, 1].map(|k| rows.iter().map(|v| v[k]).sum::<f64>() / n)
+        };
+        (window(r.windows.grounding), window(r.windows.prediction))
+    };
+    let dlf = |f: &FrameDistance| [f.dlf.unwrap(), f.reverse.dlf.unwrap()];
+    let nf = |f: &FrameDistance| [f.neurofluid, f.reverse.neurofluid.unwrap()];
+    let (swept, dir) = interpolated("interpolation_sweep", "[0.5]");
+    let points: Vec<_> = swept
+        .interpolation
+        .iter()
+        .map(|i| (i.fraction, (i.grounding, i.prediction)))
+        .collect();
+    let close = |a: ([f64; 2], [f64; 2]), b: ([f64; 2], [f64; 2])| {
+        let (a, b) = ([a.0, a.1].concat(), [b.0, b.1].concat());
+        a.iter().zip(&b).all(|(x, y)| (x - y).abs() < 1e-9)
+    };
+    assert_eq!(
+        points.iter().map(|p| p.0).collect::<Vec<_>>(),
+        [0.0, 0.5, 1.0]
+    );
+    assert!(close(points[0].1, means(&swept, dlf)));
+    assert!(close(points[1].1, means(&halfway, nf)));
+    assert!(close(points[2].1, means(&swept, nf)));
+    assert!(close(means(&swept, nf), means(&report, nf)));
+    assert!(dir.join(eval::INTERPOLATION_PLOT).is_file());
+    assert!(swept.markdown().contains("eval.interpolation_sweep"));
 }
 
 #[test]

@@ -264,6 +264,22 @@ pub struct EvalReport {
     /// weights plus this fraction of grounding's change.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub weight_interpolation: Option<f64>,
+    /// `eval.interpolation_sweep`: d and d′ of NeuroFluid's DLF from the pretrained weights to
+    /// the grounded ones, by fraction.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub interpolation: Vec<InterpolationPoint>,
+}
+
+/// NeuroFluid's DLF at one `eval.weight_interpolation` fraction: `[d, d′]` averaged over each
+/// window.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct InterpolationPoint {
+    /// The fraction of grounding's change (0 = the pretrained DLF, 1 = the grounded one).
+    pub fraction: f64,
+    /// `[d, d′]` over the grounding window.
+    pub grounding: [f64; 2],
+    /// `[d, d′]` over the prediction window.
+    pub prediction: [f64; 2],
 }
 
 /// The number of `points` farther than `margin` outside `interior` (on any axis).
@@ -317,6 +333,7 @@ impl EvalReport {
             nvs_baselines: Vec::new(),
             scored_seal: None,
             weight_interpolation: None,
+            interpolation: Vec::new(),
             windows,
             frames: Vec::new(),
             images: Vec::new(),
@@ -478,6 +495,23 @@ impl EvalReport {
         }
         if !self.nvs_baselines.is_empty() {
             md.push_str(&self.nvs_markdown());
+        }
+        if !self.interpolation.is_empty() {
+            let _ = writeln!(
+                md,
+                "\nNeuroFluid's DLF from the pretrained weights (0) to the grounded ones (1) \
+                 (`eval.interpolation_sweep`; `interpolation.png`):\n\n\
+                 | fraction | d_avg (t = {}–{}) | d′_avg | d_avg (t = {}–{}) | d′_avg |\n\
+                 |---:|---:|---:|---:|---:|",
+                g.0, g.1, p.0, p.1
+            );
+            for i in &self.interpolation {
+                let _ = writeln!(
+                    md,
+                    "| {} | {:.2} | {:.2} | {:.2} | {:.2} |",
+                    i.fraction, i.grounding[0], i.grounding[1], i.prediction[0], i.prediction[1]
+                );
+            }
         }
         if !s.views.is_empty() {
             let _ = writeln!(

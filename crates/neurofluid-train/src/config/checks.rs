@@ -273,6 +273,13 @@ impl Section for EvalSection {
         if !(0.0..=1.0).contains(&self.weight_interpolation) {
             return problem("weight_interpolation", "expected a fraction in [0, 1]");
         }
+        if !self
+            .interpolation_sweep
+            .iter()
+            .all(|f| (0.0..=1.0).contains(f))
+        {
+            return problem("interpolation_sweep", "expected fractions in [0, 1]");
+        }
         None
     }
 }

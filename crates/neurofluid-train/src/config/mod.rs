@@ -520,6 +520,10 @@ mod tests {
                 "eval.weight_interpolation",
             ),
             (
+                "[scene]\nbuiltin = \"watercube\"\n[eval]\ninterpolation_sweep = [0.5, -0.1]\n",
+                "eval.interpolation_sweep",
+            ),
+            (
                 "[scene]\nbuiltin = \"watercube\"\n[joint.physnerf_optim.schedule]\nkind = \"multi_step\"\nmilestones = [5, 3]\ngamma = 0.5\n",
                 "joint.physnerf_optim.schedule",
             ),

@@ -544,6 +544,12 @@ pub struct EvalSection {
     /// WiSE-FT does for fine-tuned networks). 1 = the grounded DLF as trained (the paper), 0 =
     /// the pretrained DLF. The renderer stays the grounded one.
     pub weight_interpolation: f64,
+    /// Also roll out NeuroFluid's DLF at these `weight_interpolation` fractions (d and d′ only,
+    /// no renders) and draw d against d′ in both windows from the pretrained DLF to the
+    /// grounded one (`eval/interpolation.png`, a table in the report): how much of grounding's
+    /// change fits the truth and where it starts to throw spray. Empty = none.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub interpolation_sweep: Vec<f64>,
 }
 
 impl EvalSection {
@@ -570,6 +576,7 @@ impl Default for EvalSection {
             views: None,
             render_truth: false,
             weight_interpolation: 1.0,
+            interpolation_sweep: Vec::new(),
         }
     }
 }

@@ -10,7 +10,7 @@ use plotters::prelude::*;
 use plotters::style::FontStyle;
 
 use crate::metrics_log::{MetricsError, MetricsRow, read_jsonl};
-use crate::report::{EvalReport, Rollout};
+use crate::report::{EvalReport, InterpolationPoint, Rollout};
 
 /// Errors of the plotter.
 #[derive(Debug, thiserror::Error)]
@@ -377,6 +377,90 @@ pub fn render_distances(report: &EvalReport) -> RgbImage {
         tracing::warn!("drawing the distance curves: {e}");
     }
     RgbImage::from_raw(w, h, buf).expect("buffer of the image's size")
+}
+
+const INTERPOLATION_W: u32 = 900;
+const INTERPOLATION_H: u32 = 400;
+
+/// Draws d against d′ of `report.interpolation` (`eval.interpolation_sweep`), one panel per
+/// window: NeuroFluid's DLF from the pretrained weights (fraction 0) to the grounded ones (1),
+/// each point labelled with its fraction, and a dashed line at the pretrained DLF's d′.
+pub fn render_interpolation(report: &EvalReport) -> RgbImage {
+    register_bundled_font();
+    let (w, h) = (INTERPOLATION_W, INTERPOLATION_H);
+    let mut buf = vec![255u8; (w * h * 3) as usize];
+    let points = &report.interpolation;
+    let drawn = (|| -> Result<(), String> {
+        let e = |e: DrawingAreaErrorKind<_>| e.to_string();
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(e)?;
+        let (g, p) = (report.windows.grounding, report.windows.prediction);
+        let panels = root.split_evenly((1, 2));
+        type Window = fn(&InterpolationPoint) -> [f64; 2];
+        let windows: [(String, Window); 2] = [
+            (format!("t = {}–{}", g.0, g.1), |i| i.grounding),
+            (format!("t = {}–{}", p.0, p.1), |i| i.prediction),
+        ];
+        let colour = rgb(rollout_colour(Rollout::NeuroFluid));
+        for (area, (title, of)) in panels.iter().zip(windows) {
+            let xy: Vec<(f64, f64)> = points.iter().map(|i| (of(i)[0], of(i)[1])).collect();
+            let range = |v: &mut dyn Iterator<Item = f64>| {
+                let (lo, hi) = v.fold((f64::MAX, f64::MIN), |(l, h), x| (l.min(x), h.max(x)));
+                let pad = ((hi - lo) * 0.1).max(0.5);
+                (lo - pad)..(hi + pad)
+            };
+            let xs = range(&mut xy.iter().map(|p| p.0));
+            let ys = range(&mut xy.iter().map(|p| p.1));
+            let mut chart = ChartBuilder::on(area)
+                .caption(
+                    format!("d against d′, {title} (fraction of grounding's change)"),
+                    (FONT_FAMILY, 14),
+                )
+                .margin(10)
+                .x_label_area_size(30)
+                .y_label_area_size(45)
+                .build_cartesian_2d(xs.clone(), ys)
+                .map_err(e)?;
+            chart
+                .configure_mesh()
+                .x_desc("d (truth → prediction)")
+                .y_desc("d′ (prediction → truth)")
+                .label_style((FONT_FAMILY, 12))
+                .draw()
+                .map_err(e)?;
+            if let Some(dlf) = points.iter().find(|i| i.fraction == 0.0) {
+                let y = of(dlf)[1];
+                chart
+                    .draw_series(DashedLineSeries::new(
+                        [(xs.start, y), (xs.end, y)],
+                        6,
+                        4,
+                        rgb(rollout_colour(Rollout::Dlf)).stroke_width(1),
+                    ))
+                    .map_err(e)?;
+            }
+            chart
+                .draw_series(LineSeries::new(xy.iter().copied(), colour.stroke_width(2)))
+                .map_err(e)?;
+            chart
+                .draw_series(points.iter().zip(&xy).map(|(i, &(x, y))| {
+                    EmptyElement::at((x, y))
+                        + Circle::new((0, 0), 3, colour.filled())
+                        + Text::new(format!("{}", i.fraction), (5, -12), (FONT_FAMILY, 11))
+                }))
+                .map_err(e)?;
+        }
+        root.present().map_err(e)
+    })();
+    if let Err(e) = drawn {
+        tracing::warn!("drawing the interpolation plot: {e}");
+    }
+    RgbImage::from_raw(w, h, buf).expect("buffer of the image's size")
+}
+
+/// Writes [`render_interpolation`] of `report` as a PNG at `path` (atomically).
+pub fn plot_interpolation(report: &EvalReport, path: &Path) -> Result<(), PlotError> {
+    write_png(&render_interpolation(report), path)
 }
 
 /// Writes d(t) of every rollout of `report` as a PNG at `path` (atomically).

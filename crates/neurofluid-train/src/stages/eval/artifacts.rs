@@ -29,6 +29,9 @@ use crate::trainer::Picture;
 /// The d(t) curves of the rollouts inside `eval/`.
 pub const DISTANCE_PLOT: &str = "distance.png";
 
+/// d against d′ of the interpolated DLFs inside `eval/` (`eval.interpolation_sweep`).
+pub const INTERPOLATION_PLOT: &str = "interpolation.png";
+
 /// Folder of the animations and particle pictures inside `eval/`.
 pub const ANIMATIONS: &str = "animations";
 
@@ -265,6 +268,9 @@ pub fn write_viewer(
 pub fn write_report(run: &Run, report: &EvalReport, dir: &Path) -> anyhow::Result<()> {
     report.write_all(dir)?;
     crate::pictures::plot::plot_distances(report, &dir.join(DISTANCE_PLOT))?;
+    if !report.interpolation.is_empty() {
+        crate::pictures::plot::plot_interpolation(report, &dir.join(INTERPOLATION_PLOT))?;
+    }
     log_images(run, report)
 }
 

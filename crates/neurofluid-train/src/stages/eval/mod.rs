@@ -17,7 +17,9 @@ use burn::module::Module;
 use neurofluid_core::scene::Role;
 
 pub use super::scoring::rendered_steps;
-pub use artifacts::{ANIMATIONS, DISTANCE_PLOT, RENDERER_ON_TRUTH, VIEWER_FILE, picture_frames};
+pub use artifacts::{
+    ANIMATIONS, DISTANCE_PLOT, INTERPOLATION_PLOT, RENDERER_ON_TRUTH, VIEWER_FILE, picture_frames,
+};
 use rollouts::Rollouts;
 
 use super::joint::Grounded;
@@ -43,6 +45,7 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
     );
     report.scored_seal = scored_seal(run)?;
     report.weight_interpolation = Some(cfg.weight_interpolation).filter(|&f| f != 1.0);
+    report.interpolation = rollouts.interpolation_points(&report.windows, cfg.weight_interpolation);
     report.initial_from_images =
         run.exp.scene.initial == crate::config::InitialParticles::FromImages;
     report.nvs_baselines = super::baseline::read_all(run)?;

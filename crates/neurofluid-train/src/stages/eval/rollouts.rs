@@ -10,7 +10,7 @@ use neurofluid_core::scene::{Aabb, Particles, Role};
 use neurofluid_dlf::DlfNet;
 use neurofluid_dlf::rollout::rollout;
 
-use crate::report::{FrameDistance, Reverse, Rollout, count_outside};
+use crate::report::{FrameDistance, InterpolationPoint, Reverse, Rollout, Windows, count_outside};
 use crate::stages::initial::starting_particles;
 use crate::stages::joint::Grounded;
 use crate::stages::run_folder::Run;
@@ -29,6 +29,8 @@ pub struct Rollouts {
     pub baseline: Option<Positions>,
     /// DLF† (`eval.supervised_dlf`).
     pub supervised: Option<Positions>,
+    /// NeuroFluid's DLF at each fraction of `eval.interpolation_sweep`.
+    pub interpolated: Vec<(f64, Positions)>,
 }
 
 impl Rollouts {
@@ -58,11 +60,21 @@ impl Rollouts {
             }
             None => None,
         };
+        let interpolated = cfg
+            .interpolation_sweep
+            .iter()
+            .map(|&f| {
+                let net = evaluated_dlf(&pretrained, &models.dlf, f)?;
+                let what = format!("NeuroFluid at {f}");
+                Ok((f, positions(run, &net, &start, steps, &what)?))
+            })
+            .collect::<anyhow::Result<_>>()?;
         Ok(Self {
             truth,
             grounded,
             baseline,
             supervised,
+            interpolated,
         })
     }
 
@@ -92,6 +104,45 @@ impl Rollouts {
                 }
             })
             .collect()
+    }
+
+    /// d and d′ averaged over both windows for the interpolated rollouts, the pretrained DLF
+    /// (fraction 0) and NeuroFluid (`fraction`), by fraction (a fraction evaluated twice once).
+    pub fn interpolation_points(
+        &self,
+        windows: &Windows,
+        fraction: f64,
+    ) -> Vec<InterpolationPoint> {
+        let point = |f: f64, frames: &[Vec<[f32; 3]>]| {
+            let means = |(a, b): (usize, usize)| {
+                let ts = a.max(1)..=b.min(self.steps());
+                let n = ts.clone().count().max(1) as f64;
+                let (mut d, mut d_rev) = (0.0, 0.0);
+                for t in ts {
+                    d += gt_to_pred_distance(&self.truth[t].pos, &frames[t]).mean;
+                    d_rev += gt_to_pred_distance(&frames[t], &self.truth[t].pos).mean;
+                }
+                [d / n, d_rev / n]
+            };
+            InterpolationPoint {
+                fraction: f,
+                grounding: means(windows.grounding),
+                prediction: means(windows.prediction),
+            }
+        };
+        if self.interpolated.is_empty() {
+            return Vec::new();
+        }
+        let mut points: Vec<InterpolationPoint> = self
+            .interpolated
+            .iter()
+            .map(|(f, frames)| point(*f, frames))
+            .chain(self.baseline.as_deref().map(|b| point(0.0, b)))
+            .chain(std::iter::once(point(fraction, &self.grounded)))
+            .collect();
+        points.sort_by(|a, b| a.fraction.total_cmp(&b.fraction));
+        points.dedup_by(|a, b| a.fraction == b.fraction);
+        points
     }
 
     /// Per rollout, the most particles more than `radius` outside `interior` at any step.
