@@ -6,53 +6,43 @@ ones (1) by `eval.weight_interpolation`, per scene and joint-stage setting: the 
     python3 scripts/interpolation-frontier.py [--runs experiments/bed/interpolation-runs.txt]
         [--out docs/interpolation-frontier.png] [--table]
 
-Reads runs/interpolation/<name>/eval_a<fraction>/report.json (scripts/interpolation-evals.sh).
+Reads runs/interpolation/<name>/eval/report.json (scripts/interpolation-evals.sh); draws seed 10.
 --table prints the figures as a markdown table instead of drawing them (needs only the standard
 library; the drawing needs matplotlib).
 """
 
 import argparse
-import glob
 import json
 import os
 
 
-def window_means(report):
-    """(d, d′) of NeuroFluid and DLF over the two windows: {window: {model: (d, d′)}}."""
-    out = {}
-    for window, (a, b) in report["windows"].items():
-        rows = [f for f in report["frames"] if a <= f["t"] <= b]
-        n = len(rows)
-        out[window] = {
-            "neurofluid": (sum(f["neurofluid"] for f in rows) / n,
-                           sum(f["reverse"]["neurofluid"] for f in rows) / n),
-            "dlf": (sum(f["dlf"] for f in rows) / n, sum(f["reverse"]["dlf"] for f in rows) / n),
-        }
-    return out
-
-
 def read(runs):
-    """[(scene, setting, name, [(fraction, window means)])] in the file's order."""
+    """[(scene, setting, seed, [(fraction, {window: (d, d′)})])] in the file's order."""
     out = []
     for line in open(runs):
         if not line.strip() or line.startswith("#"):
             continue
-        scene, setting, name, _source = line.split()
-        points = []
-        for path in glob.glob(os.path.join("runs", "interpolation", name, "eval_a*", "report.json")):
-            fraction = float(path.split("eval_a")[1].split(os.sep)[0])
-            points.append((fraction, window_means(json.load(open(path)))))
-        out.append((scene, setting, name, sorted(points, key=lambda p: p[0])))
+        scene, setting, seed, name, _source = line.split()
+        path = os.path.join("runs", "interpolation", name, "eval", "report.json")
+        if not os.path.isfile(path):
+            print(f"missing {path}: scripts/interpolation-evals.sh makes it")
+            continue
+        points = [
+            (p["fraction"], {"grounding": tuple(p["grounding"]),
+                             "prediction": tuple(p["prediction"])})
+            for p in json.load(open(path))["interpolation"]
+        ]
+        out.append((scene, setting, int(seed), points))
     return out
 
 
 def table(data):
-    print("| scene | joint setting | fraction | d t<50 | d′ t<50 | d t≥50 | d′ t≥50 |")
-    print("|---|---|---:|---:|---:|---:|---:|")
-    for scene, setting, _name, points in data:
+    print("| scene | joint setting | seed | fraction | d t<50 | d′ t<50 | d t≥50 | d′ t≥50 |")
+    print("|---|---|---:|---:|---:|---:|---:|---:|")
+    for scene, setting, seed, points in data:
         for fraction, m in points:
-            g, p = m["grounding"]["neurofluid"], m["prediction"]["neurofluid"]
-            print(f"| {scene} | {setting} | {fraction:g} | {g[0]:.2f} | {g[1]:.2f} | "
+            g, p = m["grounding"], m["prediction"]
+            print(f"| {scene} | {setting} | {seed} | {fraction:g} | {g[0]:.2f} | {g[1]:.2f} | "
                   f"{p[0]:.2f} | {p[1]:.2f} |")
 
 
@@ -63,6 +53,7 @@ def draw(data, out):
     import matplotlib.lines
     import matplotlib.pyplot as plt
 
+    data = [d for d in data if d[2] == 10]
     scenes = list(dict.fromkeys(s for s, *_ in data))
     fig, axes = plt.subplots(2, len(scenes), figsize=(3.1 * len(scenes), 6.4), squeeze=False)
     colours = {"no-anchor": "tab:blue", "anchor-0.1": "tab:orange", "anchor-depth": "tab:green"}
@@ -72,11 +63,11 @@ def draw(data, out):
         ):
             ax = axes[row][col]
             dlf = None
-            for s, setting, _name, points in data:
+            for s, setting, _seed, points in data:
                 if s != scene or not points:
                     continue
-                xs = [m[window]["neurofluid"][0] for _, m in points]
-                ys = [m[window]["neurofluid"][1] for _, m in points]
+                xs = [m[window][0] for _, m in points]
+                ys = [m[window][1] for _, m in points]
                 c = colours.get(setting, "tab:gray")
                 ax.plot(xs, ys, "-o", color=c, ms=3, lw=1.2, label=setting)
                 ax.plot(xs[-1:], ys[-1:], "s", color=c, ms=6)  # as trained
@@ -84,7 +75,7 @@ def draw(data, out):
                     if f in (0.25, 0.5, 0.75):
                         ax.annotate(f"{f:g}", (x, y), fontsize=6, xytext=(2, 2),
                                     textcoords="offset points", color=c)
-                dlf = points[0][1][window]["dlf"]
+                dlf = points[0][1][window] if points[0][0] == 0 else None
             if dlf:
                 target = 0.7 if "honey" in scene.lower() else 0.9
                 ax.axhline(dlf[1], color="k", lw=0.8, ls="--")
