@@ -383,7 +383,10 @@ mod tests {
             "the quick experiment departs from the paper"
         );
         let mut paper = quick.clone();
-        paper.apply_overrides(&["preset=\"paper\""]).unwrap();
+        paper
+            .apply_overrides(&["eval.weight_interpolation=0.25", "preset=\"paper\""])
+            .unwrap();
+        assert_eq!(paper.eval.weight_interpolation, 1.0);
         let reference = parse(MINIMAL).unwrap();
         assert_eq!(paper.preset, Preset::Paper);
         assert_eq!(paper.dlf.geometry, reference.dlf.geometry);
