@@ -6,6 +6,7 @@
 use std::path::{Path, PathBuf};
 
 use image::{Rgb, RgbImage};
+use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::FontStyle;
 
@@ -53,6 +54,28 @@ pub(crate) fn register_bundled_font() {
             tracing::warn!("the bundled font could not be registered; plot text is missing");
         }
     });
+}
+
+/// A `w` × `h` white image with `draw` drawn on it; what fails to draw is logged (naming
+/// `what`) and the image kept as far as it got.
+fn draw_image(
+    w: u32,
+    h: u32,
+    what: &str,
+    draw: impl FnOnce(&DrawingArea<BitMapBackend<'_>, Shift>) -> Result<(), String>,
+) -> RgbImage {
+    register_bundled_font();
+    let mut buf = vec![255u8; (w * h * 3) as usize];
+    let drawn = (|| {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| e.to_string())?;
+        draw(&root)?;
+        root.present().map_err(|e| e.to_string())
+    })();
+    if let Err(e) = drawn {
+        tracing::warn!("drawing {what}: {e}");
+    }
+    RgbImage::from_raw(w, h, buf).expect("buffer of the image's size")
 }
 
 fn rgb(c: Rgb<u8>) -> RGBColor {
@@ -197,7 +220,6 @@ fn panel_rows(rows: &[MetricsRow]) -> Vec<PanelRow> {
 /// a scalar its own rows lack, those of its evaluations (`<stage>-preview`, e.g. the joint
 /// diagnostics). Non-finite values are skipped.
 pub fn render_curves(rows: &[MetricsRow]) -> RgbImage {
-    register_bundled_font();
     let mut stages: Vec<&str> = Vec::new();
     for r in rows {
         if !stages.contains(&r.stage.as_str()) {
@@ -208,14 +230,11 @@ pub fn render_curves(rows: &[MetricsRow]) -> RgbImage {
     let cols = stages.len().max(1);
     let n_rows = panels.len();
     let (w, h) = (cols as u32 * PANEL_W, n_rows as u32 * PANEL_H);
-    let mut buf = vec![255u8; (w * h * 3) as usize];
-    let drawn = (|| -> Result<(), String> {
-        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
-        root.fill(&WHITE).map_err(|e| e.to_string())?;
+    draw_image(w, h, "the curves", |root| {
         if stages.is_empty() {
             root.draw_text(
                 "no metrics",
-                &(FONT_FAMILY, 16).into_text_style(&root),
+                &(FONT_FAMILY, 16).into_text_style(root),
                 (w as i32 / 2 - 40, h as i32 / 2),
             )
             .map_err(|e| e.to_string())?;
@@ -276,12 +295,8 @@ pub fn render_curves(rows: &[MetricsRow]) -> RgbImage {
                 draw_panel(&areas[k * cols + i], &title, &series, panel.log)?;
             }
         }
-        root.present().map_err(|e| e.to_string())
-    })();
-    if let Err(e) = drawn {
-        tracing::warn!("drawing the curves: {e}");
-    }
-    RgbImage::from_raw(w, h, buf).expect("buffer of the image's size")
+        Ok(())
+    })
 }
 
 /// The colour of a rollout's curve (as in the viewer).
@@ -299,9 +314,7 @@ const DISTANCE_H: u32 = 360;
 /// Draws d(t) of every rollout of `report` (the paper's Table 2 as a curve): one line per model,
 /// a dashed line where the grounding window ends.
 pub fn render_distances(report: &EvalReport) -> RgbImage {
-    register_bundled_font();
     let (w, h) = (DISTANCE_W, DISTANCE_H);
-    let mut buf = vec![255u8; (w * h * 3) as usize];
     let series: Vec<(Rollout, Vec<(f64, f64)>)> = Rollout::ALL
         .into_iter()
         .map(|m| {
@@ -315,14 +328,12 @@ pub fn render_distances(report: &EvalReport) -> RgbImage {
         })
         .filter(|(_, p)| !p.is_empty())
         .collect();
-    let drawn = (|| -> Result<(), String> {
+    draw_image(w, h, "the distance curves", |root| {
         let e = |e: DrawingAreaErrorKind<_>| e.to_string();
-        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
-        root.fill(&WHITE).map_err(e)?;
         let all = || series.iter().flat_map(|(_, p)| p.iter());
         let x1 = all().map(|p| p.0).fold(1.0, f64::max);
         let y1 = all().map(|p| p.1).fold(1.0, f64::max) * 1.05;
-        let mut chart = ChartBuilder::on(&root)
+        let mut chart = ChartBuilder::on(root)
             .caption(
                 "particle distance d(t) (× 1000; 25 = one particle radius)",
                 (FONT_FAMILY, 15),
@@ -371,12 +382,8 @@ pub fn render_distances(report: &EvalReport) -> RgbImage {
             .border_style(BLACK)
             .draw()
             .map_err(e)?;
-        root.present().map_err(e)
-    })();
-    if let Err(e) = drawn {
-        tracing::warn!("drawing the distance curves: {e}");
-    }
-    RgbImage::from_raw(w, h, buf).expect("buffer of the image's size")
+        Ok(())
+    })
 }
 
 const INTERPOLATION_W: u32 = 900;
@@ -386,14 +393,10 @@ const INTERPOLATION_H: u32 = 400;
 /// window: NeuroFluid's DLF from the pretrained weights (fraction 0) to the grounded ones (1),
 /// each point labelled with its fraction, and a dashed line at the pretrained DLF's d′.
 pub fn render_interpolation(report: &EvalReport) -> RgbImage {
-    register_bundled_font();
     let (w, h) = (INTERPOLATION_W, INTERPOLATION_H);
-    let mut buf = vec![255u8; (w * h * 3) as usize];
     let points = &report.interpolation;
-    let drawn = (|| -> Result<(), String> {
+    draw_image(w, h, "the interpolation plot", |root| {
         let e = |e: DrawingAreaErrorKind<_>| e.to_string();
-        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
-        root.fill(&WHITE).map_err(e)?;
         let (g, p) = (report.windows.grounding, report.windows.prediction);
         let panels = root.split_evenly((1, 2));
         type Window = fn(&InterpolationPoint) -> [f64; 2];
@@ -450,12 +453,8 @@ pub fn render_interpolation(report: &EvalReport) -> RgbImage {
                 }))
                 .map_err(e)?;
         }
-        root.present().map_err(e)
-    })();
-    if let Err(e) = drawn {
-        tracing::warn!("drawing the interpolation plot: {e}");
-    }
-    RgbImage::from_raw(w, h, buf).expect("buffer of the image's size")
+        Ok(())
+    })
 }
 
 /// Writes [`render_interpolation`] of `report` as a PNG at `path` (atomically).

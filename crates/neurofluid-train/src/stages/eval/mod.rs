@@ -45,11 +45,11 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
     );
     report.scored_seal = scored_seal(run)?;
     report.weight_interpolation = Some(cfg.weight_interpolation).filter(|&f| f != 1.0);
-    report.interpolation = rollouts.interpolation_points(&report.windows, cfg.weight_interpolation);
     report.initial_from_images =
         run.exp.scene.initial == crate::config::InitialParticles::FromImages;
     report.nvs_baselines = super::baseline::read_all(run)?;
     report.frames = rollouts.frame_distances();
+    report.interpolation = rollouts.interpolation_points(&report, cfg.weight_interpolation);
     report.escaped = rollouts.escaped(
         &scene.manifest().box_interior,
         scene.manifest().particle_radius,

@@ -10,7 +10,9 @@ use neurofluid_core::scene::{Aabb, Particles, Role};
 use neurofluid_dlf::DlfNet;
 use neurofluid_dlf::rollout::rollout;
 
-use crate::report::{FrameDistance, InterpolationPoint, Reverse, Rollout, Windows, count_outside};
+use crate::report::{
+    EvalReport, FrameDistance, InterpolationPoint, Reverse, Rollout, count_outside,
+};
 use crate::stages::initial::starting_particles;
 use crate::stages::joint::Grounded;
 use crate::stages::run_folder::Run;
@@ -106,39 +108,53 @@ impl Rollouts {
             .collect()
     }
 
-    /// d and d′ averaged over both windows for the interpolated rollouts, the pretrained DLF
-    /// (fraction 0) and NeuroFluid (`fraction`), by fraction (a fraction evaluated twice once).
+    /// d and d′ averaged over both windows at each fraction of `eval.interpolation_sweep`, with
+    /// the pretrained DLF (fraction 0) and NeuroFluid (`fraction`) read from `report`'s rows,
+    /// by fraction (a fraction evaluated twice once). Empty without a sweep.
     pub fn interpolation_points(
         &self,
-        windows: &Windows,
+        report: &EvalReport,
         fraction: f64,
     ) -> Vec<InterpolationPoint> {
-        let point = |f: f64, frames: &[Vec<[f32; 3]>]| {
-            let means = |(a, b): (usize, usize)| {
-                let ts = a.max(1)..=b.min(self.steps());
-                let n = ts.clone().count().max(1) as f64;
-                let (mut d, mut d_rev) = (0.0, 0.0);
-                for t in ts {
-                    d += gt_to_pred_distance(&self.truth[t].pos, &frames[t]).mean;
-                    d_rev += gt_to_pred_distance(&frames[t], &self.truth[t].pos).mean;
-                }
-                [d / n, d_rev / n]
-            };
-            InterpolationPoint {
-                fraction: f,
-                grounding: means(windows.grounding),
-                prediction: means(windows.prediction),
-            }
-        };
         if self.interpolated.is_empty() {
             return Vec::new();
         }
+        // a window's steps are those of the report's frames (NaN where it has none)
+        let windows = [report.windows.grounding, report.windows.prediction].map(|(a, b)| {
+            let steps = report.frames.iter().map(|f| f.t);
+            steps.filter(|t| (a..=b).contains(t)).collect::<Vec<_>>()
+        });
+        let swept = |f: f64, frames: &[Vec<[f32; 3]>]| {
+            let [grounding, prediction] = windows.clone().map(|steps| {
+                let (mut d, mut d_rev) = (0.0, 0.0);
+                for &t in &steps {
+                    d += gt_to_pred_distance(&self.truth[t].pos, &frames[t]).mean;
+                    d_rev += gt_to_pred_distance(&frames[t], &self.truth[t].pos).mean;
+                }
+                let n = steps.len() as f64;
+                [d / n, d_rev / n]
+            });
+            InterpolationPoint {
+                fraction: f,
+                grounding,
+                prediction,
+            }
+        };
+        let evaluated = |f: f64, model: Rollout| {
+            let (d, d_rev) = (report.distance_row(model)?, report.reverse_row(model)?);
+            let or_nan = |v: Option<f64>| v.unwrap_or(f64::NAN);
+            Some(InterpolationPoint {
+                fraction: f,
+                grounding: [or_nan(d.grounding_mean), or_nan(d_rev.grounding_mean)],
+                prediction: [or_nan(d.prediction_mean), or_nan(d_rev.prediction_mean)],
+            })
+        };
         let mut points: Vec<InterpolationPoint> = self
             .interpolated
             .iter()
-            .map(|(f, frames)| point(*f, frames))
-            .chain(self.baseline.as_deref().map(|b| point(0.0, b)))
-            .chain(std::iter::once(point(fraction, &self.grounded)))
+            .map(|(f, frames)| swept(*f, frames))
+            .chain(evaluated(0.0, Rollout::Dlf))
+            .chain(evaluated(fraction, Rollout::NeuroFluid))
             .collect();
         points.sort_by(|a, b| a.fraction.total_cmp(&b.fraction));
         points.dedup_by(|a, b| a.fraction == b.fraction);
