@@ -110,11 +110,10 @@ pub fn interpolate<M: Module>(from: &M, to: M, fraction: f64) -> Result<M, Layou
     }
     let mut collect = Collect::default();
     from.visit(&mut collect);
-    let count = collect.0.len();
-    if count != ids(&to).len() {
+    let (count, to_count) = (collect.0.len(), ids(&to).len());
+    if count != to_count {
         return Err(LayoutMismatch(format!(
-            "{count} float parameters against {}",
-            ids(&to).len()
+            "{count} float parameters against {to_count}"
         )));
     }
     let mut blend = Blend {
