@@ -217,6 +217,24 @@ fn diagnostics_reach_the_metrics_and_match_an_independent_rollout() {
         (logged - expected).abs() <= 1e-9 * expected.max(1.0),
         "logged {logged}, independent {expected}"
     );
+    // and the energy it gains: E_t from consecutive positions, the gains of steps t ≥ 2 summed
+    let dt = net.config.dt;
+    let energy = |t: usize| {
+        let vel: Vec<[f32; 3]> = rollout.pos[t]
+            .iter()
+            .zip(&rollout.pos[t - 1])
+            .map(|(a, b)| std::array::from_fn(|k| (a[k] - b[k]) / dt))
+            .collect();
+        energy_by_hand(&rollout.pos[t], &vel, net.config.gravity)
+    };
+    let gained: f64 = (2..truth.len())
+        .map(|t| (energy(t) - energy(t - 1)).max(0.0))
+        .sum();
+    let logged = rows[1].get("rollout_energy_gain").expect("energy gain");
+    assert!(
+        (logged - gained).abs() <= 1e-6 * gained.max(1.0),
+        "logged {logged}, by hand {gained}"
+    );
 }
 
 #[test]
@@ -456,6 +474,108 @@ fn the_horizon_holds_dlf_near_the_pretrained_step_past_the_training_window() {
         horizon < window,
         "with the horizon the step past the window moved {horizon} vs {window} without"
     );
+}
+
+/// E(x, v) by hand, in f64: the mean over particles of ½|v|² − g·x.
+fn energy_by_hand(pos: &[[f32; 3]], vel: &[[f32; 3]], gravity: [f32; 3]) -> f64 {
+    let sum: f64 = pos
+        .iter()
+        .zip(vel)
+        .map(|(x, v)| {
+            (0..3)
+                .map(|k| 0.5 * f64::from(v[k]).powi(2) - f64::from(gravity[k]) * f64::from(x[k]))
+                .sum::<f64>()
+        })
+        .sum();
+    sum / pos.len() as f64
+}
+
+#[test]
+fn energy_prior_adds_each_steps_energy_gain_to_the_loss() {
+    // two runs that differ only in the energy prior's weight, DLF held at its starting weights
+    // (lr 0), so that both roll the same states out and PhysNeRF trains the same: every step's
+    // loss differs by w·max(0, E(x′, v′) − E(x, v)) / (|g| r) of that DLF's step, by hand. The
+    // pretrained DLF gains no energy on the tiny scene (a cube in free fall), so the runs start
+    // from one whose last layer lifts every particle by 5 mm a step, which does.
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let weights = tmp.path().join("perturbed.bpk");
+    {
+        let run = Run::prepare(
+            tiny_experiment(tmp.path(), "perturb"),
+            Start::Resume,
+            &[Stage::Warmup],
+        )
+        .unwrap();
+        let mut lifting = run.load_dlf(&run.exp.dlf.weights).unwrap();
+        // the raw output's up component (model frame: y), 0.64 / 128 m = 5 mm
+        let up = Tensor::<1>::from_data(
+            TensorData::new(vec![0.0f32, 0.64, 0.0], [3]),
+            &lifting.device(),
+        );
+        let bias = lifting.dense3.bias.take().expect("dense3 has a bias");
+        lifting.dense3.bias = Some(Param::from_tensor((bias.val() + up).detach()));
+        neurofluid_dlf::save_checkpoint(&lifting, &weights).unwrap();
+    }
+    let weight = 10.0;
+    let mut runs = Vec::new();
+    for w in [0.0, weight] {
+        let mut e = tiny_experiment(tmp.path(), &format!("energy{w}"));
+        e.dlf.weights = weights.clone();
+        e.apply_overrides(&[
+            format!("joint.energy_weight={w}"),
+            "joint.dlf_optim.lr=0.0".into(),
+            "joint.epochs=2".into(),
+        ])
+        .unwrap();
+        runs.push(ground(e));
+    }
+    let run = &runs[0].run;
+    let data = JointData::load(&run.scene, &run.exp.joint).unwrap();
+    let dlf = run.load_dlf(&run.exp.dlf.weights).unwrap();
+    let device = dlf.device();
+    let boundary = dlf.boundary(&data.walls.0, &data.walls.1, &device);
+    let gravity = dlf.config.gravity;
+    let unit = 9.81 * f64::from(data.radius);
+    let (mut pos, mut vel) = (data.initial.pos.clone(), data.initial.vel.clone());
+    let mut gains = Vec::new();
+    for _ in 0..data.transitions() {
+        let next = dlf.step(
+            points_tensor(&pos, &device),
+            points_tensor(&vel, &device),
+            &boundary,
+        );
+        let (p, v) = (tensor_points(&next.pos), tensor_points(&next.vel));
+        let gain = energy_by_hand(&p, &v, gravity) - energy_by_hand(&pos, &vel, gravity);
+        gains.push(weight * gain.max(0.0) / unit);
+        (pos, vel) = (p, v);
+    }
+    assert!(
+        gains.iter().any(|&g| g > 1e-3),
+        "the DLF gains no energy on this scene: the test would see nothing ({gains:?})"
+    );
+    let (free, held) = (
+        rows_of(&runs[0].jsonl, "joint"),
+        rows_of(&runs[1].jsonl, "joint"),
+    );
+    let losses = |rows: &[MetricsRow]| -> Vec<(u64, f64)> {
+        rows.iter()
+            .filter(|r| r.loss.is_finite())
+            .map(|r| (r.step, r.loss))
+            .collect()
+    };
+    let (free, held) = (losses(&free), losses(&held));
+    assert_eq!(free.len(), held.len());
+    assert!(!free.is_empty());
+    for ((step, a), (_, b)) in free.iter().zip(&held) {
+        let t = (*step as usize - 1) % gains.len();
+        let expected = gains[t];
+        assert!(
+            (b - a - expected).abs() < 1e-3 * expected.max(1.0),
+            "step {step}: the loss rose by {} where the prior adds {expected}",
+            b - a
+        );
+    }
 }
 
 #[test]

@@ -5,6 +5,7 @@ pub mod cli;
 pub mod commands;
 pub mod config;
 pub mod density_prior;
+pub mod energy_prior;
 pub mod focus;
 pub mod formats;
 pub mod geometry;

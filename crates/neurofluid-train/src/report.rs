@@ -268,6 +268,23 @@ pub struct EvalReport {
     /// the grounded ones, by fraction.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub interpolation: Vec<InterpolationPoint>,
+    /// Per rollout and the truth, the mechanical energy gained over each window
+    /// ([`crate::energy_prior::energy_gains`]): a fluid in a closed box gains none, and what a
+    /// rollout gains it keeps as fluid thrown where the truth has none.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub energy: Vec<EnergyGain>,
+}
+
+/// The energy a sequence gains over the two windows, in J/kg: the sum of every step's gain
+/// (steps t ≥ 2 of each window; a step that loses energy adds nothing).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EnergyGain {
+    /// The rollout's table label, or `truth`.
+    pub model: String,
+    /// Over the grounding window.
+    pub grounding: f64,
+    /// Over the prediction window.
+    pub prediction: f64,
 }
 
 /// NeuroFluid's DLF at one `eval.weight_interpolation` fraction: `[d, d′]` averaged over each
@@ -334,6 +351,7 @@ impl EvalReport {
             scored_seal: None,
             weight_interpolation: None,
             interpolation: Vec::new(),
+            energy: Vec::new(),
             windows,
             frames: Vec::new(),
             images: Vec::new(),
@@ -480,6 +498,7 @@ impl EvalReport {
             );
         }
         md.push_str(&self.reverse_markdown());
+        md.push_str(&self.energy_markdown());
         if !self.escaped.is_empty() {
             let counts: Vec<String> = self
                 .escaped
@@ -530,6 +549,35 @@ impl EvalReport {
                 );
             }
         }
+        md
+    }
+
+    /// The energy table, empty when no energy was evaluated.
+    pub fn energy_markdown(&self) -> String {
+        if self.energy.is_empty() {
+            return String::new();
+        }
+        let (g, p) = (self.windows.grounding, self.windows.prediction);
+        let mut md = format!(
+            "\n| sequence | energy gained, t = {}–{} (J/kg) | t = {}–{} (J/kg) |\n|---|---:|---:|\n",
+            g.0.max(2),
+            g.1,
+            p.0,
+            p.1
+        );
+        for e in &self.energy {
+            let _ = writeln!(
+                md,
+                "| {} | {:.3} | {:.3} |",
+                e.model, e.grounding, e.prediction
+            );
+        }
+        md.push_str(
+            "\nEnergy gained: the sum over frames of each frame's gain in mechanical energy per \
+             kilogram (½|v|² + g·height, v from consecutive positions), a loss counting 0. A fluid \
+             in a closed box only loses energy; a rollout that gains it throws fluid where the \
+             truth has none (`joint.energy_weight` penalises it).\n",
+        );
         md
     }
 

@@ -404,10 +404,11 @@ mod tests {
                 j.foreground_rays,
                 j.silhouette_weight,
                 j.density_weight,
+                j.energy_weight,
                 j.anchor_weight,
                 j.replay_rays as f64
             ),
-            (1.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+            (1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         );
         assert!(j.extra_views.is_empty());
         // the budgets are the file's
@@ -509,6 +510,10 @@ mod tests {
             (
                 "[scene]\nbuiltin = \"watercube\"\n[joint]\ndensity_weight = nan\n",
                 "joint.density_weight",
+            ),
+            (
+                "[scene]\nbuiltin = \"watercube\"\n[joint]\nenergy_weight = -1.0\n",
+                "joint.energy_weight",
             ),
             (
                 "[scene]\nbuiltin = \"watercube\"\n[joint]\nanchor_weight = -1.0\n",

@@ -58,6 +58,7 @@ pub fn apply(exp: &mut Experiment) -> Vec<Change> {
     j.foreground_rays = paper.foreground_rays;
     j.silhouette_weight = paper.silhouette_weight;
     j.density_weight = paper.density_weight;
+    j.energy_weight = paper.energy_weight;
     j.anchor_weight = paper.anchor_weight;
     j.anchor_along = paper.anchor_along;
     j.anchor_horizon = paper.anchor_horizon;

@@ -411,6 +411,11 @@ pub struct JointSection {
     /// back to the neighbourhood a fluid particle has, where the renderer's gate cannot see it.
     /// 0 = the reference's image loss alone.
     pub density_weight: f64,
+    /// Weight of the energy prior ([`crate::energy_prior`]): no DLF step may add mechanical
+    /// energy (kinetic + potential) to the fluid, which in a closed box only loses it; each
+    /// step's gain is penalised in units of lifting every particle by one radius.
+    /// 0 = the reference's image loss alone.
+    pub energy_weight: f64,
     /// Weight of the anchor term ([`crate::stages::joint::anchor_penalty`]): each grounded step
     /// kept near the pretrained DLF's step from the same state, in particle radii², where the
     /// images do not ask for a change. 0 = the reference's image loss alone.
@@ -460,6 +465,7 @@ impl Default for JointSection {
             silhouette_weight: 0.0,
             silhouette_cover: true,
             density_weight: 0.0,
+            energy_weight: 0.0,
             anchor_weight: 0.0,
             anchor_along: AnchorAlong::All,
             anchor_horizon: 0,

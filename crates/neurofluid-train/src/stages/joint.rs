@@ -42,6 +42,7 @@ use super::warmup::{self, WarmupData};
 use crate::config::Cadenced;
 use crate::config::{AnchorAlong, JointSection};
 use crate::density_prior::DensityPrior;
+use crate::energy_prior::{energy_gain, energy_gains};
 use crate::focus::{image_foreground, mark_particles, sample_focused};
 use crate::metrics_log::{MetricsLog, psnr_from_mse};
 use crate::optim::{Group, JointDlfGroup, JointPhysNerfGroup};
@@ -207,7 +208,7 @@ impl JointData {
 type State = (Tensor<2>, Tensor<2>);
 
 /// What the joint stage measures besides its loss, at every evaluation (metrics columns
-/// `rollout_d`, `rollout_d_prime`, `grad_alignment`, `psnr_true`).
+/// `rollout_d`, `rollout_d_prime`, `rollout_energy_gain`, `grad_alignment`, `psnr_true`).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Diagnostics {
     /// d (× 1000) of DLF's rollout from the first true frame over the training frames
@@ -216,6 +217,10 @@ pub struct Diagnostics {
     /// d′ (× 1000) of the same rollout: from each predicted particle to the nearest true one
     /// (spray, which d does not see).
     pub rollout_d_prime: Option<f64>,
+    /// The mechanical energy (J/kg) the same rollout gains over the training frames, summed over
+    /// the steps that gain ([`crate::energy_prior::energy_gains`]): a fluid in a closed box gains
+    /// none. Needs no true particles.
+    pub rollout_energy_gain: Option<f64>,
     /// The mean, over the transitions since the last evaluation, of the cosine between the image
     /// loss's descent direction at the prediction, −∂L/∂x_{t+1}, and the true error
     /// x_true − x_pred (particles matched by index): does the image signal point at the truth?
@@ -233,6 +238,7 @@ impl Diagnostics {
             ("rollout_d_prime", self.rollout_d_prime),
             ("grad_alignment", self.grad_alignment),
             ("psnr_true", self.psnr_true),
+            ("rollout_energy_gain", self.rollout_energy_gain),
         ]
         .into_iter()
         .filter_map(|(k, v)| v.map(|v| (k, v)))
@@ -586,6 +592,18 @@ impl Trainer for JointTrainer {
             extra = extra + term.clone().detach();
             surrogate = surrogate + term;
         }
+        if self.cfg.energy_weight > 0.0 {
+            let after = (pred.pos.clone(), pred.vel.clone());
+            let term = energy_gain(
+                self.state.clone(),
+                after,
+                self.dlf.config.gravity,
+                self.data.radius,
+            )
+            .mul_scalar(self.cfg.energy_weight);
+            extra = extra + term.clone().detach();
+            surrogate = surrogate + term;
+        }
         if let Some(g) = &dx {
             self.record_alignment(t + 1, &pred_host, g);
         }
@@ -896,13 +914,10 @@ impl JointTrainer {
             grad_alignment: (n > 0).then(|| sum / n as f64),
             ..Diagnostics::default()
         };
-        let Some(truth) = &self.data.truth else {
-            return Ok(d);
-        };
-        // DLF's rollout from the first true frame, without gradients
+        // DLF's rollout from the first true frame over the training frames, without gradients
         let dlf = self.dlf.valid();
         let boundary = dlf.boundary(&self.data.walls.0, &self.data.walls.1, &dlf.device());
-        let steps = truth.len() - 1;
+        let steps = self.data.transitions() as usize;
         let first = &self.data.initial;
         let rollout = neurofluid_dlf::rollout::rollout(
             &dlf,
@@ -912,6 +927,11 @@ impl JointTrainer {
             steps,
             |_| {},
         );
+        let gains = energy_gains(&rollout.pos, dlf.config.dt, dlf.config.gravity);
+        d.rollout_energy_gain = Some(gains.iter().sum());
+        let Some(truth) = &self.data.truth else {
+            return Ok(d);
+        };
         let mean_over =
             |f: &dyn Fn(usize) -> f64| (1..=steps).map(f).sum::<f64>() / steps.max(1) as f64;
         d.rollout_d = Some(mean_over(&|t| {

@@ -50,6 +50,12 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
     report.nvs_baselines = super::baseline::read_all(run)?;
     report.frames = rollouts.frame_distances();
     report.interpolation = rollouts.interpolation_points(&report, cfg.weight_interpolation);
+    let manifest = scene.manifest();
+    report.energy = rollouts.energy_gains(
+        &report.windows,
+        1.0 / manifest.fps,
+        manifest.up_axis.gravity(),
+    );
     report.escaped = rollouts.escaped(
         &scene.manifest().box_interior,
         scene.manifest().particle_radius,

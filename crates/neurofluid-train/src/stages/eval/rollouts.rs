@@ -10,8 +10,10 @@ use neurofluid_core::scene::{Aabb, Particles, Role};
 use neurofluid_dlf::DlfNet;
 use neurofluid_dlf::rollout::rollout;
 
+use crate::energy_prior::energy_gains;
 use crate::report::{
-    EvalReport, FrameDistance, InterpolationPoint, Reverse, Rollout, count_outside,
+    EnergyGain, EvalReport, FrameDistance, InterpolationPoint, Reverse, Rollout, Windows,
+    count_outside,
 };
 use crate::stages::initial::starting_particles;
 use crate::stages::joint::Grounded;
@@ -159,6 +161,33 @@ impl Rollouts {
         points.sort_by(|a, b| a.fraction.total_cmp(&b.fraction));
         points.dedup_by(|a, b| a.fraction == b.fraction);
         points
+    }
+
+    /// The energy gained over `windows` by the truth and by every rollout, one frame every
+    /// `dt` seconds under `gravity`.
+    pub fn energy_gains(&self, windows: &Windows, dt: f32, gravity: [f32; 3]) -> Vec<EnergyGain> {
+        let truth: Positions = self.truth.iter().map(|p| p.pos.clone()).collect();
+        let rows = [
+            Some(("truth", &truth)),
+            self.baseline.as_ref().map(|b| (Rollout::Dlf.label(), b)),
+            self.supervised
+                .as_ref()
+                .map(|b| (Rollout::SupervisedDlf.label(), b)),
+            Some((Rollout::NeuroFluid.label(), &self.grounded)),
+        ];
+        rows.into_iter()
+            .flatten()
+            .map(|(model, frames)| {
+                let gains = energy_gains(frames, dt, gravity);
+                let over =
+                    |(a, b): (usize, usize)| -> f64 { gains.iter().take(b + 1).skip(a).sum() };
+                EnergyGain {
+                    model: model.to_string(),
+                    grounding: over(windows.grounding),
+                    prediction: over(windows.prediction),
+                }
+            })
+            .collect()
     }
 
     /// Per rollout, the most particles more than `radius` outside `interior` at any step.

@@ -1,0 +1,246 @@
+//! An energy prior for joint training (`joint.energy_weight`): no DLF step may add mechanical
+//! energy to the fluid.
+//!
+//! A fluid in a closed box, released from rest or thrown, only loses mechanical energy: viscosity
+//! and the walls turn it into heat, and nothing inside the box does work on it. The specific
+//! energy of a state (per kilogram, every particle of the same mass),
+//!
+//! E(x, v) = (1/N) Σ_i (½ |v_i|² − g · x_i),
+//!
+//! is therefore non-increasing from frame to frame. Every true sequence of the test bed and of
+//! the built-in scenes keeps it so at every frame, and a grounded DLF does not: on the built-in
+//! HoneyCone the quick settings' rollout gains 0.59 J/kg over t < 50 where the honey comes to
+//! rest, and keeps it as fluid lifted where the truth has none (BENCHMARKS.md, "the energy
+//! prior"). The image loss does not see that energy, the d′ spray does.
+//!
+//! The term of one step from (x, v) to (x′, v′) is
+//!
+//! L = w · max(0, E(x′, v′) − E(x, v)) / (|g| r),
+//!
+//! the gain in units of lifting every particle by one radius r, so that the weight does not
+//! depend on the scene's scale. The start state is held fixed: the step that gains the energy is
+//! the one penalised, not the one before it. DLF's own integrator conserves E exactly in free fall
+//! (its velocity is the displacement over dt, its position the trapezoid of the two velocities),
+//! so the term is zero on a ballistic step and measures only what the network's correction adds.
+
+use burn::prelude::*;
+use burn::tensor::activation::relu;
+
+/// E(x, v) of the states `pos`, `vel` (`[N, 3]` each), `[1]`: the mean over particles of
+/// ½|v|² − g·x, for gravity `gravity` (m/s², the scene's frame).
+pub fn specific_energy(pos: Tensor<2>, vel: Tensor<2>, gravity: [f32; 3]) -> Tensor<1> {
+    let device = pos.device();
+    let down: Tensor<2> =
+        neurofluid_core::transfer::upload(TensorData::new(gravity.to_vec(), [3, 1]), &device);
+    let kinetic = vel.powi_scalar(2).sum_dim(1).mul_scalar(0.5);
+    let potential = pos.matmul(down).neg();
+    (kinetic + potential).mean()
+}
+
+/// The energy gain of the step from `before` (held fixed) to `after`, in units of |g|·`radius`,
+/// `[1]`: max(0, E(after) − E(before)) / (|g| r).
+pub fn energy_gain(
+    before: (Tensor<2>, Tensor<2>),
+    after: (Tensor<2>, Tensor<2>),
+    gravity: [f32; 3],
+    radius: f32,
+) -> Tensor<1> {
+    let g = gravity
+        .iter()
+        .map(|c| f64::from(*c).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    let unit = (g * f64::from(radius)).max(f64::MIN_POSITIVE);
+    let start = specific_energy(before.0.detach(), before.1.detach(), gravity);
+    let end = specific_energy(after.0, after.1, gravity);
+    relu(end - start).mul_scalar(1.0 / unit)
+}
+
+/// Per step t of a sequence of positions `frames` (one frame every `dt` seconds), the energy
+/// gained from step t − 1 to t, max(0, E_t − E_{t−1}) in J/kg, with each E_t taken from the
+/// positions alone (velocity (x_t − x_{t−1}) / dt, as DLF's own): index t; steps 0 and 1 hold 0
+/// (E_1 is the first with a velocity). What an evaluation reports of each rollout and of the
+/// truth: a fluid in a closed box gains none.
+pub fn energy_gains(frames: &[Vec<[f32; 3]>], dt: f32, gravity: [f32; 3]) -> Vec<f64> {
+    let energy = |t: usize| -> f64 {
+        let (x, before) = (&frames[t], &frames[t - 1]);
+        let sum: f64 = x
+            .iter()
+            .zip(before)
+            .map(|(p, q)| {
+                (0..3)
+                    .map(|k| {
+                        let v = f64::from(p[k] - q[k]) / f64::from(dt);
+                        0.5 * v * v - f64::from(gravity[k]) * f64::from(p[k])
+                    })
+                    .sum::<f64>()
+            })
+            .sum();
+        sum / x.len().max(1) as f64
+    };
+    let mut gains = vec![0.0; frames.len()];
+    for t in 2..frames.len() {
+        gains[t] = (energy(t) - energy(t - 1)).max(0.0);
+    }
+    gains
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::stages::views::{points_tensor, scalar, tensor_points};
+
+    const G: [f32; 3] = [0.0, 0.0, -9.81];
+    const R: f32 = 0.025;
+
+    fn device() -> Device {
+        neurofluid_core::device::cpu().autodiff()
+    }
+
+    fn t(v: &[[f32; 3]]) -> Tensor<2> {
+        points_tensor(v, &device())
+    }
+
+    /// E by hand, in f64: ½|v|² + 9.81·z, averaged.
+    fn energy_by_hand(x: &[[f32; 3]], v: &[[f32; 3]]) -> f64 {
+        let n = x.len() as f64;
+        x.iter()
+            .zip(v)
+            .map(|(p, u)| {
+                let u: [f64; 3] = u.map(f64::from);
+                0.5 * (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]) + 9.81 * f64::from(p[2])
+            })
+            .sum::<f64>()
+            / n
+    }
+
+    /// The term by hand, in f64.
+    fn gain_by_hand(before: (&[[f32; 3]], &[[f32; 3]]), after: (&[[f32; 3]], &[[f32; 3]])) -> f64 {
+        let gain = energy_by_hand(after.0, after.1) - energy_by_hand(before.0, before.1);
+        gain.max(0.0) / (9.81 * f64::from(R))
+    }
+
+    #[test]
+    fn energy_is_kinetic_plus_potential_per_kilogram() {
+        let x = [[0.1, 0.2, 0.3], [-0.4, 0.0, 1.2]];
+        let v = [[1.0, -2.0, 0.5], [0.0, 0.3, -0.7]];
+        let e = scalar(&specific_energy(t(&x), t(&v), G));
+        assert!((e - energy_by_hand(&x, &v)).abs() < 1e-5, "{e}");
+    }
+
+    /// DLF's integrator without a correction (v′ = v + g dt, x′ = x + (v + v′) dt / 2) conserves
+    /// E: a ballistic step gains nothing.
+    #[test]
+    fn a_ballistic_step_gains_nothing() {
+        let dt = 0.02f32;
+        let x = [[0.1, 0.2, 0.3], [-0.4, 0.0, 1.2], [0.3, -0.1, 0.05]];
+        let v = [[1.0, -2.0, 0.5], [0.0, 0.3, -0.7], [0.2, 0.2, 3.0]];
+        let v1: Vec<[f32; 3]> = v
+            .iter()
+            .map(|u| std::array::from_fn(|k| u[k] + G[k] * dt))
+            .collect();
+        let x1: Vec<[f32; 3]> = x
+            .iter()
+            .zip(v.iter().zip(&v1))
+            .map(|(p, (a, b))| std::array::from_fn(|k| p[k] + (a[k] + b[k]) * dt / 2.0))
+            .collect();
+        // exact in real arithmetic; f32 rounding of the states leaves ~1e-6 J/kg
+        let by_hand = energy_by_hand(&x1, &v1) - energy_by_hand(&x, &v);
+        assert!(by_hand.abs() < 1e-5, "{by_hand}");
+        let gain = scalar(&energy_gain((t(&x), t(&v)), (t(&x1), t(&v1)), G, R));
+        assert!(gain < 1e-3, "{gain}");
+    }
+
+    /// Lifting every particle by one radius at rest costs exactly one unit; losing energy costs
+    /// nothing.
+    #[test]
+    fn a_lift_by_one_radius_costs_one_and_a_loss_nothing() {
+        let x = [[0.1, 0.2, 0.3], [-0.4, 0.0, 1.2]];
+        let up: Vec<[f32; 3]> = x.iter().map(|p| [p[0], p[1], p[2] + R]).collect();
+        let rest = [[0.0; 3]; 2];
+        let lift = scalar(&energy_gain((t(&x), t(&rest)), (t(&up), t(&rest)), G, R));
+        assert!((lift - 1.0).abs() < 1e-3, "{lift}");
+        let fall = scalar(&energy_gain((t(&up), t(&rest)), (t(&x), t(&rest)), G, R));
+        assert_eq!(fall, 0.0);
+    }
+
+    /// The gradient with respect to the step's end state equals central differences of the
+    /// term computed by hand, and the start state gets none (it is held fixed).
+    #[test]
+    fn gradient_matches_central_differences() {
+        let x0 = [[0.1, 0.2, 0.3], [-0.4, 0.0, 1.2]];
+        let v0 = [[0.1, 0.0, 0.0], [0.0, 0.0, 0.1]];
+        let x1 = [[0.12, 0.21, 0.34], [-0.41, 0.02, 1.25]];
+        let v1 = [[1.0, 0.5, 2.0], [-0.5, 1.0, 2.5]];
+        let (px, pv) = (t(&x1).require_grad(), t(&v1).require_grad());
+        let start = t(&x0).require_grad();
+        let loss = energy_gain((start.clone(), t(&v0)), (px.clone(), pv.clone()), G, R);
+        let value = scalar(&loss);
+        assert!(value > 1.0, "the step must gain energy: {value}");
+        assert!((value - gain_by_hand((&x0, &v0), (&x1, &v1))).abs() < 1e-3 * value);
+        let grads = loss.backward();
+        let gx = tensor_points(&px.grad(&grads).unwrap());
+        let gv = tensor_points(&pv.grad(&grads).unwrap());
+        assert!(
+            start.grad(&grads).is_none(),
+            "the start state is held fixed"
+        );
+        let h = 1e-3f32;
+        for (moved, analytic) in [(0, &gx), (1, &gv)] {
+            for i in 0..2 {
+                for k in 0..3 {
+                    let shifted = |s: f32| {
+                        let (mut x, mut v) = (x1, v1);
+                        if moved == 0 {
+                            x[i][k] += s
+                        } else {
+                            v[i][k] += s
+                        }
+                        gain_by_hand((&x0, &v0), (&x, &v))
+                    };
+                    let fd = (shifted(h) - shifted(-h)) / (2.0 * f64::from(h));
+                    let got = f64::from(analytic[i][k]);
+                    assert!(
+                        (got - fd).abs() < 1e-3 * fd.abs().max(1.0),
+                        "{moved} {i} {k}: {got} vs {fd}"
+                    );
+                }
+            }
+        }
+    }
+
+    /// A sequence from DLF's integrator alone (free fall, no correction) gains nothing by
+    /// `energy_gains`; one whose particles are lifted by one radius at one step gains |g| r there,
+    /// the tensor term's unit.
+    #[test]
+    fn sequence_gains_match_the_definition() {
+        let dt = 0.02f32;
+        let (mut x, mut v) = (
+            vec![[0.1f32, 0.2, 0.3], [0.0, 0.1, 1.0]],
+            vec![[0.5f32, 0.0, 1.0]; 2],
+        );
+        let mut frames = vec![x.clone()];
+        for _ in 0..10 {
+            for (p, u) in x.iter_mut().zip(v.iter_mut()) {
+                let before = *u;
+                u[2] += G[2] * dt;
+                for k in 0..3 {
+                    p[k] += (before[k] + u[k]) * dt / 2.0;
+                }
+            }
+            frames.push(x.clone());
+        }
+        let gains = energy_gains(&frames, dt, G);
+        assert_eq!(gains.len(), frames.len());
+        assert!(gains.iter().all(|&g| g < 1e-3), "{gains:?}");
+        // at rest, then every particle lifted by one radius and left there
+        let rest = vec![vec![[0.0f32, 0.0, 0.5]; 3]; 3];
+        let lifted = vec![[0.0f32, 0.0, 0.5 + R]; 3];
+        let frames: Vec<_> = rest.into_iter().chain([lifted.clone(), lifted]).collect();
+        let gains = energy_gains(&frames, dt, G);
+        // step 3: the lift (potential 9.81 r, kinetic ½ (r/dt)²); step 4: at rest, a loss
+        let expected = 9.81 * f64::from(R) + 0.5 * (f64::from(R) / f64::from(dt)).powi(2);
+        assert!((gains[3] - expected).abs() < 1e-4 * expected, "{gains:?}");
+        assert_eq!(gains[4], 0.0);
+    }
+}
