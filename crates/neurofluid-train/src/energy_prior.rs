@@ -78,10 +78,8 @@ pub fn energy_gains(frames: &[Vec<[f32; 3]>], dt: f32, gravity: [f32; 3]) -> Vec
             .sum();
         sum / x.len().max(1) as f64
     };
-    let mut gains = vec![0.0; frames.len()];
-    for t in 2..frames.len() {
-        gains[t] = (energy(t) - energy(t - 1)).max(0.0);
-    }
+    let mut gains = vec![0.0; frames.len().min(2)];
+    gains.extend((2..frames.len()).map(|t| (energy(t) - energy(t - 1)).max(0.0)));
     gains
 }
 
