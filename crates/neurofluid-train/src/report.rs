@@ -864,6 +864,32 @@ mod tests {
         );
     }
 
+    /// The energy table lists each sequence's gains in both windows, and a report without them
+    /// (written before the energy existed) has none.
+    #[test]
+    fn energy_table_lists_each_sequence() {
+        let mut r = sample_report();
+        assert!(!r.markdown().contains("energy gained"));
+        r.energy = vec![
+            EnergyGain {
+                model: "truth".into(),
+                grounding: 0.0,
+                prediction: 0.0,
+            },
+            EnergyGain {
+                model: "NeuroFluid".into(),
+                grounding: 0.588,
+                prediction: 0.0123,
+            },
+        ];
+        let md = r.markdown();
+        assert!(md.contains("energy gained, t = 2–"), "{md}");
+        assert!(md.contains("| truth | 0.000 | 0.000 |"), "{md}");
+        assert!(md.contains("| NeuroFluid | 0.588 | 0.012 |"), "{md}");
+        let back: EvalReport = serde_json::from_str(&serde_json::to_string(&r).unwrap()).unwrap();
+        assert_eq!(back.energy, r.energy);
+    }
+
     /// Particles where the truth has none (spray above the fluid) leave d at zero and show in d′.
     #[test]
     fn reverse_d_sees_what_d_misses() {

@@ -56,10 +56,7 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
         1.0 / manifest.fps,
         manifest.up_axis.gravity(),
     );
-    report.escaped = rollouts.escaped(
-        &scene.manifest().box_interior,
-        scene.manifest().particle_radius,
-    );
+    report.escaped = rollouts.escaped(&manifest.box_interior, manifest.particle_radius);
 
     let dir = run.stage_dir(STAGE);
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
