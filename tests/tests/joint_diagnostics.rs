@@ -85,6 +85,20 @@ fn ground(e: Experiment) -> Grounding {
     }
 }
 
+/// [`ground`] of the tiny experiment once per set of overrides, in order (run folders
+/// `{name}0`, `{name}1`, …).
+fn ground_each(tmp: &std::path::Path, name: &str, variants: &[Vec<String>]) -> Vec<Grounding> {
+    variants
+        .iter()
+        .enumerate()
+        .map(|(i, sets)| {
+            let mut e = tiny_experiment(tmp, &format!("{name}{i}"));
+            e.apply_overrides(sets).unwrap();
+            ground(e)
+        })
+        .collect()
+}
+
 /// The metrics rows of `stage`.
 fn rows_of(jsonl: &std::path::Path, stage: &str) -> Vec<MetricsRow> {
     read_jsonl(jsonl)
@@ -430,13 +444,11 @@ fn anchor_costs_nothing_at_the_start_and_holds_dlf_near_the_pretrained_step() {
     // training the anchored DLF's step from the first frame stays nearer the pretrained step
     let _turn = seeded_turn();
     let tmp = tempfile::tempdir().unwrap();
-    let mut runs = Vec::new();
-    for weight in [0.0, 1.0] {
-        let mut e = tiny_experiment(tmp.path(), &format!("anchor{weight}"));
-        e.apply_overrides(&[format!("joint.anchor_weight={weight}")])
-            .unwrap();
-        runs.push(ground(e));
-    }
+    let runs = ground_each(
+        tmp.path(),
+        "anchor",
+        &[0.0, 1.0].map(|w| vec![format!("joint.anchor_weight={w}")]),
+    );
     let first_loss = |g: &Grounding| rows_of(&g.jsonl, "joint")[0].loss;
     assert_eq!(first_loss(&runs[0]), first_loss(&runs[1]));
 
@@ -456,17 +468,17 @@ fn the_horizon_holds_dlf_near_the_pretrained_step_past_the_training_window() {
     // pretrained DLF's step from that state
     let _turn = seeded_turn();
     let tmp = tempfile::tempdir().unwrap();
-    let mut runs = Vec::new();
-    for horizon in [0, 6] {
-        let mut e = tiny_experiment(tmp.path(), &format!("horizon{horizon}"));
-        e.apply_overrides(&[
-            "joint.anchor_weight=1.0".into(),
-            "joint.epochs=3".into(),
-            format!("joint.anchor_horizon={horizon}"),
-        ])
-        .unwrap();
-        runs.push(ground(e));
-    }
+    let runs = ground_each(
+        tmp.path(),
+        "horizon",
+        &[0, 6].map(|h| {
+            vec![
+                "joint.anchor_weight=1.0".into(),
+                "joint.epochs=3".into(),
+                format!("joint.anchor_horizon={h}"),
+            ]
+        }),
+    );
     let moved = moved_from_pretrained(&runs, Some(3));
     let (window, horizon) = (moved[0], moved[1]);
     assert!(window > 0.0, "the grounded DLF did not move");
@@ -518,18 +530,18 @@ fn energy_prior_adds_each_steps_energy_gain_to_the_loss() {
         neurofluid_dlf::save_checkpoint(&lifting, &weights).unwrap();
     }
     let weight = 10.0;
-    let mut runs = Vec::new();
-    for w in [0.0, weight] {
-        let mut e = tiny_experiment(tmp.path(), &format!("energy{w}"));
-        e.dlf.weights = weights.clone();
-        e.apply_overrides(&[
-            format!("joint.energy_weight={w}"),
-            "joint.dlf_optim.lr=0.0".into(),
-            "joint.epochs=2".into(),
-        ])
-        .unwrap();
-        runs.push(ground(e));
-    }
+    let runs = ground_each(
+        tmp.path(),
+        "energy",
+        &[0.0, weight].map(|w| {
+            vec![
+                format!("dlf.weights={:?}", weights.display().to_string()),
+                format!("joint.energy_weight={w}"),
+                "joint.dlf_optim.lr=0.0".into(),
+                "joint.epochs=2".into(),
+            ]
+        }),
+    );
     let run = &runs[0].run;
     let data = JointData::load(&run.scene, &run.exp.joint).unwrap();
     let dlf = run.load_dlf(&run.exp.dlf.weights).unwrap();
@@ -584,17 +596,17 @@ fn replay_keeps_the_renderer_rendering_the_warmup_views() {
     // replay renders the warm-up's views of the first frame closer to their images
     let _turn = seeded_turn();
     let tmp = tempfile::tempdir().unwrap();
-    let mut runs = Vec::new();
-    for replay in [0, 256] {
-        let mut e = tiny_experiment(tmp.path(), &format!("replay{replay}"));
-        e.apply_overrides(&[
-            format!("joint.replay_rays={replay}"),
-            "joint.epochs=10".into(),
-            "joint.physnerf_optim.lr=1e-3".into(),
-        ])
-        .unwrap();
-        runs.push(ground(e));
-    }
+    let runs = ground_each(
+        tmp.path(),
+        "replay",
+        &[0, 256].map(|r| {
+            vec![
+                format!("joint.replay_rays={r}"),
+                "joint.epochs=10".into(),
+                "joint.physnerf_optim.lr=1e-3".into(),
+            ]
+        }),
+    );
     let run = &runs[0].run;
     let data = warmup::warmup_data(run).unwrap();
     let particles = points_tensor(&data.particles, &run.device);
