@@ -7,11 +7,11 @@
 //!
 //! E(x, v) = (1/N) Σ_i (½ |v_i|² − g · x_i),
 //!
-//! is therefore non-increasing from frame to frame. Every true sequence of the test bed and of
-//! the built-in scenes keeps it so at every frame, and a grounded DLF does not: on the built-in
-//! HoneyCone the quick settings' rollout gains 0.59 J/kg over t < 50 where the honey comes to
-//! rest, and keeps it as fluid lifted where the truth has none (BENCHMARKS.md, "the energy
-//! prior"). The image loss does not see that energy, the d′ spray does.
+//! is therefore non-increasing from frame to frame. Every true sequence measured (four scenes of
+//! the test bed, HoneyCone, WaterCube) keeps it so at every frame, and a grounded DLF does not:
+//! on the built-in HoneyCone the quick settings' rollout gains 0.59 J/kg over t < 50 where the
+//! honey comes to rest, and keeps it as fluid lifted where the truth has none (BENCHMARKS.md,
+//! "the energy a rollout gains"). The image loss does not see that energy; d′ does.
 //!
 //! The term of one step from (x, v) to (x′, v′) is
 //!
