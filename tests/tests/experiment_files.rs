@@ -66,9 +66,13 @@ fn quick_configs_differ_from_the_main_job_only_in_the_scene() {
         "scene.builtin",
         "scene.generate.warmup_every_frame",
     ];
-    // and the material: honey's DLF steps are not anchored to the pretrained (water) DLF's
-    // (experiments/bed/README.md, rule 6)
-    let honey_keys = [&scene_keys[..], &["joint.anchor_weight"]].concat();
+    // and the material: honey's DLF steps are not anchored to the pretrained (water) DLF's, nor
+    // held to the energy prior (experiments/bed/README.md, rule 6)
+    let honey_keys = [
+        &scene_keys[..],
+        &["joint.anchor_weight", "joint.energy_weight"],
+    ]
+    .concat();
     for (name, allowed) in [
         ("quick-honeycone", &honey_keys[..]),
         ("quick-waterbunny", &scene_keys[..]),
