@@ -50,12 +50,10 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
     report.nvs_baselines = super::baseline::read_all(run)?;
     report.frames = rollouts.frame_distances();
     report.interpolation = rollouts.interpolation_points(&report, cfg.weight_interpolation);
+    // the frame interval and gravity DLF steps with (the scene's), as the joint stage's own
+    let dlf = run.dlf_config();
+    report.energy = rollouts.energy_gains(&report.windows, dlf.dt, dlf.gravity);
     let manifest = scene.manifest();
-    report.energy = rollouts.energy_gains(
-        &report.windows,
-        1.0 / manifest.fps,
-        manifest.up_axis.gravity(),
-    );
     report.escaped = rollouts.escaped(&manifest.box_interior, manifest.particle_radius);
 
     let dir = run.stage_dir(STAGE);
