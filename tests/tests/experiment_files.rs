@@ -55,10 +55,20 @@ fn every_experiment_and_sweep_file_loads() {
 fn quick_configs_differ_from_the_main_job_only_in_the_scene() {
     use neurofluid_train::config::Settings;
     let root = workspace_root();
-    let load = |name: &str| {
+    let experiment = |name: &str| {
         let path = root.join("experiments").join(format!("{name}.toml"));
-        Settings::all(&Experiment::load(&path).unwrap_or_else(|e| panic!("{name}: {e}")))
+        Experiment::load(&path).unwrap_or_else(|e| panic!("{name}: {e}"))
     };
+    let load = |name: &str| Settings::all(&experiment(name));
+    // each copy runs the scene its name says, and the material's terms are what rule 6 chose:
+    // water anchored and held to the energy prior, honey neither
+    for scene in ["watercube", "watersphere", "waterbunny", "honeycone"] {
+        let e = experiment(&format!("quick-{scene}"));
+        assert_eq!(e.scene.builtin.map(|b| b.name()), Some(scene));
+        let water = scene != "honeycone";
+        assert_eq!(e.joint.anchor_weight > 0.0, water, "quick-{scene}: anchor");
+        assert_eq!(e.joint.energy_weight > 0.0, water, "quick-{scene}: energy");
+    }
     let main = load("quick-watercube");
     let scene_keys = [
         "name",
