@@ -42,7 +42,12 @@ def report_rows(path):
         c = cells(line)
         if c[0] == "view":
             break
-        vals = [None if v in ("–", "") else float(v) for v in c[1:]]
+        try:
+            vals = [None if v in ("–", "") else float(v) for v in c[1:]]
+        except ValueError:
+            # the head of a table this script does not read (the energy table, …)
+            table = None
+            continue
         label = c[0].split(" (")[0]
         table[label] = vals
     return first, second, views, walls
