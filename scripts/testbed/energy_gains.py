@@ -1,8 +1,9 @@
 #!/usr/bin/env python3
 """The mechanical energy a run's rollouts and the truth gain, from the particle files alone: per
 kilogram, E_t = mean(½|v|² + g·height), v = (x_t − x_{t−1}) · fps, and the gain of a window the
-sum of max(0, E_t − E_{t−1}) over its steps t ≥ 2 (the evaluation's own table, `eval/report.md`,
-for runs evaluated before it existed). A fluid in a closed box only loses energy.
+sum of max(0, E_t − E_{t−1}) over its steps t ≥ 2; per particle, the mean over particles of each
+one's own gains (the evaluation's own table, `eval/report.md`, for runs evaluated before it
+existed). A fluid in a closed box only loses energy; in a viscous one, every particle does.
 
     python3 scripts/testbed/energy_gains.py RUN_DIR SCENE_DIR
 
@@ -33,15 +34,20 @@ def main():
             return truth(scene, t)
         return read_ply(os.path.join(run, "eval", "particles", f"{model}_{t:04d}.ply"))
 
-    print(f"{run}: energy gained (J/kg), t = 2–49 | t = 50–59 | E at t = 1, 49, 59")
+    print(f"{run}: energy gained (J/kg), t = 2–49 | t = 50–59 | per particle, t = 2–49 | "
+          f"t = 50–59 | E at t = 1, 49, 59")
     for model in ("truth", "dlf", "neurofluid"):
         x = [positions(model, t).astype(np.float64) for t in range(frames)]
-        energy = np.array([np.nan] + [
-            0.5 * (((x[t] - x[t - 1]) * fps) ** 2).sum(1).mean() + 9.81 * x[t][:, up].mean()
+        # each particle's ½|v|² + g·height (particle i the same in every frame), from t = 1
+        each = np.array([
+            0.5 * (((x[t] - x[t - 1]) * fps) ** 2).sum(1) + 9.81 * x[t][:, up]
             for t in range(1, frames)
         ])
+        energy = np.concatenate([[np.nan], each.mean(1)])
         gain = np.concatenate([[0.0, 0.0], np.clip(np.diff(energy[1:]), 0.0, None)])
+        mine = np.concatenate([[0.0, 0.0], np.clip(np.diff(each, axis=0), 0.0, None).mean(1)])
         print(f"  {model:10s} {gain[2:50].sum():8.3f} | {gain[50:].sum():8.3f} | "
+              f"{mine[2:50].sum():8.3f} | {mine[50:].sum():8.3f} | "
               f"{energy[1]:.2f}, {energy[49]:.2f}, {energy[-1]:.2f}")
 
 

@@ -22,28 +22,43 @@
 //! the one penalised, not the one before it. DLF's own integrator conserves E exactly in free fall
 //! (its velocity is the displacement over dt, its position the trapezoid of the two velocities),
 //! so the term is zero on a ballistic step and measures only what the network's correction adds.
+//!
+//! With `joint.energy_per = "particle"` the term holds each particle's own energy instead,
+//! L = w · (1/N) Σ_i max(0, e_i(x′, v′) − e_i(x, v)) / (|g| r): in a viscous fluid no particle
+//! gains energy (every particle of every true honey sequence measured only loses it), while a
+//! water wave's run-up passes energy from particle to particle, which only the fluid's sum
+//! keeps.
 
 use burn::prelude::*;
 use burn::tensor::activation::relu;
 
-/// E(x, v) of the states `pos`, `vel` (`[N, 3]` each), `[1]`: the mean over particles of
-/// ½|v|² − g·x, for gravity `gravity` (m/s², the scene's frame).
-pub fn specific_energy(pos: Tensor<2>, vel: Tensor<2>, gravity: [f32; 3]) -> Tensor<1> {
+use crate::config::EnergyPer;
+
+/// e_i(x, v) of the states `pos`, `vel` (`[N, 3]` each), `[N]`: each particle's ½|v|² − g·x,
+/// for gravity `gravity` (m/s², the scene's frame).
+pub fn particle_energies(pos: Tensor<2>, vel: Tensor<2>, gravity: [f32; 3]) -> Tensor<1> {
     let device = pos.device();
     let down: Tensor<2> =
         neurofluid_core::transfer::upload(TensorData::new(gravity.to_vec(), [3, 1]), &device);
     let kinetic = vel.powi_scalar(2).sum_dim(1).mul_scalar(0.5);
     let potential = pos.matmul(down).neg();
-    (kinetic + potential).mean()
+    (kinetic + potential).squeeze_dim(1)
+}
+
+/// E(x, v) of the states `pos`, `vel`, `[1]`: the mean of [`particle_energies`].
+pub fn specific_energy(pos: Tensor<2>, vel: Tensor<2>, gravity: [f32; 3]) -> Tensor<1> {
+    particle_energies(pos, vel, gravity).mean()
 }
 
 /// The energy gain of the step from `before` (held fixed) to `after`, in units of |g|·`radius`,
-/// `[1]`: max(0, E(after) − E(before)) / (|g| r).
+/// `[1]`: max(0, E(after) − E(before)) / (|g| r) per fluid, the mean of each particle's
+/// max(0, e_i(after) − e_i(before)) / (|g| r) per particle.
 pub fn energy_gain(
     before: (Tensor<2>, Tensor<2>),
     after: (Tensor<2>, Tensor<2>),
     gravity: [f32; 3],
     radius: f32,
+    per: EnergyPer,
 ) -> Tensor<1> {
     let g = gravity
         .iter()
@@ -51,22 +66,31 @@ pub fn energy_gain(
         .sum::<f64>()
         .sqrt();
     let unit = (g * f64::from(radius)).max(f64::MIN_POSITIVE);
-    let start = specific_energy(before.0.detach(), before.1.detach(), gravity);
-    let end = specific_energy(after.0, after.1, gravity);
-    relu(end - start).mul_scalar(1.0 / unit)
+    let start = particle_energies(before.0.detach(), before.1.detach(), gravity);
+    let end = particle_energies(after.0, after.1, gravity);
+    let gain = match per {
+        EnergyPer::Fluid => relu(end.mean() - start.mean()),
+        EnergyPer::Particle => relu(end - start).mean(),
+    };
+    gain.mul_scalar(1.0 / unit)
 }
 
 /// Per step t of a sequence of positions `frames` (one frame every `dt` seconds), the energy
-/// gained from step t − 1 to t, max(0, E_t − E_{t−1}) in J/kg, with each E_t taken from the
-/// positions alone (velocity (x_t − x_{t−1}) / dt, as DLF's own): index t; steps 0 and 1 hold 0
-/// (E_1 is the first with a velocity). What an evaluation reports of each rollout and of the
-/// truth: a fluid in a closed box gains none.
-pub fn energy_gains(frames: &[Vec<[f32; 3]>], dt: f32, gravity: [f32; 3]) -> Vec<f64> {
-    let energy = |t: usize| -> f64 {
-        let (x, before) = (&frames[t], &frames[t - 1]);
-        let sum: f64 = x
+/// gained from step t − 1 to t in J/kg, with each energy taken from the positions alone
+/// (velocity (x_t − x_{t−1}) / dt, as DLF's own): max(0, E_t − E_{t−1}) per fluid, the mean of
+/// max(0, e_i,t − e_i,t−1) per particle (particle i the same in every frame). Index t; steps 0
+/// and 1 hold 0 (step 1 is the first with a velocity). What an evaluation reports of each
+/// rollout and of the truth: a fluid in a closed box gains none.
+pub fn energy_gains(
+    frames: &[Vec<[f32; 3]>],
+    dt: f32,
+    gravity: [f32; 3],
+    per: EnergyPer,
+) -> Vec<f64> {
+    let energies = |t: usize| -> Vec<f64> {
+        frames[t]
             .iter()
-            .zip(before)
+            .zip(&frames[t - 1])
             .map(|(p, q)| {
                 (0..3)
                     .map(|k| {
@@ -75,11 +99,24 @@ pub fn energy_gains(frames: &[Vec<[f32; 3]>], dt: f32, gravity: [f32; 3]) -> Vec
                     })
                     .sum::<f64>()
             })
-            .sum();
-        sum / x.len().max(1) as f64
+            .collect()
     };
+    let mean = |e: &[f64]| e.iter().sum::<f64>() / e.len().max(1) as f64;
     let mut gains = vec![0.0; frames.len().min(2)];
-    gains.extend((2..frames.len()).map(|t| (energy(t) - energy(t - 1)).max(0.0)));
+    gains.extend((2..frames.len()).map(|t| {
+        let (before, after) = (energies(t - 1), energies(t));
+        match per {
+            EnergyPer::Fluid => (mean(&after) - mean(&before)).max(0.0),
+            EnergyPer::Particle => {
+                let each: Vec<f64> = after
+                    .iter()
+                    .zip(&before)
+                    .map(|(a, b)| (a - b).max(0.0))
+                    .collect();
+                mean(&each)
+            }
+        }
+    }));
     gains
 }
 
@@ -112,10 +149,29 @@ mod tests {
             / n
     }
 
-    /// The term by hand, in f64.
-    fn gain_by_hand(before: (&[[f32; 3]], &[[f32; 3]]), after: (&[[f32; 3]], &[[f32; 3]])) -> f64 {
-        let gain = energy_by_hand(after.0, after.1) - energy_by_hand(before.0, before.1);
-        gain.max(0.0) / (9.81 * f64::from(R))
+    /// The term by hand, in f64: the fluid's gain, or the mean of each particle's.
+    fn gain_by_hand(
+        before: (&[[f32; 3]], &[[f32; 3]]),
+        after: (&[[f32; 3]], &[[f32; 3]]),
+        per: EnergyPer,
+    ) -> f64 {
+        let gain = match per {
+            EnergyPer::Fluid => {
+                (energy_by_hand(after.0, after.1) - energy_by_hand(before.0, before.1)).max(0.0)
+            }
+            EnergyPer::Particle => {
+                (0..before.0.len())
+                    .map(|i| {
+                        let one = |s: (&[[f32; 3]], &[[f32; 3]])| {
+                            energy_by_hand(&s.0[i..=i], &s.1[i..=i])
+                        };
+                        (one(after) - one(before)).max(0.0)
+                    })
+                    .sum::<f64>()
+                    / before.0.len() as f64
+            }
+        };
+        gain / (9.81 * f64::from(R))
     }
 
     #[test]
@@ -145,7 +201,13 @@ mod tests {
         // exact in real arithmetic; f32 rounding of the states leaves ~1e-6 J/kg
         let by_hand = energy_by_hand(&x1, &v1) - energy_by_hand(&x, &v);
         assert!(by_hand.abs() < 1e-5, "{by_hand}");
-        let gain = scalar(&energy_gain((t(&x), t(&v)), (t(&x1), t(&v1)), G, R));
+        let gain = scalar(&energy_gain(
+            (t(&x), t(&v)),
+            (t(&x1), t(&v1)),
+            G,
+            R,
+            EnergyPer::Fluid,
+        ));
         assert!(gain < 1e-3, "{gain}");
     }
 
@@ -156,26 +218,76 @@ mod tests {
         let x = [[0.1, 0.2, 0.3], [-0.4, 0.0, 1.2]];
         let up: Vec<[f32; 3]> = x.iter().map(|p| [p[0], p[1], p[2] + R]).collect();
         let rest = [[0.0; 3]; 2];
-        let lift = scalar(&energy_gain((t(&x), t(&rest)), (t(&up), t(&rest)), G, R));
-        assert!((lift - 1.0).abs() < 1e-3, "{lift}");
-        let fall = scalar(&energy_gain((t(&up), t(&rest)), (t(&x), t(&rest)), G, R));
-        assert_eq!(fall, 0.0);
+        for per in [EnergyPer::Fluid, EnergyPer::Particle] {
+            let lift = scalar(&energy_gain(
+                (t(&x), t(&rest)),
+                (t(&up), t(&rest)),
+                G,
+                R,
+                per,
+            ));
+            assert!((lift - 1.0).abs() < 1e-3, "{per:?}: {lift}");
+            let fall = scalar(&energy_gain(
+                (t(&up), t(&rest)),
+                (t(&x), t(&rest)),
+                G,
+                R,
+                per,
+            ));
+            assert_eq!(fall, 0.0, "{per:?}");
+        }
+    }
+
+    /// One particle lifted by one radius while another sinks by one: the fluid gains nothing,
+    /// each particle's prior charges the lifted one, half a unit over two particles.
+    #[test]
+    fn energy_passed_between_particles_costs_only_per_particle() {
+        let x = [[0.1, 0.2, 0.3], [-0.4, 0.0, 1.2]];
+        let moved = [[0.1, 0.2, 0.3 + R], [-0.4, 0.0, 1.2 - R]];
+        let rest = [[0.0; 3]; 2];
+        let step = |per| {
+            scalar(&energy_gain(
+                (t(&x), t(&rest)),
+                (t(&moved), t(&rest)),
+                G,
+                R,
+                per,
+            ))
+        };
+        assert!(
+            step(EnergyPer::Fluid).abs() < 1e-3,
+            "{}",
+            step(EnergyPer::Fluid)
+        );
+        let each = step(EnergyPer::Particle);
+        assert!((each - 0.5).abs() < 1e-3, "{each}");
     }
 
     /// The gradient with respect to the step's end state equals central differences of the
     /// term computed by hand, and the start state gets none (it is held fixed).
     #[test]
     fn gradient_matches_central_differences() {
+        for per in [EnergyPer::Fluid, EnergyPer::Particle] {
+            gradient_matches_central_differences_per(per);
+        }
+    }
+
+    fn gradient_matches_central_differences_per(per: EnergyPer) {
         let x0 = [[0.1, 0.2, 0.3], [-0.4, 0.0, 1.2]];
         let v0 = [[0.1, 0.0, 0.0], [0.0, 0.0, 0.1]];
-        let x1 = [[0.12, 0.21, 0.34], [-0.41, 0.02, 1.25]];
-        let v1 = [[1.0, 0.5, 2.0], [-0.5, 1.0, 2.5]];
+        // particle 1 gains, particle 0 loses a little (per particle only 1 is charged)
+        let x1 = [[0.12, 0.21, 0.28], [-0.41, 0.02, 1.25]];
+        let v1 = [[0.1, 0.05, 0.2], [-0.5, 1.0, 2.5]];
         let (px, pv) = (t(&x1).require_grad(), t(&v1).require_grad());
         let start = t(&x0).require_grad();
-        let loss = energy_gain((start.clone(), t(&v0)), (px.clone(), pv.clone()), G, R);
+        let loss = energy_gain((start.clone(), t(&v0)), (px.clone(), pv.clone()), G, R, per);
         let value = scalar(&loss);
         assert!(value > 1.0, "the step must gain energy: {value}");
-        assert!((value - gain_by_hand((&x0, &v0), (&x1, &v1))).abs() < 1e-3 * value);
+        let by_hand = gain_by_hand((&x0, &v0), (&x1, &v1), per);
+        assert!(
+            (value - by_hand).abs() < 1e-3 * value,
+            "{per:?}: {value} vs {by_hand}"
+        );
         let grads = loss.backward();
         let gx = tensor_points(&px.grad(&grads).unwrap());
         let gv = tensor_points(&pv.grad(&grads).unwrap());
@@ -194,13 +306,13 @@ mod tests {
                         } else {
                             v[i][k] += s
                         }
-                        gain_by_hand((&x0, &v0), (&x, &v))
+                        gain_by_hand((&x0, &v0), (&x, &v), per)
                     };
                     let fd = (shifted(h) - shifted(-h)) / (2.0 * f64::from(h));
                     let got = f64::from(analytic[i][k]);
                     assert!(
                         (got - fd).abs() < 1e-3 * fd.abs().max(1.0),
-                        "{moved} {i} {k}: {got} vs {fd}"
+                        "{per:?} {moved} {i} {k}: {got} vs {fd}"
                     );
                 }
             }
@@ -228,17 +340,34 @@ mod tests {
             }
             frames.push(x.clone());
         }
-        let gains = energy_gains(&frames, dt, G);
-        assert_eq!(gains.len(), frames.len());
-        assert!(gains.iter().all(|&g| g < 1e-3), "{gains:?}");
+        for per in [EnergyPer::Fluid, EnergyPer::Particle] {
+            let gains = energy_gains(&frames, dt, G, per);
+            assert_eq!(gains.len(), frames.len());
+            assert!(gains.iter().all(|&g| g < 1e-3), "{per:?}: {gains:?}");
+        }
         // at rest, then every particle lifted by one radius and left there
         let rest = vec![vec![[0.0f32, 0.0, 0.5]; 3]; 3];
         let lifted = vec![[0.0f32, 0.0, 0.5 + R]; 3];
         let frames: Vec<_> = rest.into_iter().chain([lifted.clone(), lifted]).collect();
-        let gains = energy_gains(&frames, dt, G);
-        // step 3: the lift (potential 9.81 r, kinetic ½ (r/dt)²); step 4: at rest, a loss
         let expected = 9.81 * f64::from(R) + 0.5 * (f64::from(R) / f64::from(dt)).powi(2);
-        assert!((gains[3] - expected).abs() < 1e-4 * expected, "{gains:?}");
-        assert_eq!(gains[4], 0.0);
+        for per in [EnergyPer::Fluid, EnergyPer::Particle] {
+            let gains = energy_gains(&frames, dt, G, per);
+            // step 3: the lift (potential 9.81 r, kinetic ½ (r/dt)²); step 4: at rest, a loss
+            assert!((gains[3] - expected).abs() < 1e-4 * expected, "{gains:?}");
+            assert_eq!(gains[4], 0.0);
+        }
+        // one particle of two lifted while the other sinks by as much, slowly (the sinker loses
+        // more potential energy than it gains kinetic): the fluid gains only the kinetic part,
+        // each particle's prior the lifted one's whole gain, halved
+        let slow = 0.2f32;
+        let rest = vec![vec![[0.0f32, 0.0, 0.5], [1.0, 0.0, 0.5]]; 3];
+        let swapped = vec![[0.0f32, 0.0, 0.5 + R], [1.0, 0.0, 0.5 - R]];
+        let frames: Vec<_> = rest.into_iter().chain([swapped]).collect();
+        let kinetic = 0.5 * (f64::from(R) / f64::from(slow)).powi(2);
+        let lifted = 9.81 * f64::from(R) + kinetic;
+        let fluid = energy_gains(&frames, slow, G, EnergyPer::Fluid);
+        assert!((fluid[3] - kinetic).abs() < 1e-4 * lifted, "{fluid:?}");
+        let each = energy_gains(&frames, slow, G, EnergyPer::Particle);
+        assert!((each[3] - lifted / 2.0).abs() < 1e-4 * lifted, "{each:?}");
     }
 }

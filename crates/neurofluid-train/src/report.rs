@@ -276,15 +276,23 @@ pub struct EvalReport {
 }
 
 /// The energy a sequence gains over the two windows, in J/kg: the sum of every step's gain
-/// (steps t ≥ 2 of each window; a step that loses energy adds nothing).
+/// (steps t ≥ 2 of each window; a step that loses energy adds nothing), of the fluid's energy
+/// and of each particle's ([`crate::energy_prior::energy_gains`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct EnergyGain {
     /// The rollout's table label, or `truth`.
     pub model: String,
-    /// Over the grounding window.
+    /// The fluid's, over the grounding window.
     pub grounding: f64,
-    /// Over the prediction window.
+    /// The fluid's, over the prediction window.
     pub prediction: f64,
+    /// Each particle's (the mean of their gains), over the grounding window; 0 in reports
+    /// written before it existed.
+    #[serde(default)]
+    pub grounding_per_particle: f64,
+    /// Each particle's, over the prediction window.
+    #[serde(default)]
+    pub prediction_per_particle: f64,
 }
 
 /// NeuroFluid's DLF at one `eval.weight_interpolation` fraction: `[d, d′]` averaged over each
@@ -558,25 +566,30 @@ impl EvalReport {
             return String::new();
         }
         let (g, p) = (self.windows.grounding, self.windows.prediction);
+        let (g0, p0) = (g.0.max(2), p.0);
         let mut md = format!(
-            "\n| sequence | energy gained, t = {}–{} (J/kg) | t = {}–{} (J/kg) |\n|---|---:|---:|\n",
-            g.0.max(2),
-            g.1,
-            p.0,
-            p.1
+            "\n| sequence | energy gained, t = {g0}–{} (J/kg) | t = {p0}–{} (J/kg) | per particle, \
+             t = {g0}–{} | per particle, t = {p0}–{} |\n|---|---:|---:|---:|---:|\n",
+            g.1, p.1, g.1, p.1
         );
         for e in &self.energy {
             let _ = writeln!(
                 md,
-                "| {} | {:.3} | {:.3} |",
-                e.model, e.grounding, e.prediction
+                "| {} | {:.3} | {:.3} | {:.3} | {:.3} |",
+                e.model,
+                e.grounding,
+                e.prediction,
+                e.grounding_per_particle,
+                e.prediction_per_particle
             );
         }
         md.push_str(
             "\nEnergy gained: the sum over frames of each frame's gain in mechanical energy per \
-             kilogram (½|v|² + g·height, v from consecutive positions), a loss counting 0. A fluid \
-             in a closed box only loses energy; a rollout that gains it throws fluid where the \
-             truth has none (`joint.energy_weight` penalises it).\n",
+             kilogram (½|v|² + g·height, v from consecutive positions), a loss counting 0; per \
+             particle, the mean of each particle's own gains. A fluid in a closed box only loses \
+             energy; a rollout that gains it throws fluid where the truth has none \
+             (`joint.energy_weight` penalises it; `joint.energy_per = \"particle\"` each \
+             particle's, which in a viscous fluid none gains).\n",
         );
         md
     }
@@ -875,19 +888,33 @@ mod tests {
                 model: "truth".into(),
                 grounding: 0.0,
                 prediction: 0.0,
+                grounding_per_particle: 0.0,
+                prediction_per_particle: 0.0,
             },
             EnergyGain {
                 model: "NeuroFluid".into(),
                 grounding: 0.588,
                 prediction: 0.0123,
+                grounding_per_particle: 1.78,
+                prediction_per_particle: 0.25,
             },
         ];
         let md = r.markdown();
         assert!(md.contains("energy gained, t = 2–"), "{md}");
-        assert!(md.contains("| truth | 0.000 | 0.000 |"), "{md}");
-        assert!(md.contains("| NeuroFluid | 0.588 | 0.012 |"), "{md}");
+        assert!(
+            md.contains("| truth | 0.000 | 0.000 | 0.000 | 0.000 |"),
+            "{md}"
+        );
+        assert!(
+            md.contains("| NeuroFluid | 0.588 | 0.012 | 1.780 | 0.250 |"),
+            "{md}"
+        );
         let back: EvalReport = serde_json::from_str(&serde_json::to_string(&r).unwrap()).unwrap();
         assert_eq!(back.energy, r.energy);
+        // a report written before the per-particle gains existed reads them as 0
+        let old = r#"{"model":"DLF","grounding":0.5,"prediction":0.25}"#;
+        let e: EnergyGain = serde_json::from_str(old).unwrap();
+        assert_eq!((e.grounding, e.grounding_per_particle), (0.5, 0.0));
     }
 
     /// Particles where the truth has none (spray above the fluid) leave d at zero and show in d′.

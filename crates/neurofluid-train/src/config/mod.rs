@@ -39,7 +39,7 @@ pub use errors::{ConfigError, from_toml_str, line_col};
 pub(crate) use errors::{from_table, read_text};
 pub use preset::Preset;
 pub use sections::{
-    AnchorAlong, BuiltinScene, Containment, DlfSection, EvalSection, InitialParticles,
+    AnchorAlong, BuiltinScene, Containment, DlfSection, EnergyPer, EvalSection, InitialParticles,
     InitialSection, JointSection, NerfSection, PlyEncoding, SceneScale, SceneSection,
     SurfaceThreshold, WarmupSection,
 };

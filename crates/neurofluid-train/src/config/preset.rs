@@ -59,6 +59,7 @@ pub fn apply(exp: &mut Experiment) -> Vec<Change> {
     j.silhouette_weight = paper.silhouette_weight;
     j.density_weight = paper.density_weight;
     j.energy_weight = paper.energy_weight;
+    j.energy_per = paper.energy_per;
     j.anchor_weight = paper.anchor_weight;
     j.anchor_along = paper.anchor_along;
     j.anchor_horizon = paper.anchor_horizon;

@@ -216,6 +216,20 @@ pub enum AnchorAlong {
     Depth,
 }
 
+/// What the energy prior (`joint.energy_weight`) holds non-increasing from step to step.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum EnergyPer {
+    /// The fluid's energy, the mean over its particles: energy may pass between particles (a
+    /// wave's run-up up a wall), only the whole may not gain.
+    #[default]
+    Fluid,
+    /// Each particle's own energy: no particle may gain, as in a viscous fluid, where every
+    /// particle of every true honey sequence measured only loses (BENCHMARKS.md, "energy per
+    /// particle"). A particle thrown up out of the fluid is penalised even where the whole loses.
+    Particle,
+}
+
 /// Where the surface of the NeRF's density lies.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -416,6 +430,8 @@ pub struct JointSection {
     /// step's gain is penalised in units of lifting every particle by one radius.
     /// 0 = the reference's image loss alone.
     pub energy_weight: f64,
+    /// Whose energy the energy prior holds (`fluid`).
+    pub energy_per: EnergyPer,
     /// Weight of the anchor term ([`crate::stages::joint::anchor_penalty`]): each grounded step
     /// kept near the pretrained DLF's step from the same state, in particle radii², where the
     /// images do not ask for a change. 0 = the reference's image loss alone.
@@ -466,6 +482,7 @@ impl Default for JointSection {
             silhouette_cover: true,
             density_weight: 0.0,
             energy_weight: 0.0,
+            energy_per: EnergyPer::Fluid,
             anchor_weight: 0.0,
             anchor_along: AnchorAlong::All,
             anchor_horizon: 0,

@@ -40,7 +40,7 @@ use super::views::{
 };
 use super::warmup::{self, WarmupData};
 use crate::config::Cadenced;
-use crate::config::{AnchorAlong, JointSection};
+use crate::config::{AnchorAlong, EnergyPer, JointSection};
 use crate::density_prior::DensityPrior;
 use crate::energy_prior::{energy_gain, energy_gains};
 use crate::focus::{image_foreground, mark_particles, sample_focused};
@@ -599,6 +599,7 @@ impl Trainer for JointTrainer {
                 after,
                 self.dlf.config.gravity,
                 self.data.radius,
+                self.cfg.energy_per,
             )
             .mul_scalar(self.cfg.energy_weight);
             extra = extra + term.clone().detach();
@@ -927,7 +928,12 @@ impl JointTrainer {
             steps,
             |_| {},
         );
-        let gains = energy_gains(&rollout.pos, dlf.config.dt, dlf.config.gravity);
+        let gains = energy_gains(
+            &rollout.pos,
+            dlf.config.dt,
+            dlf.config.gravity,
+            EnergyPer::Fluid,
+        );
         d.rollout_energy_gain = Some(gains.iter().sum());
         let Some(truth) = &self.data.truth else {
             return Ok(d);
