@@ -507,8 +507,9 @@ fn energy_prior_adds_each_steps_energy_gain_to_the_loss() {
     // three runs that differ only in the energy prior (none, the fluid's, each particle's), DLF
     // held at its starting weights (lr 0), so that all roll the same states out and PhysNeRF
     // trains the same: every step's loss differs by w·max(0, E(x′, v′) − E(x, v)) / (|g| r) of
-    // that DLF's step, or by w·mean_i max(0, e_i(x′, v′) − e_i(x, v)) / (|g| r), by hand. The
-    // pretrained DLF gains no energy on the tiny scene (a cube in free fall), so the runs start
+    // that DLF's step, or by w·mean_i max(0, e_i(x′, v′) − e_i(x, v)) / (|g| r), by hand, and
+    // the joint diagnostics log the same gains of the held DLF's rollout. The pretrained DLF
+    // gains no energy on the tiny scene (a cube in free fall), so the runs start
     // from one whose last layer lifts every particle by 2.5 mm a step (0.32 of the raw output,
     // 1/128 m each), which does; at that lift some particles still lose energy while the fluid
     // gains, so that the two priors differ.
@@ -544,6 +545,8 @@ fn energy_prior_adds_each_steps_energy_gain_to_the_loss() {
                 format!("joint.energy_per={per:?}"),
                 "joint.dlf_optim.lr=0.0".into(),
                 "joint.epochs=2".into(),
+                // an evaluation (the diagnostics) after every epoch
+                "joint.preview_every=3".into(),
             ]
         }),
     );
@@ -597,6 +600,23 @@ fn energy_prior_adds_each_steps_energy_gain_to_the_loss() {
     };
     let free = losses(&runs[0]);
     assert!(!free.is_empty());
+    // the joint diagnostics log the same rollout's gains in both forms (its DLF held): from
+    // positions alone, the steps from t = 2 on, which are the transitions after the first
+    let logged = rows_of(&runs[0].jsonl, "joint-preview");
+    for (key, gains) in [
+        ("rollout_energy_gain", &fluid),
+        ("rollout_particle_energy_gain", &particle),
+    ] {
+        let expected = gains[1..].iter().sum::<f64>() * unit / weight;
+        let values: Vec<f64> = logged.iter().filter_map(|r| r.get(key)).collect();
+        assert!(!values.is_empty(), "no {key} logged");
+        for v in values {
+            assert!(
+                (v - expected).abs() <= 1e-4 * expected.max(1e-3),
+                "{key}: logged {v}, by hand {expected}"
+            );
+        }
+    }
     for (held, gains, per) in [
         (&runs[1], &fluid, "fluid"),
         (&runs[2], &particle, "particle"),

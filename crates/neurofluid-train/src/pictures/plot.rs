@@ -154,9 +154,14 @@ fn draw_panel<DB: DrawingBackend>(
 
 /// Scalars drawn grey beside another's curve, not in a row of their own: (scalar, beside, what
 /// the grey curve is).
-const BESIDE: [(&str, &str, &str); 2] = [
+const BESIDE: [(&str, &str, &str); 3] = [
     ("psnr_true", "psnr", "on the true particles"),
     ("rollout_d_prime", "rollout_d", "d′ (spray)"),
+    (
+        "rollout_particle_energy_gain",
+        "rollout_energy_gain",
+        "per particle",
+    ),
 ];
 
 /// Colours of a family's further groups (`lr/<group>`: the first group takes the row's colour).

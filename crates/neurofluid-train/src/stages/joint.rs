@@ -208,7 +208,8 @@ impl JointData {
 type State = (Tensor<2>, Tensor<2>);
 
 /// What the joint stage measures besides its loss, at every evaluation (metrics columns
-/// `rollout_d`, `rollout_d_prime`, `rollout_energy_gain`, `grad_alignment`, `psnr_true`).
+/// `rollout_d`, `rollout_d_prime`, `rollout_energy_gain`, `rollout_particle_energy_gain`,
+/// `grad_alignment`, `psnr_true`).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Diagnostics {
     /// d (× 1000) of DLF's rollout from the first true frame over the training frames
@@ -221,6 +222,9 @@ pub struct Diagnostics {
     /// the steps that gain ([`crate::energy_prior::energy_gains`]): a fluid in a closed box gains
     /// none. Needs no true particles.
     pub rollout_energy_gain: Option<f64>,
+    /// The same per particle: the sum over steps of the mean of each particle's own gain (in a
+    /// viscous fluid no particle gains any; water passes energy between particles).
+    pub rollout_particle_energy_gain: Option<f64>,
     /// The mean, over the transitions since the last evaluation, of the cosine between the image
     /// loss's descent direction at the prediction, −∂L/∂x_{t+1}, and the true error
     /// x_true − x_pred (particles matched by index): does the image signal point at the truth?
@@ -239,6 +243,10 @@ impl Diagnostics {
             ("grad_alignment", self.grad_alignment),
             ("psnr_true", self.psnr_true),
             ("rollout_energy_gain", self.rollout_energy_gain),
+            (
+                "rollout_particle_energy_gain",
+                self.rollout_particle_energy_gain,
+            ),
         ]
         .into_iter()
         .filter_map(|(k, v)| v.map(|v| (k, v)))
@@ -928,13 +936,13 @@ impl JointTrainer {
             steps,
             |_| {},
         );
-        let gains = energy_gains(
-            &rollout.pos,
-            dlf.config.dt,
-            dlf.config.gravity,
-            EnergyPer::Fluid,
-        );
-        d.rollout_energy_gain = Some(gains.iter().sum());
+        let gained = |per| -> f64 {
+            energy_gains(&rollout.pos, dlf.config.dt, dlf.config.gravity, per)
+                .iter()
+                .sum()
+        };
+        d.rollout_energy_gain = Some(gained(EnergyPer::Fluid));
+        d.rollout_particle_energy_gain = Some(gained(EnergyPer::Particle));
         let Some(truth) = &self.data.truth else {
             return Ok(d);
         };
