@@ -2,12 +2,14 @@
 """E(t), the mechanical energy per kilogram of the truth, the pretrained DLF and each run's
 NeuroFluid over the test frames, one panel per scene (docs/energy.png):
 
-    python3 scripts/testbed/energy_plot.py OUT.png SCENE_DIR LABEL=RUN [LABEL=RUN ...] \
-        [-- SCENE_DIR LABEL=RUN ...]
+    python3 scripts/testbed/energy_plot.py [--per-particle] OUT.png SCENE_DIR LABEL=RUN \
+        [LABEL=RUN ...] [-- SCENE_DIR LABEL=RUN ...]
 
 Needs numpy and matplotlib; reads the runs' eval/particles/*.ply (eval.write_ply). E_t is
 energy_gains.py's: mean(½|v|² + g·height), v = (x_t − x_{t−1}) · fps; the truth and DLF are
-read from the first run of each panel.
+read from the first run of each panel. With --per-particle, each curve is instead the energy
+gained per particle up to frame t: the sum over steps of the mean of each particle's own gain
+(docs/particle-energy.png; flat at 0 where no particle gains, as in a viscous fluid).
 """
 
 import glob
@@ -25,11 +27,19 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from spray_diagnosis import read_ply, truth  # noqa: E402
 
 
+PER_PARTICLE = False
+
+
 def energies(frames, fps, up):
-    return np.array([
-        0.5 * (((frames[t] - frames[t - 1]) * fps) ** 2).sum(1).mean() + 9.81 * frames[t][:, up].mean()
+    """E_t for t ≥ 1, or with --per-particle the per-particle gain accumulated up to t."""
+    each = np.array([
+        0.5 * (((frames[t] - frames[t - 1]) * fps) ** 2).sum(1) + 9.81 * frames[t][:, up]
         for t in range(1, len(frames))
     ])
+    if not PER_PARTICLE:
+        return each.mean(1)
+    gains = np.clip(np.diff(each, axis=0), 0.0, None).mean(1)
+    return np.concatenate([[0.0], np.cumsum(gains)])
 
 
 def panel(ax, scene, runs):
@@ -47,12 +57,17 @@ def panel(ax, scene, runs):
     ax.axvline(49.5, color="grey", lw=0.8, ls=":")
     ax.set_title(meta.get("name", os.path.basename(scene)))
     ax.set_xlabel("frame t (training frames < 50)")
-    ax.set_ylabel("E (J/kg): ½|v|² + g·height")
+    ax.set_ylabel("energy gained per particle up to t (J/kg)" if PER_PARTICLE
+                  else "E (J/kg): ½|v|² + g·height")
     ax.legend(fontsize=7)
 
 
 def main():
-    out, rest = sys.argv[1], sys.argv[2:]
+    global PER_PARTICLE
+    args = sys.argv[1:]
+    if args and args[0] == "--per-particle":
+        PER_PARTICLE, args = True, args[1:]
+    out, rest = args[0], args[1:]
     groups, cur = [], []
     for a in rest:
         if a == "--":
