@@ -22,6 +22,15 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from spray_diagnosis import read_ply, truth  # noqa: E402
 
 
+def particle_energies(x, fps, up):
+    """Each particle's ½|v|² + g·height at frames t = 1 … (rows), v = (x_t − x_{t−1}) · fps, of
+    the positions x (a list of (N, 3) arrays; particle i the same in every frame)."""
+    return np.array([
+        0.5 * (((x[t] - x[t - 1]) * fps) ** 2).sum(1) + 9.81 * x[t][:, up]
+        for t in range(1, len(x))
+    ])
+
+
 def main():
     run, scene = sys.argv[1], sys.argv[2]
     meta = json.load(open(os.path.join(scene, "scene.json")))
@@ -38,11 +47,7 @@ def main():
           f"t = 50–59 | E at t = 1, 49, 59")
     for model in ("truth", "dlf", "neurofluid"):
         x = [positions(model, t).astype(np.float64) for t in range(frames)]
-        # each particle's ½|v|² + g·height (particle i the same in every frame), from t = 1
-        each = np.array([
-            0.5 * (((x[t] - x[t - 1]) * fps) ** 2).sum(1) + 9.81 * x[t][:, up]
-            for t in range(1, frames)
-        ])
+        each = particle_energies(x, fps, up)
         energy = np.concatenate([[np.nan], each.mean(1)])
         gain = np.concatenate([[0.0, 0.0], np.clip(np.diff(energy[1:]), 0.0, None)])
         mine = np.concatenate([[0.0, 0.0], np.clip(np.diff(each, axis=0), 0.0, None).mean(1)])

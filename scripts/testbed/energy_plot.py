@@ -24,6 +24,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from energy_gains import particle_energies  # noqa: E402
 from spray_diagnosis import read_ply, truth  # noqa: E402
 
 
@@ -32,10 +33,7 @@ PER_PARTICLE = False
 
 def energies(frames, fps, up):
     """E_t for t ≥ 1, or with --per-particle the per-particle gain accumulated up to t."""
-    each = np.array([
-        0.5 * (((frames[t] - frames[t - 1]) * fps) ** 2).sum(1) + 9.81 * frames[t][:, up]
-        for t in range(1, len(frames))
-    ])
+    each = particle_energies(frames, fps, up)
     if not PER_PARTICLE:
         return each.mean(1)
     gains = np.clip(np.diff(each, axis=0), 0.0, None).mean(1)

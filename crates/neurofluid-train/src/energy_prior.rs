@@ -70,18 +70,21 @@ pub fn energy_gain(
     gain.mul_scalar(1.0 / unit)
 }
 
-/// Per step t of a sequence of positions `frames` (one frame every `dt` seconds), the energy
-/// gained from step t − 1 to t in J/kg, with each energy taken from the positions alone
-/// (velocity (x_t − x_{t−1}) / dt, as DLF's own): max(0, E_t − E_{t−1}) per fluid, the mean of
-/// max(0, e_i,t − e_i,t−1) per particle (particle i the same in every frame). Index t; steps 0
-/// and 1 hold 0 (step 1 is the first with a velocity). What an evaluation reports of each
+/// Per step of a sequence, the energy it gained in both forms (J/kg): index t is the step from
+/// frame t − 1 to t; steps 0 and 1 hold 0 (step 1 is the first with a velocity).
+#[derive(Debug, Clone, PartialEq)]
+pub struct EnergyGains {
+    /// max(0, E_t − E_{t−1}): the fluid's.
+    pub fluid: Vec<f64>,
+    /// The mean of max(0, e_i,t − e_i,t−1): each particle's (particle i the same in every frame).
+    pub particle: Vec<f64>,
+}
+
+/// The energy a sequence of positions `frames` (one frame every `dt` seconds) gains at each
+/// step, with each energy taken from the positions alone (velocity (x_t − x_{t−1}) / dt, as
+/// DLF's own), both forms from one pass over the frames. What an evaluation reports of each
 /// rollout and of the truth: a fluid in a closed box gains none.
-pub fn energy_gains(
-    frames: &[Vec<[f32; 3]>],
-    dt: f32,
-    gravity: [f32; 3],
-    per: EnergyPer,
-) -> Vec<f64> {
+pub fn energy_gains(frames: &[Vec<[f32; 3]>], dt: f32, gravity: [f32; 3]) -> EnergyGains {
     let energies = |t: usize| -> Vec<f64> {
         frames[t]
             .iter()
@@ -99,22 +102,19 @@ pub fn energy_gains(
     let mean = |e: &[f64]| e.iter().sum::<f64>() / e.len().max(1) as f64;
     // from step 1, the first with a velocity
     let each: Vec<Vec<f64>> = (1..frames.len()).map(energies).collect();
-    let mut gains = vec![0.0; frames.len().min(2)];
-    gains.extend(each.windows(2).map(|pair| {
+    let start = vec![0.0; frames.len().min(2)];
+    let (mut fluid, mut particle) = (start.clone(), start);
+    for pair in each.windows(2) {
         let (before, after) = (&pair[0], &pair[1]);
-        match per {
-            EnergyPer::Fluid => (mean(after) - mean(before)).max(0.0),
-            EnergyPer::Particle => {
-                let gained: Vec<f64> = after
-                    .iter()
-                    .zip(before)
-                    .map(|(a, b)| (a - b).max(0.0))
-                    .collect();
-                mean(&gained)
-            }
-        }
-    }));
-    gains
+        fluid.push((mean(after) - mean(before)).max(0.0));
+        let gained: Vec<f64> = after
+            .iter()
+            .zip(before)
+            .map(|(a, b)| (a - b).max(0.0))
+            .collect();
+        particle.push(mean(&gained));
+    }
+    EnergyGains { fluid, particle }
 }
 
 #[cfg(test)]
@@ -346,18 +346,18 @@ mod tests {
             }
             frames.push(x.clone());
         }
-        for per in [EnergyPer::Fluid, EnergyPer::Particle] {
-            let gains = energy_gains(&frames, dt, G, per);
+        let both = energy_gains(&frames, dt, G);
+        for gains in [&both.fluid, &both.particle] {
             assert_eq!(gains.len(), frames.len());
-            assert!(gains.iter().all(|&g| g < 1e-3), "{per:?}: {gains:?}");
+            assert!(gains.iter().all(|&g| g < 1e-3), "{both:?}");
         }
         // at rest, then every particle lifted by one radius and left there
         let rest = vec![vec![[0.0f32, 0.0, 0.5]; 3]; 3];
         let lifted = vec![[0.0f32, 0.0, 0.5 + R]; 3];
         let frames: Vec<_> = rest.into_iter().chain([lifted.clone(), lifted]).collect();
         let expected = 9.81 * f64::from(R) + 0.5 * (f64::from(R) / f64::from(dt)).powi(2);
-        for per in [EnergyPer::Fluid, EnergyPer::Particle] {
-            let gains = energy_gains(&frames, dt, G, per);
+        let both = energy_gains(&frames, dt, G);
+        for gains in [&both.fluid, &both.particle] {
             // step 3: the lift (potential 9.81 r, kinetic ½ (r/dt)²); step 4: at rest, a loss
             assert!((gains[3] - expected).abs() < 1e-4 * expected, "{gains:?}");
             assert_eq!(gains[4], 0.0);
@@ -371,9 +371,9 @@ mod tests {
         let frames: Vec<_> = rest.into_iter().chain([swapped]).collect();
         let kinetic = 0.5 * (f64::from(R) / f64::from(slow)).powi(2);
         let lifted = 9.81 * f64::from(R) + kinetic;
-        let fluid = energy_gains(&frames, slow, G, EnergyPer::Fluid);
+        let gains = energy_gains(&frames, slow, G);
+        let (fluid, each) = (&gains.fluid, &gains.particle);
         assert!((fluid[3] - kinetic).abs() < 1e-4 * lifted, "{fluid:?}");
-        let each = energy_gains(&frames, slow, G, EnergyPer::Particle);
         assert!((each[3] - lifted / 2.0).abs() < 1e-4 * lifted, "{each:?}");
     }
 }

@@ -40,7 +40,7 @@ use super::views::{
 };
 use super::warmup::{self, WarmupData};
 use crate::config::Cadenced;
-use crate::config::{AnchorAlong, EnergyPer, JointSection};
+use crate::config::{AnchorAlong, JointSection};
 use crate::density_prior::DensityPrior;
 use crate::energy_prior::{energy_gain, energy_gains};
 use crate::focus::{image_foreground, mark_particles, sample_focused};
@@ -936,13 +936,9 @@ impl JointTrainer {
             steps,
             |_| {},
         );
-        let gained = |per| -> f64 {
-            energy_gains(&rollout.pos, dlf.config.dt, dlf.config.gravity, per)
-                .iter()
-                .sum()
-        };
-        d.rollout_energy_gain = Some(gained(EnergyPer::Fluid));
-        d.rollout_particle_energy_gain = Some(gained(EnergyPer::Particle));
+        let gains = energy_gains(&rollout.pos, dlf.config.dt, dlf.config.gravity);
+        d.rollout_energy_gain = Some(gains.fluid.iter().sum());
+        d.rollout_particle_energy_gain = Some(gains.particle.iter().sum());
         let Some(truth) = &self.data.truth else {
             return Ok(d);
         };

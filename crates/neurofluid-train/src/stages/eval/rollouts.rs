@@ -10,7 +10,6 @@ use neurofluid_core::scene::{Aabb, Particles, Role};
 use neurofluid_dlf::DlfNet;
 use neurofluid_dlf::rollout::rollout;
 
-use crate::config::EnergyPer;
 use crate::energy_prior::energy_gains;
 use crate::report::{
     EnergyGain, EvalReport, FrameDistance, InterpolationPoint, Reverse, Rollout, Windows,
@@ -179,17 +178,16 @@ impl Rollouts {
         rows.into_iter()
             .flatten()
             .map(|(model, frames)| {
-                let [fluid, particle] = [EnergyPer::Fluid, EnergyPer::Particle]
-                    .map(|per| energy_gains(frames, dt, gravity, per));
+                let gains = energy_gains(frames, dt, gravity);
                 let over = |gains: &[f64], (a, b): (usize, usize)| -> f64 {
                     gains.iter().take(b + 1).skip(a).sum()
                 };
                 EnergyGain {
                     model: model.to_string(),
-                    grounding: over(&fluid, windows.grounding),
-                    prediction: over(&fluid, windows.prediction),
-                    grounding_per_particle: over(&particle, windows.grounding),
-                    prediction_per_particle: over(&particle, windows.prediction),
+                    grounding: over(&gains.fluid, windows.grounding),
+                    prediction: over(&gains.fluid, windows.prediction),
+                    grounding_per_particle: over(&gains.particle, windows.grounding),
+                    prediction_per_particle: over(&gains.particle, windows.prediction),
                 }
             })
             .collect()
