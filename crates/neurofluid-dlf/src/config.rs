@@ -1,4 +1,4 @@
-//! Run-time settings of the DLF model: gravity, time step, frame, geometry mode, container.
+//! Run-time settings of the DLF model: gravity, time step, frame, geometry mode, container, energy cap.
 
 use neurofluid_core::scene::Aabb;
 
@@ -72,6 +72,10 @@ pub struct DlfConfig {
     /// particle through a wall ends on the wall, its velocity the displacement it really made.
     /// `None` (the reference): the walls act only through the box particles' convolution.
     pub container: Option<Aabb>,
+    /// Shorten each particle's step where it would raise the particle's mechanical energy
+    /// ([`crate::energy_cap`]; applied after the container). `false` (the reference): DLF's step
+    /// as it is.
+    pub cap_particle_energy: bool,
 }
 
 impl Default for DlfConfig {
@@ -85,6 +89,7 @@ impl Default for DlfConfig {
             frame: Frame::YUp,
             geometry: GeometryMode::Constant,
             container: None,
+            cap_particle_energy: false,
         }
     }
 }

@@ -9,6 +9,7 @@
 pub mod config;
 pub mod conv;
 pub mod diff_geometry;
+pub mod energy_cap;
 pub mod fused;
 pub mod geometry;
 pub mod loss;

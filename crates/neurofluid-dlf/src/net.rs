@@ -7,6 +7,7 @@ use burn::tensor::activation::relu;
 use crate::config::{DlfConfig, GeometryMode};
 use crate::conv::ContinuousConv;
 use crate::diff_geometry::differentiable_weights;
+use crate::energy_cap::cap_particle_energy;
 use crate::geometry::{ConvGeometry, build_host_geometry};
 use neurofluid_core::scene::Aabb;
 
@@ -277,6 +278,8 @@ impl DlfNet {
     ) -> (StepOutput, StepTrace) {
         let cfg = self.config;
         let device = pos.device();
+        // the state in the scene frame, which the energy cap compares the step with
+        let start = cfg.cap_particle_energy.then(|| (pos.clone(), vel.clone()));
         let pos = self.to_model(pos);
         let vel = self.to_model(vel);
         let g = cfg.model_gravity().map(|c| cfg.dt * c);
@@ -290,8 +293,12 @@ impl DlfNet {
         let pos_new = pos_pred.clone() + raw.clone() * cfg.output_scale;
         let vel_new = (pos_new.clone() - pos) / cfg.dt;
         let (pos_new, vel_new) = (self.to_scene(pos_new), self.to_scene(vel_new));
-        let (pos, vel) = match &cfg.container {
+        let (pos_new, vel_new) = match &cfg.container {
             Some(c) => contain(pos_new, vel_new, c, cfg.dt),
+            None => (pos_new, vel_new),
+        };
+        let (pos, vel) = match start {
+            Some((x, v)) => cap_particle_energy(x, v, pos_new, vel_new, cfg.gravity),
             None => (pos_new, vel_new),
         };
         let out = StepOutput {

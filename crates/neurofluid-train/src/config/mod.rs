@@ -39,9 +39,9 @@ pub use errors::{ConfigError, from_toml_str, line_col};
 pub(crate) use errors::{from_table, read_text};
 pub use preset::Preset;
 pub use sections::{
-    AnchorAlong, BuiltinScene, Containment, DlfSection, EnergyPer, EvalSection, InitialParticles,
-    InitialSection, JointSection, NerfSection, PlyEncoding, SceneScale, SceneSection,
-    SurfaceThreshold, WarmupSection,
+    AnchorAlong, BuiltinScene, Containment, DlfSection, EnergyCap, EnergyPer, EvalSection,
+    InitialParticles, InitialSection, JointSection, NerfSection, PlyEncoding, SceneScale,
+    SceneSection, SurfaceThreshold, WarmupSection,
 };
 pub use settings::Settings;
 
@@ -384,12 +384,20 @@ mod tests {
         );
         let mut paper = quick.clone();
         paper
-            .apply_overrides(&["eval.weight_interpolation=0.25", "preset=\"paper\""])
+            .apply_overrides(&[
+                "eval.weight_interpolation=0.25",
+                "dlf.energy_cap=\"particle\"",
+                "preset=\"paper\"",
+            ])
             .unwrap();
         assert_eq!(paper.eval.weight_interpolation, 1.0);
         let reference = parse(MINIMAL).unwrap();
         assert_eq!(paper.preset, Preset::Paper);
         assert_eq!(paper.dlf.geometry, reference.dlf.geometry);
+        assert_eq!(
+            (paper.dlf.containment, paper.dlf.energy_cap),
+            (reference.dlf.containment, reference.dlf.energy_cap)
+        );
         let (p, r) = (&paper.physnerf, &reference.physnerf);
         assert_eq!((p.selection, p.density), (r.selection, r.density));
         assert_eq!(p.frequencies, r.frequencies);

@@ -3,7 +3,7 @@
 //!
 //! `preset = "paper"` (or `--set preset=paper`) resets every rule in which this project departs
 //! from NeuroFluid's code (spec §4) to the reference's value, whatever the file says: constant
-//! DLF geometry and open walls, the lowest-index neighbour rule, ReLU density and the paper's encoding
+//! DLF geometry, open walls and no energy cap, the lowest-index neighbour rule, ReLU density and the paper's encoding
 //! frequencies, the warm-up's and the joint stage's optimisers and schedules, one-step truncated
 //! BPTT with DLF stepping every transition, uniform rays, one view, no silhouette term, the
 //! boundary weight 1, and the grounded DLF evaluated as trained. Budgets (iterations, epochs,
@@ -47,6 +47,7 @@ pub fn apply(exp: &mut Experiment) -> Vec<Change> {
     p.frequencies = paper_nerf.frequencies;
     exp.dlf.geometry = DlfSection::default().geometry;
     exp.dlf.containment = DlfSection::default().containment;
+    exp.dlf.energy_cap = DlfSection::default().energy_cap;
     exp.warmup.optim = WarmupSection::default().optim;
     let paper = JointSection::default();
     let j = &mut exp.joint;

@@ -298,6 +298,10 @@ pub struct DlfSection {
     /// predicted particle is kept inside the scene's box interior, its velocity corrected to the
     /// move it made), in every rollout: training, diagnostics and evaluation.
     pub containment: Containment,
+    /// `none` (the reference: DLF's step as it is) or `particle` (each particle's step shortened
+    /// where it would raise that particle's mechanical energy, as no particle of a viscous fluid's
+    /// truth does; `neurofluid_dlf::energy_cap`), in every rollout, the baseline DLF's too.
+    pub energy_cap: EnergyCap,
 }
 
 impl Default for DlfSection {
@@ -306,8 +310,20 @@ impl Default for DlfSection {
             weights: PathBuf::from("assets/dlf_pretrained/pretrained_model_weights.pt"),
             geometry: GeometryMode::Constant,
             containment: Containment::None,
+            energy_cap: EnergyCap::None,
         }
     }
+}
+
+/// `dlf.energy_cap`: whether DLF's steps may raise a particle's mechanical energy.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum EnergyCap {
+    /// The reference: DLF's step as it is.
+    #[default]
+    None,
+    /// No step raises a particle's ½|v|² − g·x; a step that would is shortened.
+    Particle,
 }
 
 /// `dlf.containment`: whether the walls of the box are enforced on DLF's predictions.

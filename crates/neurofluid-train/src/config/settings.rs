@@ -43,6 +43,7 @@ const ADDED_KEYS: &[(&str, &str)] = &[
     ("joint.replay_rays", "0"),
     ("joint.energy_weight", "0.0"),
     ("joint.energy_per", "\"fluid\""),
+    ("dlf.energy_cap", "\"none\""),
 ];
 
 /// Flat settings with a digest.

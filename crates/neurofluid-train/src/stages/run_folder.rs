@@ -14,7 +14,7 @@ use neurofluid_core::scene::{Scene, UpAxis};
 use neurofluid_dlf::{DlfConfig, DlfNet};
 use neurofluid_physnerf::PhysNerfConfig;
 
-use crate::config::{Containment, Experiment, RESOLVED_FILE, Settings};
+use crate::config::{Containment, EnergyCap, Experiment, RESOLVED_FILE, Settings};
 use crate::metrics_log::{CSV_FILE, JSONL_FILE, MetricsLog};
 use crate::stage::Stage;
 use crate::trainer::checkpoint;
@@ -166,7 +166,7 @@ impl Run {
     }
 
     /// DLF's config: gravity along the scene's up axis, the frame rotation that lets the y-up
-    /// public weights run on a z-up scene, the scene's time step, the experiment's geometry.
+    /// public weights run on a z-up scene, the scene's time step, the experiment's geometry, walls and energy cap.
     pub fn dlf_config(&self) -> DlfConfig {
         let mut cfg = match self.scene.up_axis() {
             UpAxis::Z => DlfConfig::z_up(),
@@ -177,6 +177,7 @@ impl Run {
         if self.exp.dlf.containment == Containment::Box {
             cfg.container = Some(self.scene.manifest().box_interior);
         }
+        cfg.cap_particle_energy = self.exp.dlf.energy_cap == EnergyCap::Particle;
         cfg
     }
 
