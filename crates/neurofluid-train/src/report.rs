@@ -264,6 +264,11 @@ pub struct EvalReport {
     /// weights plus this fraction of grounding's change.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub weight_interpolation: Option<f64>,
+    /// The rules every DLF rollout of the run stepped under, the pretrained baseline's too (the
+    /// walls, the energy cap: `[dlf]`), as the table's note names them; empty = DLF's steps as
+    /// they are.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub dlf_rules: Vec<String>,
     /// `eval.interpolation_sweep`: d and d′ of NeuroFluid's DLF from the pretrained weights to
     /// the grounded ones, by fraction.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
@@ -358,6 +363,7 @@ impl EvalReport {
             nvs_baselines: Vec::new(),
             scored_seal: None,
             weight_interpolation: None,
+            dlf_rules: Vec::new(),
             interpolation: Vec::new(),
             energy: Vec::new(),
             windows,
@@ -498,6 +504,13 @@ impl EvalReport {
              (25 = one particle radius); PSNR/SSIM/LPIPS (AlexNet, v0.1) over the test views' \
              renders."
         );
+        if !self.dlf_rules.is_empty() {
+            let _ = writeln!(
+                md,
+                "\nEvery DLF rollout, the pretrained baseline's too, steps under {}.",
+                self.dlf_rules.join(" and ")
+            );
+        }
         if let Some(fraction) = self.weight_interpolation {
             let _ = writeln!(
                 md,
@@ -1000,6 +1013,31 @@ mod tests {
         );
         let back: EvalReport = serde_json::from_str(&serde_json::to_string(&r).unwrap()).unwrap();
         assert_eq!(back.escaped, r.escaped);
+    }
+
+    /// The rules DLF stepped under are named under the table, from the run's `[dlf]`, and a
+    /// report written before them reads as one without.
+    #[test]
+    fn the_rules_of_every_dlf_rollout_are_named() {
+        let mut r = sample_report();
+        assert!(!r.markdown().contains("steps under"));
+        let mut dlf = crate::config::DlfSection::default();
+        assert!(dlf.rules().is_empty(), "the reference has no rules");
+        dlf.containment = crate::config::Containment::Box;
+        dlf.energy_cap = crate::config::EnergyCap::Particle;
+        r.dlf_rules = dlf.rules();
+        let md = r.markdown();
+        assert!(
+            md.contains(
+                "pretrained baseline's too, steps under the walls (`dlf.containment = \"box\"`) \
+                 and the energy cap (`dlf.energy_cap = \"particle\"`)."
+            ),
+            "{md}"
+        );
+        let mut old = serde_json::to_value(sample_report()).unwrap();
+        old.as_object_mut().unwrap().remove("dlf_rules");
+        let back: EvalReport = serde_json::from_value(old).unwrap();
+        assert!(back.dlf_rules.is_empty());
     }
 
     fn sample_report_without_reverse() -> EvalReport {

@@ -315,6 +315,20 @@ impl Default for DlfSection {
     }
 }
 
+impl DlfSection {
+    /// The rules DLF's steps follow beyond the reference's, as a report names them.
+    pub fn rules(&self) -> Vec<String> {
+        let mut rules = Vec::new();
+        if self.containment == Containment::Box {
+            rules.push("the walls (`dlf.containment = \"box\"`)".to_string());
+        }
+        if self.energy_cap == EnergyCap::Particle {
+            rules.push("the energy cap (`dlf.energy_cap = \"particle\"`)".to_string());
+        }
+        rules
+    }
+}
+
 /// `dlf.energy_cap`: whether DLF's steps may raise a particle's mechanical energy.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]

@@ -45,6 +45,7 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
     );
     report.scored_seal = scored_seal(run)?;
     report.weight_interpolation = Some(cfg.weight_interpolation).filter(|&f| f != 1.0);
+    report.dlf_rules = run.exp.dlf.rules();
     report.initial_from_images =
         run.exp.scene.initial == crate::config::InitialParticles::FromImages;
     report.nvs_baselines = super::baseline::read_all(run)?;
