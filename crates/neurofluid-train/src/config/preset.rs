@@ -3,12 +3,12 @@
 //!
 //! `preset = "paper"` (or `--set preset=paper`) resets every rule in which this project departs
 //! from NeuroFluid's code (spec §4) to the reference's value, whatever the file says: constant
-//! DLF geometry, open walls and no energy cap, the lowest-index neighbour rule, ReLU density and the paper's encoding
-//! frequencies, the warm-up's and the joint stage's optimisers and schedules, one-step truncated
-//! BPTT with DLF stepping every transition, uniform rays, one view, no silhouette term, the
-//! boundary weight 1, and the grounded DLF evaluated as trained. Budgets (iterations, epochs,
-//! rays, samples, network widths) stay the file's: they are the scale of the experiment, not its
-//! rules. Each value the preset changes is logged.
+//! DLF geometry, open walls and no energy cap, the lowest-index neighbour rule, ReLU density and
+//! the paper's encoding frequencies, the warm-up's and the joint stage's optimisers and
+//! schedules, one-step truncated BPTT with DLF stepping every transition, uniform rays, one
+//! view, no silhouette term, the boundary weight 1, and the grounded DLF evaluated as trained.
+//! Budgets (iterations, epochs, rays, samples, network widths) stay the file's: they are the
+//! scale of the experiment, not its rules. Each value the preset changes is logged.
 
 use serde::{Deserialize, Serialize};
 
