@@ -1,4 +1,5 @@
-//! Run-time settings of the DLF model: gravity, time step, frame, geometry mode, container, energy cap.
+//! Run-time settings of the DLF model: gravity, time step, frame, geometry mode, container,
+//! energy cap.
 
 use neurofluid_core::scene::Aabb;
 

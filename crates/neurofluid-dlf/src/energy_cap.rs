@@ -80,10 +80,10 @@ mod tests {
         lo
     }
 
-    /// States and steps: at rest and pushed sideways (s = 0), thrown up, falling freely, lifted
-    /// a little while moving fast, slowed down, and a mix of random ones.
     type Points = Vec<[f32; 3]>;
 
+    /// States and steps: at rest and pushed sideways (s = 0), thrown up, falling freely, lifted
+    /// a little while moving fast, slowed down, and a mix of random ones.
     fn cases() -> (Points, Points, Points) {
         let mut x = vec![
             [0.1, 0.2, 0.3],

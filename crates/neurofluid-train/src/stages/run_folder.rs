@@ -166,7 +166,8 @@ impl Run {
     }
 
     /// DLF's config: gravity along the scene's up axis, the frame rotation that lets the y-up
-    /// public weights run on a z-up scene, the scene's time step, the experiment's geometry, walls and energy cap.
+    /// public weights run on a z-up scene, the scene's time step, the experiment's geometry,
+    /// walls and energy cap.
     pub fn dlf_config(&self) -> DlfConfig {
         let mut cfg = match self.scene.up_axis() {
             UpAxis::Z => DlfConfig::z_up(),
