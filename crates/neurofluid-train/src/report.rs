@@ -278,6 +278,27 @@ pub struct EvalReport {
     /// rollout gains it keeps as fluid thrown where the truth has none.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub energy: Vec<EnergyGain>,
+    /// Per rollout and the truth, the share of particles alone over each window
+    /// ([`neurofluid_core::metrics::alone_share`] at [`ALONE_REACH_RADII`] radii).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub alone: Vec<AloneShare>,
+}
+
+/// How far (in particle radii) a particle's nearest other must be for it to count as alone:
+/// a fluid packs its particles two radii apart; no particle of a honey's truth (built-in or the
+/// bed's) is ever three radii from its nearest, and 1–2 % of a splashing water's are.
+pub const ALONE_REACH_RADII: f64 = 3.0;
+
+/// The share of a sequence's particles alone (no other within [`ALONE_REACH_RADII`] radii),
+/// the mean over each window's frames.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AloneShare {
+    /// The rollout's table label, or `truth`.
+    pub model: String,
+    /// Over the grounding window (a fraction, 0–1).
+    pub grounding: f64,
+    /// Over the prediction window.
+    pub prediction: f64,
 }
 
 /// The energy a sequence gains over the two windows, in J/kg: the sum of every step's gain
@@ -366,6 +387,7 @@ impl EvalReport {
             dlf_rules: Vec::new(),
             interpolation: Vec::new(),
             energy: Vec::new(),
+            alone: Vec::new(),
             windows,
             frames: Vec::new(),
             images: Vec::new(),
@@ -520,6 +542,7 @@ impl EvalReport {
         }
         md.push_str(&self.reverse_markdown());
         md.push_str(&self.energy_markdown());
+        md.push_str(&self.alone_markdown());
         if !self.escaped.is_empty() {
             let counts: Vec<String> = self
                 .escaped
@@ -603,6 +626,35 @@ impl EvalReport {
              energy; a rollout that gains it throws fluid where the truth has none \
              (`joint.energy_weight` penalises it; `joint.energy_per = \"particle\"` each \
              particle's, which in a viscous fluid none gains).\n",
+        );
+        md
+    }
+
+    /// The table of particles alone, empty when they were not evaluated.
+    pub fn alone_markdown(&self) -> String {
+        if self.alone.is_empty() {
+            return String::new();
+        }
+        let (g, p) = (self.windows.grounding, self.windows.prediction);
+        let mut md = format!(
+            "\n| sequence | particles alone, t = {}–{} | t = {}–{} |\n|---|---:|---:|\n",
+            g.0, g.1, p.0, p.1
+        );
+        for a in &self.alone {
+            let _ = writeln!(
+                md,
+                "| {} | {:.2} % | {:.2} % |",
+                a.model,
+                100.0 * a.grounding,
+                100.0 * a.prediction
+            );
+        }
+        let _ = writeln!(
+            md,
+            "\nParticles alone: the share with no other particle within {ALONE_REACH_RADII} \
+             radii (a fluid packs them two radii apart), the mean over the window's frames. \
+             They are spray: no sample near one has the renderer's K neighbours, so the images \
+             cannot see it, and d′ mixes it with fluid put in the wrong place."
         );
         md
     }
@@ -928,6 +980,39 @@ mod tests {
         let old = r#"{"model":"DLF","grounding":0.5,"prediction":0.25}"#;
         let e: EnergyGain = serde_json::from_str(old).unwrap();
         assert_eq!((e.grounding, e.grounding_per_particle), (0.5, 0.0));
+    }
+
+    /// The table of particles alone lists each sequence in percent, and a report without it
+    /// (written before it existed) still reads.
+    #[test]
+    fn alone_table_lists_each_sequence() {
+        let mut r = sample_report();
+        assert!(!r.markdown().contains("particles alone"));
+        r.alone = vec![
+            AloneShare {
+                model: "truth".into(),
+                grounding: 0.0,
+                prediction: 0.0,
+            },
+            AloneShare {
+                model: "NeuroFluid".into(),
+                grounding: 0.0125,
+                prediction: 0.034_81,
+            },
+        ];
+        let md = r.markdown();
+        assert!(
+            md.contains("| sequence | particles alone, t = 1–49 | t = 50–59 |"),
+            "{md}"
+        );
+        assert!(md.contains("| truth | 0.00 % | 0.00 % |"), "{md}");
+        assert!(md.contains("| NeuroFluid | 1.25 % | 3.48 % |"), "{md}");
+        let back: EvalReport = serde_json::from_str(&serde_json::to_string(&r).unwrap()).unwrap();
+        assert_eq!(back.alone, r.alone);
+        let mut old = serde_json::to_value(&r).unwrap();
+        old.as_object_mut().unwrap().remove("alone");
+        let back: EvalReport = serde_json::from_value(old).unwrap();
+        assert!(back.alone.is_empty());
     }
 
     /// Particles where the truth has none (spray above the fluid) leave d at zero and show in d′.

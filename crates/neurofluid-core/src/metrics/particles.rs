@@ -116,6 +116,31 @@ pub fn nearest_others(points: &[[f32; 3]], k: usize) -> Option<Vec<Vec<usize>>> 
     )
 }
 
+/// The share of `points` with no other point within `reach` (world units): particles alone. A
+/// fluid packs its particles two radii apart, so at three radii none of a resting or flowing
+/// body is alone, and what is counted is spray. 0 for fewer than two points; `None` when a point
+/// is not finite.
+pub fn alone_share(points: &[[f32; 3]], reach: f64) -> Option<f64> {
+    if points.len() < 2 {
+        return points
+            .iter()
+            .flatten()
+            .all(|v| v.is_finite())
+            .then_some(0.0);
+    }
+    let nearest = nearest_others(points, 1)?;
+    let alone = points
+        .iter()
+        .zip(&nearest)
+        .filter(|(p, nb)| {
+            let q = points[nb[0]];
+            let d2: f64 = (0..3).map(|a| f64::from(q[a] - p[a]).powi(2)).sum();
+            d2 > reach * reach
+        })
+        .count();
+    Some(alone as f64 / points.len() as f64)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -130,6 +155,64 @@ mod tests {
     }
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
+
+    /// Brute force: every pair, alone when no other point lies within the reach.
+    fn alone_brute(points: &[[f32; 3]], reach: f64) -> f64 {
+        let alone = (0..points.len())
+            .filter(|&i| {
+                (0..points.len()).filter(|&j| j != i).all(|j| {
+                    let d2: f64 = (0..3)
+                        .map(|a| f64::from(points[i][a] - points[j][a]).powi(2))
+                        .sum();
+                    d2 > reach * reach
+                })
+            })
+            .count();
+        alone as f64 / points.len() as f64
+    }
+
+    #[test]
+    fn alone_share_matches_brute_force() {
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        for n in [2usize, 3, 40, 300] {
+            let pts: Vec<[f32; 3]> = (0..n)
+                .map(|_| {
+                    [
+                        rng.random::<f32>(),
+                        rng.random::<f32>(),
+                        rng.random::<f32>(),
+                    ]
+                })
+                .collect();
+            for reach in [0.05, 0.1, 0.3] {
+                let got = alone_share(&pts, reach).unwrap();
+                assert!(
+                    (got - alone_brute(&pts, reach)).abs() < 1e-12,
+                    "n {n} reach {reach}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn a_lattice_has_no_particle_alone_until_one_strays() {
+        // a block packed two radii apart (r = 0.025), as the scenes' fluids start
+        let mut pts: Vec<[f32; 3]> = (0..216)
+            .map(|i| {
+                [
+                    (i % 6) as f32 * 0.05,
+                    (i / 6 % 6) as f32 * 0.05,
+                    (i / 36) as f32 * 0.05,
+                ]
+            })
+            .collect();
+        assert_eq!(alone_share(&pts, 0.075), Some(0.0));
+        pts.push([1.0, 1.0, 1.0]);
+        assert_eq!(alone_share(&pts, 0.075), Some(1.0 / 217.0));
+        pts.push([f32::NAN, 0.0, 0.0]);
+        assert_eq!(alone_share(&pts, 0.075), None);
+        assert_eq!(alone_share(&[[0.0; 3]], 0.075), Some(0.0));
+    }
 
     fn brute(gt: &[[f32; 3]], pred: &[[f32; 3]]) -> f64 {
         let s: f64 = gt

@@ -56,6 +56,7 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
     report.energy = rollouts.energy_gains(&report.windows, dlf.dt, dlf.gravity);
     let manifest = scene.manifest();
     report.escaped = rollouts.escaped(&manifest.box_interior, manifest.particle_radius);
+    report.alone = rollouts.alone_shares(&report.windows, manifest.particle_radius);
 
     let dir = run.stage_dir(STAGE);
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;

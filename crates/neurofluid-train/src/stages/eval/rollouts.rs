@@ -5,15 +5,15 @@
 
 use anyhow::Context;
 use burn::module::Module;
-use neurofluid_core::metrics::gt_to_pred_distance;
+use neurofluid_core::metrics::{alone_share, gt_to_pred_distance};
 use neurofluid_core::scene::{Aabb, Particles, Role};
 use neurofluid_dlf::DlfNet;
 use neurofluid_dlf::rollout::rollout;
 
 use crate::energy_prior::energy_gains;
 use crate::report::{
-    EnergyGain, EvalReport, FrameDistance, InterpolationPoint, Reverse, Rollout, Windows,
-    count_outside,
+    ALONE_REACH_RADII, AloneShare, EnergyGain, EvalReport, FrameDistance, InterpolationPoint,
+    Reverse, Rollout, Windows, count_outside,
 };
 use crate::stages::initial::starting_particles;
 use crate::stages::joint::Grounded;
@@ -163,34 +163,63 @@ impl Rollouts {
         points
     }
 
-    /// The energy gained over `windows` by the truth and by every rollout, one frame every
-    /// `dt` seconds under `gravity`.
-    pub fn energy_gains(&self, windows: &Windows, dt: f32, gravity: [f32; 3]) -> Vec<EnergyGain> {
+    /// `per` of the truth and of every rollout, with its label (`truth` or the table's).
+    fn per_sequence<R>(&self, per: impl Fn(&str, &Positions) -> R) -> Vec<R> {
         let truth: Positions = self.truth.iter().map(|p| p.pos.clone()).collect();
-        let rows = [
+        [
             Some(("truth", &truth)),
             self.baseline.as_ref().map(|b| (Rollout::Dlf.label(), b)),
             self.supervised
                 .as_ref()
                 .map(|b| (Rollout::SupervisedDlf.label(), b)),
             Some((Rollout::NeuroFluid.label(), &self.grounded)),
-        ];
-        rows.into_iter()
-            .flatten()
-            .map(|(model, frames)| {
-                let gains = energy_gains(frames, dt, gravity);
-                let over = |gains: &[f64], (a, b): (usize, usize)| -> f64 {
-                    gains.iter().take(b + 1).skip(a).sum()
-                };
-                EnergyGain {
-                    model: model.to_string(),
-                    grounding: over(&gains.fluid, windows.grounding),
-                    prediction: over(&gains.fluid, windows.prediction),
-                    grounding_per_particle: over(&gains.particle, windows.grounding),
-                    prediction_per_particle: over(&gains.particle, windows.prediction),
-                }
-            })
-            .collect()
+        ]
+        .into_iter()
+        .flatten()
+        .map(|(model, frames)| per(model, frames))
+        .collect()
+    }
+
+    /// The share of particles alone ([`alone_share`]: no other within
+    /// [`ALONE_REACH_RADII`] particle radii of `radius`) of the truth and of every rollout, the
+    /// mean over each of `windows`' frames (a frame with a non-finite particle counts as all
+    /// alone).
+    pub fn alone_shares(&self, windows: &Windows, radius: f32) -> Vec<AloneShare> {
+        let reach = ALONE_REACH_RADII * f64::from(radius);
+        self.per_sequence(|model, frames| {
+            let mean = |(a, b): (usize, usize)| -> f64 {
+                let shares: Vec<f64> = frames
+                    .iter()
+                    .take(b + 1)
+                    .skip(a)
+                    .map(|p| alone_share(p, reach).unwrap_or(1.0))
+                    .collect();
+                shares.iter().sum::<f64>() / shares.len().max(1) as f64
+            };
+            AloneShare {
+                model: model.to_string(),
+                grounding: mean(windows.grounding),
+                prediction: mean(windows.prediction),
+            }
+        })
+    }
+
+    /// The energy gained over `windows` by the truth and by every rollout, one frame every
+    /// `dt` seconds under `gravity`.
+    pub fn energy_gains(&self, windows: &Windows, dt: f32, gravity: [f32; 3]) -> Vec<EnergyGain> {
+        self.per_sequence(|model, frames| {
+            let gains = energy_gains(frames, dt, gravity);
+            let over = |gains: &[f64], (a, b): (usize, usize)| -> f64 {
+                gains.iter().take(b + 1).skip(a).sum()
+            };
+            EnergyGain {
+                model: model.to_string(),
+                grounding: over(&gains.fluid, windows.grounding),
+                prediction: over(&gains.fluid, windows.prediction),
+                grounding_per_particle: over(&gains.particle, windows.grounding),
+                prediction_per_particle: over(&gains.particle, windows.prediction),
+            }
+        })
     }
 
     /// Per rollout, the most particles more than `radius` outside `interior` at any step.
@@ -253,4 +282,67 @@ fn positions(
     });
     bar.finish_and_clear();
     Ok(out.pos)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A block packed two radii apart (r = 0.025).
+    fn block() -> Vec<[f32; 3]> {
+        (0..64)
+            .map(|i| {
+                [
+                    (i % 4) as f32 * 0.05,
+                    (i / 4 % 4) as f32 * 0.05,
+                    (i / 16) as f32 * 0.05,
+                ]
+            })
+            .collect()
+    }
+
+    /// Each window's share is the mean over its own frames only: a stray that NeuroFluid throws
+    /// in the last five frames counts half in the prediction window and not in the grounding one.
+    #[test]
+    fn alone_shares_average_each_window_over_its_frames() {
+        let truth: Vec<Particles> = (0..60)
+            .map(|_| Particles {
+                pos: block(),
+                vel: vec![[0.0; 3]; 64],
+            })
+            .collect();
+        let grounded: Positions = (0..60)
+            .map(|t| {
+                let mut p = block();
+                p.push(if t >= 55 {
+                    [2.0, 2.0, 2.0]
+                } else {
+                    [0.2, 0.0, 0.0]
+                });
+                p
+            })
+            .collect();
+        let mut diverged = grounded.clone();
+        diverged[10][0] = [f32::NAN; 3];
+        let rollouts = Rollouts {
+            truth,
+            grounded,
+            baseline: Some(diverged),
+            supervised: None,
+            interpolated: Vec::new(),
+        };
+        let shares = rollouts.alone_shares(&Windows::paper(), 0.025);
+        let labels: Vec<&str> = shares.iter().map(|s| s.model.as_str()).collect();
+        assert_eq!(labels, ["truth", "DLF", "NeuroFluid"]);
+        assert_eq!((shares[0].grounding, shares[0].prediction), (0.0, 0.0));
+        let nf = &shares[2];
+        assert_eq!(nf.grounding, 0.0);
+        assert!((nf.prediction - 0.5 / 65.0).abs() < 1e-12, "{nf:?}");
+        // the frame with a non-finite particle counts as all alone: 1/49 of the window
+        assert!(
+            (shares[1].grounding - 1.0 / 49.0).abs() < 1e-12,
+            "{:?}",
+            shares[1]
+        );
+    }
 }
