@@ -652,9 +652,9 @@ impl EvalReport {
         let _ = writeln!(
             md,
             "\nParticles alone: the share with no other particle within {ALONE_REACH_RADII} \
-             radii (a fluid packs them two radii apart), the mean over the window's frames. \
-             They are spray: no sample near one has the renderer's K neighbours, so the images \
-             cannot see it, and d′ mixes it with fluid put in the wrong place."
+             radii (a fluid packs them two radii apart), the mean over the window's frames: \
+             spray, which d′ mixes with fluid put in the wrong place. A viscous fluid's truth \
+             has none; a splashing water's has droplets of its own."
         );
         md
     }
