@@ -6,12 +6,13 @@
 The runs file lists `scene seed run_folder` per line (`#` starts a comment). Each run folder's
 `eval/report.md` gives d and d′ over t = 1–49 and t = 50–59, (d + d′)/2, PSNR/SSIM/LPIPS, the
 DLF (and, where evaluated with `eval.supervised_dlf`, DLF†) rows, the particles through the
-walls and, where present, the share of particles alone and the novel-view table; its `metrics.csv` gives the warm-up's and the
-joint stage's seconds (the largest `time_s` of each; a run whose warm-up was shared with the
-other variants of its sweep shows that warm-up's). Prints markdown tables: every run; per scene
-the mean ± sd over seeds beside DLF and DLF†, with the issue's targets checked per window (d at
-least 10 % below DLF's, on honey 30 % over t < 50; d′ not above DLF's); and the novel-view rows
-(NeuroFluid, NeRF-T, the renderer on the true particles) of the runs whose report has them.
+walls and, where present, the share of particles alone and the novel-view table; its
+`metrics.csv` gives the warm-up's and the joint stage's seconds (the largest `time_s` of each;
+a run whose warm-up was shared with the other variants of its sweep shows that warm-up's).
+Prints markdown tables: every run; per scene the mean ± sd over seeds beside DLF and DLF†, with
+the issue's targets checked per window (d at least 10 % below DLF's, on honey 30 % over t < 50;
+d′ not above DLF's); and the novel-view rows (NeuroFluid, NeRF-T, the renderer on the true
+particles) of the runs whose report has them.
 """
 
 import csv

@@ -118,27 +118,21 @@ pub fn nearest_others(points: &[[f32; 3]], k: usize) -> Option<Vec<Vec<usize>>> 
 
 /// The share of `points` with no other point within `reach` (world units): particles alone. A
 /// fluid packs its particles two radii apart, so at three radii none of a resting or flowing
-/// body is alone, and what is counted is spray. 0 for fewer than two points; `None` when a point
-/// is not finite.
+/// body is alone, and what is counted is spray. 0 for fewer than two points (none has another to
+/// be far from); `None` when a point is not finite.
 pub fn alone_share(points: &[[f32; 3]], reach: f64) -> Option<f64> {
-    if points.len() < 2 {
-        return points
-            .iter()
-            .flatten()
-            .all(|v| v.is_finite())
-            .then_some(0.0);
-    }
     let nearest = nearest_others(points, 1)?;
     let alone = points
         .iter()
         .zip(&nearest)
         .filter(|(p, nb)| {
-            let q = points[nb[0]];
-            let d2: f64 = (0..3).map(|a| f64::from(q[a] - p[a]).powi(2)).sum();
-            d2 > reach * reach
+            nb.first().is_some_and(|&j| {
+                let d2: f64 = (0..3).map(|a| f64::from(points[j][a] - p[a]).powi(2)).sum();
+                d2 > reach * reach
+            })
         })
         .count();
-    Some(alone as f64 / points.len() as f64)
+    Some(alone as f64 / points.len().max(1) as f64)
 }
 
 #[cfg(test)]
