@@ -7,6 +7,7 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
+use neurofluid_core::metrics::FarSplit;
 use serde::{Deserialize, Serialize};
 
 use crate::formats::csv_text::{cell, csv_text};
@@ -282,12 +283,31 @@ pub struct EvalReport {
     /// ([`neurofluid_core::metrics::alone_share`] at [`ALONE_REACH_RADII`] radii).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub alone: Vec<AloneShare>,
+    /// Per rollout, where its far particles lie over each window
+    /// ([`neurofluid_core::metrics::far_split`] at [`FAR_REACH_RADII`] radii).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub far: Vec<FarShare>,
 }
 
 /// How far (in particle radii) a particle's nearest other must be for it to count as alone:
 /// a fluid packs its particles two radii apart; no particle of a honey's truth (built-in or the
 /// bed's) is ever three radii from its nearest, and 1–2 % of a splashing water's are.
 pub const ALONE_REACH_RADII: f64 = 3.0;
+
+/// How far (in particle radii) a predicted particle's nearest true one must be for it to count
+/// as far: two radii beyond the packing, so that a fluid merely shifted by a particle is not.
+pub const FAR_REACH_RADII: f64 = 4.0;
+
+/// Where a rollout's far particles lie ([`FarSplit`]), the mean over each window's frames.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FarShare {
+    /// The rollout's table label.
+    pub model: String,
+    /// Over the grounding window (fractions of all predicted particles, 0–1).
+    pub grounding: FarSplit,
+    /// Over the prediction window.
+    pub prediction: FarSplit,
+}
 
 /// The share of a sequence's particles alone (no other within [`ALONE_REACH_RADII`] radii),
 /// the mean over each window's frames.
@@ -388,6 +408,7 @@ impl EvalReport {
             interpolation: Vec::new(),
             energy: Vec::new(),
             alone: Vec::new(),
+            far: Vec::new(),
             windows,
             frames: Vec::new(),
             images: Vec::new(),
@@ -543,6 +564,7 @@ impl EvalReport {
         md.push_str(&self.reverse_markdown());
         md.push_str(&self.energy_markdown());
         md.push_str(&self.alone_markdown());
+        md.push_str(&self.far_markdown());
         if !self.escaped.is_empty() {
             let counts: Vec<String> = self
                 .escaped
@@ -655,6 +677,38 @@ impl EvalReport {
              radii (a fluid packs them two radii apart), the mean over the window's frames: \
              spray, which d′ mixes with fluid put in the wrong place. A viscous fluid's truth \
              has none; a splashing water's has droplets of its own."
+        );
+        md
+    }
+
+    /// The table of where the rollouts' far particles lie, empty when not evaluated.
+    pub fn far_markdown(&self) -> String {
+        if self.far.is_empty() {
+            return String::new();
+        }
+        let (g, p) = (self.windows.grounding, self.windows.prediction);
+        let mut md = format!(
+            "\n| rollout | far, t = {}–{} | beside | above | within | far, t = {}–{} | beside | \
+             above | within |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+            g.0, g.1, p.0, p.1
+        );
+        for f in &self.far {
+            let _ = write!(md, "| {} |", f.model);
+            for s in [f.grounding, f.prediction] {
+                for share in [s.total(), s.beside, s.above, s.within] {
+                    let _ = write!(md, " {:.1} % |", 100.0 * share);
+                }
+            }
+            md.push('\n');
+        }
+        let _ = writeln!(
+            md,
+            "\nFar particles: the predicted particles more than {FAR_REACH_RADII} radii from \
+             every true one (most of what d′ counts), by where they lie: beside the truth (no \
+             true particle within {FAR_REACH_RADII} radii horizontally: spread or thrown past \
+             it), above it (higher than every true particle within that reach: held up or \
+             thrown over it) or within its column (in its gaps or under it); the mean over the \
+             window's frames."
         );
         md
     }
@@ -1013,6 +1067,38 @@ mod tests {
         old.as_object_mut().unwrap().remove("alone");
         let back: EvalReport = serde_json::from_value(old).unwrap();
         assert!(back.alone.is_empty());
+    }
+
+    /// The far table gives each rollout's shares in percent, both windows, and a report without
+    /// it reads.
+    #[test]
+    fn far_table_lists_each_rollout() {
+        let mut r = sample_report();
+        assert!(!r.markdown().contains("| rollout | far"));
+        let split = |beside, above, within| FarSplit {
+            beside,
+            above,
+            within,
+        };
+        r.far = vec![FarShare {
+            model: "NeuroFluid".into(),
+            grounding: split(0.1, 0.02, 0.003),
+            prediction: split(0.2, 0.0, 0.05),
+        }];
+        let md = r.markdown();
+        assert!(
+            md.contains(
+                "| NeuroFluid | 12.3 % | 10.0 % | 2.0 % | 0.3 % | 25.0 % | 20.0 % | 0.0 % | 5.0 % |"
+            ),
+            "{md}"
+        );
+        let json = serde_json::to_value(&r).unwrap();
+        let back: EvalReport = serde_json::from_value(json.clone()).unwrap();
+        assert_eq!(back.far, r.far);
+        let mut old = json;
+        old.as_object_mut().unwrap().remove("far");
+        let back: EvalReport = serde_json::from_value(old).unwrap();
+        assert!(back.far.is_empty());
     }
 
     /// Particles where the truth has none (spray above the fluid) leave d at zero and show in d′.

@@ -8,6 +8,6 @@ mod particles;
 pub use image::{ImageError, RgbImage, psnr, ssim};
 pub use lpips::{Lpips, LpipsError};
 pub use particles::{
-    ParticleDistance, alone_share, gt_to_pred_distance, index_matched_distance, nearest_distances,
-    nearest_others,
+    FarSplit, ParticleDistance, alone_share, far_split, gt_to_pred_distance,
+    index_matched_distance, nearest_distances, nearest_others,
 };

@@ -135,6 +135,71 @@ pub fn alone_share(points: &[[f32; 3]], reach: f64) -> Option<f64> {
     Some(alone as f64 / points.len().max(1) as f64)
 }
 
+/// Where a prediction's far particles lie against the truth, each a share of all predicted
+/// particles: what d′ counts, split by place.
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize, serde::Deserialize)]
+pub struct FarSplit {
+    /// Outside the truth's footprint: no true particle within the reach horizontally (fluid
+    /// spread, or thrown, past where the truth is).
+    pub beside: f64,
+    /// Over the footprint and higher than every true particle within the reach horizontally
+    /// (fluid held up, or thrown, over the truth).
+    pub above: f64,
+    /// Neither: in the truth's column, below its top (fluid in the truth's gaps or under it).
+    pub within: f64,
+}
+
+impl FarSplit {
+    /// The share of far particles, all places together.
+    pub fn total(&self) -> f64 {
+        self.beside + self.above + self.within
+    }
+}
+
+/// The shares of `pred` farther than `reach` from every point of `truth`, split by where they
+/// lie ([`FarSplit`]); `up` is the vertical (a unit vector). `None` when either set is empty or
+/// holds a non-finite point.
+pub fn far_split(
+    pred: &[[f32; 3]],
+    truth: &[[f32; 3]],
+    up: [f32; 3],
+    reach: f64,
+) -> Option<FarSplit> {
+    if pred.is_empty() || !pred.iter().flatten().all(|v| v.is_finite()) {
+        return None;
+    }
+    let nearest = nearest_distances(pred, truth)?;
+    let up = up.map(f64::from);
+    let height = |p: &[f32; 3]| (0..3).map(|a| f64::from(p[a]) * up[a]).sum::<f64>();
+    // horizontal positions: the points moved along `up` onto the plane through the origin
+    let flat = |p: &[f32; 3]| {
+        let h = height(p);
+        [0, 1, 2].map(|a| f64::from(p[a]) - h * up[a])
+    };
+    let truth_flat: Vec<[f64; 3]> = truth.iter().map(flat).collect();
+    let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&truth_flat);
+    let mut split = FarSplit::default();
+    let share = 1.0 / pred.len() as f64;
+    for (p, d) in pred.iter().zip(nearest) {
+        if d <= reach {
+            continue;
+        }
+        let column = tree.within_unsorted::<SquaredEuclidean>(&flat(p), reach * reach);
+        let top = column
+            .iter()
+            .map(|n| height(&truth[n.item as usize]))
+            .fold(f64::NEG_INFINITY, f64::max);
+        if column.is_empty() {
+            split.beside += share;
+        } else if height(p) > top {
+            split.above += share;
+        } else {
+            split.within += share;
+        }
+    }
+    Some(split)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -305,5 +370,99 @@ mod tests {
         let few = nearest_others(&pts[..4], k).unwrap();
         assert!(few.iter().all(|f| f.len() == 3));
         assert!(nearest_others(&[[f32::NAN, 0.0, 0.0]], 3).is_none());
+    }
+
+    /// Brute force of [`far_split`] with z up: every pair, distances and columns written out.
+    fn far_brute(pred: &[[f32; 3]], truth: &[[f32; 3]], reach: f64) -> FarSplit {
+        let dist = |a: &[f32; 3], b: &[f32; 3], axes: &[usize]| -> f64 {
+            axes.iter()
+                .map(|&k| f64::from(a[k] - b[k]).powi(2))
+                .sum::<f64>()
+                .sqrt()
+        };
+        let mut split = FarSplit::default();
+        let share = 1.0 / pred.len() as f64;
+        for p in pred {
+            if truth.iter().all(|t| dist(p, t, &[0, 1, 2]) > reach) {
+                let column: Vec<&[f32; 3]> = truth
+                    .iter()
+                    .filter(|t| dist(p, t, &[0, 1]) <= reach)
+                    .collect();
+                if column.is_empty() {
+                    split.beside += share;
+                } else if column.iter().all(|t| p[2] > t[2]) {
+                    split.above += share;
+                } else {
+                    split.within += share;
+                }
+            }
+        }
+        split
+    }
+
+    #[test]
+    fn far_split_matches_brute_force() {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let mut cloud = |n: usize, spread: f32| -> Vec<[f32; 3]> {
+            (0..n)
+                .map(|_| [0; 3].map(|_| rng.random_range(0.0..spread)))
+                .collect()
+        };
+        for (n, m) in [(1usize, 1usize), (30, 50), (200, 300)] {
+            let truth = cloud(n, 0.5);
+            let pred = cloud(m, 1.0);
+            for reach in [0.05, 0.1, 0.2] {
+                let got = far_split(&pred, &truth, [0.0, 0.0, 1.0], reach).unwrap();
+                let want = far_brute(&pred, &truth, reach);
+                for (g, w) in [
+                    (got.beside, want.beside),
+                    (got.above, want.above),
+                    (got.within, want.within),
+                ] {
+                    assert!(
+                        (g - w).abs() < 1e-12,
+                        "n {n} m {m} reach {reach}: {got:?} {want:?}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn far_particles_are_placed_beside_above_or_within_a_pool() {
+        // a pool on the floor of a y-up scene: 10 × 10 particles, one layer at y = 0.1
+        let pool: Vec<[f32; 3]> = (0..100)
+            .map(|i| [(i % 10) as f32 * 0.05, 0.1, (i / 10) as f32 * 0.05])
+            .collect();
+        let (up, reach) = ([0.0, 1.0, 0.0], 0.1);
+        let at = |p: [f32; 3]| far_split(&[p], &pool, up, reach).unwrap();
+        // on the pool: not far
+        assert_eq!(at([0.2, 0.12, 0.2]).total(), 0.0);
+        // spread past the pool's edge on the floor
+        assert_eq!(at([0.9, 0.0, 0.2]).beside, 1.0);
+        // held up over the pool
+        assert_eq!(at([0.2, 0.5, 0.2]).above, 1.0);
+        // a lump in a pool with a hole in its middle and a lid over it
+        let mut ring: Vec<[f32; 3]> = pool
+            .iter()
+            .copied()
+            .filter(|p| (p[0] - 0.225).abs() > 0.15 || (p[2] - 0.225).abs() > 0.15)
+            .collect();
+        ring.push([0.225, 0.6, 0.225]);
+        let lump = far_split(&[[0.225, 0.3, 0.225]], &ring, up, reach).unwrap();
+        assert_eq!(lump.within, 1.0);
+        // half the prediction far: shares of the whole
+        let half = far_split(&[[0.2, 0.1, 0.2], [0.2, 0.5, 0.2]], &pool, up, reach).unwrap();
+        assert_eq!(
+            half,
+            FarSplit {
+                beside: 0.0,
+                above: 0.5,
+                within: 0.0
+            }
+        );
+        assert_eq!(far_split(&[[f32::NAN, 0.0, 0.0]], &pool, up, reach), None);
+        assert_eq!(far_split(&[], &pool, up, reach), None);
+        assert_eq!(far_split(&pool, &[], up, reach), None);
     }
 }

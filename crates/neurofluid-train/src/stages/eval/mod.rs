@@ -57,6 +57,9 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
     let manifest = scene.manifest();
     report.escaped = rollouts.escaped(&manifest.box_interior, manifest.particle_radius);
     report.alone = rollouts.alone_shares(&report.windows, manifest.particle_radius);
+    let mut up = [0.0; 3];
+    up[manifest.up_axis.index()] = 1.0;
+    report.far = rollouts.far_shares(&report.windows, manifest.particle_radius, up);
 
     let dir = run.stage_dir(STAGE);
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;

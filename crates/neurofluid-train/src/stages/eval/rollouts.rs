@@ -1,19 +1,19 @@
 //! The evaluation's rollouts: from the same starting state (the truth of the first test frame,
 //! or the particles from images), the grounded transition model, the DLF it started from and
 //! DLF† roll out without feedback; what they are measured by (d per frame both ways, particles
-//! through the walls).
+//! through the walls, alone and far).
 
 use anyhow::Context;
 use burn::module::Module;
-use neurofluid_core::metrics::{alone_share, gt_to_pred_distance};
+use neurofluid_core::metrics::{FarSplit, alone_share, far_split, gt_to_pred_distance};
 use neurofluid_core::scene::{Aabb, Particles, Role};
 use neurofluid_dlf::DlfNet;
 use neurofluid_dlf::rollout::rollout;
 
 use crate::energy_prior::energy_gains;
 use crate::report::{
-    ALONE_REACH_RADII, AloneShare, EnergyGain, EvalReport, FrameDistance, InterpolationPoint,
-    Reverse, Rollout, Windows, count_outside,
+    ALONE_REACH_RADII, AloneShare, EnergyGain, EvalReport, FAR_REACH_RADII, FarShare,
+    FrameDistance, InterpolationPoint, Reverse, Rollout, Windows, count_outside,
 };
 use crate::stages::initial::starting_particles;
 use crate::stages::joint::Grounded;
@@ -166,17 +166,23 @@ impl Rollouts {
     /// `per` of the truth and of every rollout, with its label (`truth` or the table's).
     fn per_sequence<R>(&self, per: impl Fn(&str, &Positions) -> R) -> Vec<R> {
         let truth: Positions = self.truth.iter().map(|p| p.pos.clone()).collect();
+        std::iter::once(per("truth", &truth))
+            .chain(self.per_rollout(per))
+            .collect()
+    }
+
+    /// `per` of every rollout (DLF, DLF†, NeuroFluid, those evaluated), with its table label.
+    fn per_rollout<R>(&self, per: impl Fn(&str, &Positions) -> R) -> Vec<R> {
         [
-            Some(("truth", &truth)),
-            self.baseline.as_ref().map(|b| (Rollout::Dlf.label(), b)),
+            self.baseline.as_ref().map(|b| (Rollout::Dlf, b)),
             self.supervised
                 .as_ref()
-                .map(|b| (Rollout::SupervisedDlf.label(), b)),
-            Some((Rollout::NeuroFluid.label(), &self.grounded)),
+                .map(|b| (Rollout::SupervisedDlf, b)),
+            Some((Rollout::NeuroFluid, &self.grounded)),
         ]
         .into_iter()
         .flatten()
-        .map(|(model, frames)| per(model, frames))
+        .map(|(model, frames)| per(model.label(), frames))
         .collect()
     }
 
@@ -224,26 +230,49 @@ impl Rollouts {
 
     /// Per rollout, the most particles more than `radius` outside `interior` at any step.
     pub fn escaped(&self, interior: &Aabb, radius: f32) -> Vec<(String, usize)> {
-        let escaped = |label: &str, frames: &[Vec<[f32; 3]>]| {
+        self.per_rollout(|label, frames| {
             let most = frames[1..]
                 .iter()
                 .map(|p| count_outside(p, interior, radius))
                 .max()
                 .unwrap_or(0);
             (label.to_string(), most)
-        };
-        [
-            self.baseline
-                .as_deref()
-                .map(|b| escaped(Rollout::Dlf.label(), b)),
-            self.supervised
-                .as_deref()
-                .map(|b| escaped(Rollout::SupervisedDlf.label(), b)),
-            Some(escaped(Rollout::NeuroFluid.label(), &self.grounded)),
-        ]
-        .into_iter()
-        .flatten()
-        .collect()
+        })
+    }
+
+    /// Per rollout, where its far particles lie ([`far_split`]: more than [`FAR_REACH_RADII`]
+    /// particle radii of `radius` from every true particle, beside, above or within the truth;
+    /// `up` the scene's vertical), the mean over each of `windows`' frames (a frame with a
+    /// non-finite particle counts as all far, beside).
+    pub fn far_shares(&self, windows: &Windows, radius: f32, up: [f32; 3]) -> Vec<FarShare> {
+        let reach = FAR_REACH_RADII * f64::from(radius);
+        self.per_rollout(|model, frames| {
+            let mean = |(a, b): (usize, usize)| -> FarSplit {
+                let splits: Vec<FarSplit> = frames
+                    .iter()
+                    .zip(&self.truth)
+                    .take(b + 1)
+                    .skip(a)
+                    .map(|(p, t)| {
+                        far_split(p, &t.pos, up, reach).unwrap_or(FarSplit {
+                            beside: 1.0,
+                            ..FarSplit::default()
+                        })
+                    })
+                    .collect();
+                let n = splits.len().max(1) as f64;
+                FarSplit {
+                    beside: splits.iter().map(|s| s.beside).sum::<f64>() / n,
+                    above: splits.iter().map(|s| s.above).sum::<f64>() / n,
+                    within: splits.iter().map(|s| s.within).sum::<f64>() / n,
+                }
+            };
+            FarShare {
+                model: model.to_string(),
+                grounding: mean(windows.grounding),
+                prediction: mean(windows.prediction),
+            }
+        })
     }
 }
 
@@ -301,16 +330,26 @@ mod tests {
             .collect()
     }
 
+    /// Sixty frames of a block at rest, NeuroFluid's `grounded` and DLF's `baseline` rollouts.
+    fn over_still_block(grounded: Positions, baseline: Positions) -> Rollouts {
+        Rollouts {
+            truth: (0..60)
+                .map(|_| Particles {
+                    pos: block(),
+                    vel: vec![[0.0; 3]; 64],
+                })
+                .collect(),
+            grounded,
+            baseline: Some(baseline),
+            supervised: None,
+            interpolated: Vec::new(),
+        }
+    }
+
     /// Each window's share is the mean over its own frames only: a stray that NeuroFluid throws
     /// in the last five frames counts half in the prediction window and not in the grounding one.
     #[test]
     fn alone_shares_average_each_window_over_its_frames() {
-        let truth: Vec<Particles> = (0..60)
-            .map(|_| Particles {
-                pos: block(),
-                vel: vec![[0.0; 3]; 64],
-            })
-            .collect();
         let grounded: Positions = (0..60)
             .map(|t| {
                 let mut p = block();
@@ -324,13 +363,7 @@ mod tests {
             .collect();
         let mut diverged = grounded.clone();
         diverged[10][0] = [f32::NAN; 3];
-        let rollouts = Rollouts {
-            truth,
-            grounded,
-            baseline: Some(diverged),
-            supervised: None,
-            interpolated: Vec::new(),
-        };
+        let rollouts = over_still_block(grounded, diverged);
         let shares = rollouts.alone_shares(&Windows::paper(), 0.025);
         let labels: Vec<&str> = shares.iter().map(|s| s.model.as_str()).collect();
         assert_eq!(labels, ["truth", "DLF", "NeuroFluid"]);
@@ -344,5 +377,42 @@ mod tests {
             "{:?}",
             shares[1]
         );
+    }
+
+    /// Each rollout's far particles are placed and averaged over each window's own frames; the
+    /// truth has no row (it is what "far" is measured from).
+    #[test]
+    fn far_shares_place_each_rollout_s_far_particles_per_window() {
+        // z up: one of 65 particles held 1 m over the block until t = 49, then 1 m beside it
+        let grounded: Positions = (0..60)
+            .map(|t| {
+                let mut p = block();
+                p.push(if t >= 50 {
+                    [1.2, 0.0, 0.0]
+                } else {
+                    [0.1, 0.1, 1.2]
+                });
+                p
+            })
+            .collect();
+        let mut diverged = block();
+        diverged[3] = [f32::NAN; 3];
+        let rollouts = over_still_block(grounded, vec![diverged; 60]);
+        let far = rollouts.far_shares(&Windows::paper(), 0.025, [0.0, 0.0, 1.0]);
+        let labels: Vec<&str> = far.iter().map(|s| s.model.as_str()).collect();
+        assert_eq!(labels, ["DLF", "NeuroFluid"]);
+        let one = 1.0 / 65.0;
+        let nf = &far[1];
+        assert_eq!(
+            (nf.grounding.beside, nf.grounding.within),
+            (0.0, 0.0),
+            "{nf:?}"
+        );
+        assert!((nf.grounding.above - one).abs() < 1e-12, "{nf:?}");
+        assert!((nf.prediction.beside - one).abs() < 1e-12, "{nf:?}");
+        assert_eq!(nf.prediction.above, 0.0);
+        // every frame of the diverged rollout counts as all far, beside
+        assert_eq!(far[0].grounding.beside, 1.0);
+        assert_eq!(far[0].prediction.total(), 1.0);
     }
 }
