@@ -6,8 +6,9 @@
 The runs file lists `scene seed run_folder` per line (`#` starts a comment). Each run folder's
 `eval/report.md` gives d and d′ over t = 1–49 and t = 50–59, (d + d′)/2, PSNR/SSIM/LPIPS, the
 DLF (and, where evaluated with `eval.supervised_dlf`, DLF†) rows, the particles through the
-walls and, where present, the share of particles alone and the novel-view table; its
-`metrics.csv` gives the warm-up's and the joint stage's seconds (the largest `time_s` of each;
+walls and, where present, the share of particles alone, where the far particles lie and the
+novel-view table; its `metrics.csv` gives the warm-up's and the joint stage's seconds (the
+largest `time_s` of each;
 a run whose warm-up was shared with the other variants of its sweep shows that warm-up's).
 Prints markdown tables: every run; per scene the mean ± sd over seeds beside DLF and DLF†, with
 the issue's targets checked per window (d at least 10 % below DLF's, on honey 30 % over t < 50;
@@ -26,9 +27,9 @@ def cells(line):
 
 
 def report_rows(path):
-    """{label: [floats or None]} of the report's tables (d, d′, novel views, particles alone in
-    percent), and the walls line."""
-    first, second, views, alone = {}, {}, {}, {}
+    """{label: [floats or None]} of the report's tables (d, d′, novel views, particles alone and
+    far particles in percent), and the walls line."""
+    first, second, views, alone, far = {}, {}, {}, {}, {}
     table = None
     walls = None
     for line in open(path, encoding="utf-8"):
@@ -36,6 +37,9 @@ def report_rows(path):
             walls = line.split("NeuroFluid")[1].strip(" .\n")
         if line.startswith("| sequence | particles alone"):
             table = alone
+            continue
+        if line.startswith("| rollout | far"):
+            table = far
             continue
         if line.startswith("| model |"):
             # each table is known by its first column after the model's
@@ -55,7 +59,7 @@ def report_rows(path):
             continue
         label = c[0].split(" (")[0]
         table[label] = vals
-    return first, second, views, alone, walls
+    return first, second, views, alone, far, walls
 
 
 def stage_seconds(path):
@@ -80,7 +84,7 @@ def load(runs_file):
         if not os.path.exists(report):
             print(f"<!-- {scene} seed {seed}: no {report} yet -->")
             continue
-        first, second, views, alone, walls = report_rows(report)
+        first, second, views, alone, far, walls = report_rows(report)
         warm, joint = stage_seconds(os.path.join(folder, "metrics.csv"))
         runs.append(
             dict(
@@ -90,12 +94,17 @@ def load(runs_file):
                 second=second,
                 views=views,
                 alone=alone,
+                far=far,
                 walls=walls,
                 warm=warm,
                 joint=joint,
             )
         )
     return runs
+
+
+def f1(v):
+    return "–" if v is None else f"{v:.1f}"
 
 
 def f2(v):
@@ -122,15 +131,17 @@ def msd(vs):
 def main():
     runs_file = sys.argv[1] if len(sys.argv) > 1 else "experiments/bed/table-runs.txt"
     runs = load(runs_file)
-    print("| scene | seed | d (t<50 / t≥50) | d′ (t<50 / t≥50) | (d+d′)/2 (t<50 / t≥50) | PSNR / SSIM / LPIPS | through walls | alone % (t<50 / t≥50) | warm-up / joint s |")
-    print("|---|---:|---|---|---|---|---:|---|---|")
+    print("| scene | seed | d (t<50 / t≥50) | d′ (t<50 / t≥50) | (d+d′)/2 (t<50 / t≥50) | PSNR / SSIM / LPIPS | through walls | alone % (t<50 / t≥50) | far % beside / above / within (t<50) | warm-up / joint s |")
+    print("|---|---:|---|---|---|---|---:|---|---|---|")
     for r in runs:
         nf, nfp = r["first"]["NeuroFluid"], r["second"]["NeuroFluid"]
         al = r["alone"].get("NeuroFluid", [None, None])
+        fa = r["far"].get("NeuroFluid", [None] * 8)
         print(
             f"| {r['scene']} | {r['seed']} | {f2(nf[0])} / {f2(nf[2])} | {f2(nfp[0])} / {f2(nfp[2])} | "
             f"{f2(nfp[4])} / {f2(nfp[5])} | {f2(nf[4])} / {f4(nf[5])} / {f4(nf[6])} | "
-            f"{r['walls'] or '–'} | {f2(al[0])} / {f2(al[1])} | {f0(r['warm'])} / {f0(r['joint'])} |"
+            f"{r['walls'] or '–'} | {f2(al[0])} / {f2(al[1])} | {f1(fa[1])} / {f1(fa[2])} / {f1(fa[3])} | "
+            f"{f0(r['warm'])} / {f0(r['joint'])} |"
         )
     print()
     print("| scene | model | seeds | d (t<50) | d (t≥50) | d′ (t<50) | d′ (t≥50) | targets (d, d′ per window) |")
