@@ -8,8 +8,8 @@ The runs file lists `scene seed run_folder` per line (`#` starts a comment). Eac
 DLF (and, where evaluated with `eval.supervised_dlf`, DLF†) rows, the particles through the
 walls and, where present, the share of particles alone, where the far particles lie and the
 novel-view table; its `metrics.csv` gives the warm-up's and the joint stage's seconds (the
-largest `time_s` of each;
-a run whose warm-up was shared with the other variants of its sweep shows that warm-up's).
+largest `time_s` of each; a run whose warm-up was shared with the other variants of its sweep
+shows that warm-up's).
 Prints markdown tables: every run; per scene the mean ± sd over seeds beside DLF and DLF†, with
 the issue's targets checked per window (d at least 10 % below DLF's, on honey 30 % over t < 50;
 d′ not above DLF's); and the novel-view rows (NeuroFluid, NeRF-T, the renderer on the true
