@@ -77,6 +77,11 @@ pub struct DlfConfig {
     /// ([`crate::energy_cap`]; applied after the container). `false` (the reference): DLF's step
     /// as it is.
     pub cap_particle_energy: bool,
+    /// Scale of the gravity in the pre-step (x*, v* of spec §4) only; the energy cap and
+    /// everything else keep [`DlfConfig::gravity`]. `1.0` (the reference). The published weights
+    /// accelerate a falling clump at about 6.3 m/s² under 9.81 (Open3D's reference rollout of
+    /// the same weights agrees); 1.7 makes it fall at 9.8 (`tests/free_fall.rs`).
+    pub gravity_scale: f32,
 }
 
 impl Default for DlfConfig {
@@ -91,6 +96,7 @@ impl Default for DlfConfig {
             geometry: GeometryMode::Constant,
             container: None,
             cap_particle_energy: false,
+            gravity_scale: 1.0,
         }
     }
 }

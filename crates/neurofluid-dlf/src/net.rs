@@ -282,7 +282,7 @@ impl DlfNet {
         let start = cfg.cap_particle_energy.then(|| (pos.clone(), vel.clone()));
         let pos = self.to_model(pos);
         let vel = self.to_model(vel);
-        let g = cfg.model_gravity().map(|c| cfg.dt * c);
+        let g = cfg.model_gravity().map(|c| cfg.dt * cfg.gravity_scale * c);
         let g: Tensor<2> =
             neurofluid_core::transfer::upload(TensorData::new(g.to_vec(), [1, 3]), &device);
         let vel_pred = vel.clone() + g;

@@ -177,6 +177,7 @@ pub fn far_split(
         [0, 1, 2].map(|a| f64::from(p[a]) - h * up[a])
     };
     let truth_flat: Vec<[f64; 3]> = truth.iter().map(flat).collect();
+    let truth_height: Vec<f64> = truth.iter().map(height).collect();
     let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&truth_flat);
     let mut split = FarSplit::default();
     let share = 1.0 / pred.len() as f64;
@@ -187,7 +188,7 @@ pub fn far_split(
         let column = tree.within_unsorted::<SquaredEuclidean>(&flat(p), reach * reach);
         let top = column
             .iter()
-            .map(|n| height(&truth[n.item as usize]))
+            .map(|n| truth_height[n.item as usize])
             .fold(f64::NEG_INFINITY, f64::max);
         if column.is_empty() {
             split.beside += share;

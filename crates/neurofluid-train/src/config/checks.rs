@@ -5,7 +5,9 @@
 
 use neurofluid_physnerf::{DensityActivation, PhysNerfConfig};
 
-use super::{EvalSection, InitialSection, JointSection, NerfSection, SceneSection, WarmupSection};
+use super::{
+    DlfSection, EvalSection, InitialSection, JointSection, NerfSection, SceneSection, WarmupSection,
+};
 use crate::trainer::Cadence;
 
 /// The first problem of a section: the field (dotted, relative to the section) and what was
@@ -250,6 +252,20 @@ impl Section for InitialSection {
         }
         if !(self.opacity > 0.0 && self.opacity < 1.0) {
             return problem("opacity", "expected an opacity in (0, 1)");
+        }
+        None
+    }
+}
+
+impl Section for DlfSection {
+    const KEY: &'static str = "dlf";
+
+    fn problem(&self) -> Problem {
+        if !(self.gravity_scale.is_finite()
+            && self.gravity_scale > 0.0
+            && self.gravity_scale <= 4.0)
+        {
+            return problem("gravity_scale", "expected a scale in (0, 4]");
         }
         None
     }

@@ -217,6 +217,7 @@ impl Experiment {
         }
         let problem = checks::problem_of(&self.scene)
             .or_else(|| checks::problem_of(&self.physnerf))
+            .or_else(|| checks::problem_of(&self.dlf))
             .or_else(|| checks::problem_of(&self.warmup))
             .or_else(|| checks::problem_of(&self.joint))
             .or_else(|| checks::problem_of(&self.nerf))
@@ -387,6 +388,7 @@ mod tests {
             .apply_overrides(&[
                 "eval.weight_interpolation=0.25",
                 "dlf.energy_cap=\"particle\"",
+                "dlf.gravity_scale=1.7",
                 "preset=\"paper\"",
             ])
             .unwrap();
@@ -395,8 +397,16 @@ mod tests {
         assert_eq!(paper.preset, Preset::Paper);
         assert_eq!(paper.dlf.geometry, reference.dlf.geometry);
         assert_eq!(
-            (paper.dlf.containment, paper.dlf.energy_cap),
-            (reference.dlf.containment, reference.dlf.energy_cap)
+            (
+                paper.dlf.containment,
+                paper.dlf.energy_cap,
+                paper.dlf.gravity_scale
+            ),
+            (
+                reference.dlf.containment,
+                reference.dlf.energy_cap,
+                reference.dlf.gravity_scale
+            )
         );
         let (p, r) = (&paper.physnerf, &reference.physnerf);
         assert_eq!((p.selection, p.density), (r.selection, r.density));
@@ -518,6 +528,14 @@ mod tests {
             (
                 "[scene]\nbuiltin = \"watercube\"\n[joint]\ndensity_weight = nan\n",
                 "joint.density_weight",
+            ),
+            (
+                "[scene]\nbuiltin = \"watercube\"\n[dlf]\ngravity_scale = 0.0\n",
+                "dlf.gravity_scale",
+            ),
+            (
+                "[scene]\nbuiltin = \"watercube\"\n[dlf]\ngravity_scale = inf\n",
+                "dlf.gravity_scale",
             ),
             (
                 "[scene]\nbuiltin = \"watercube\"\n[joint]\nenergy_weight = -1.0\n",

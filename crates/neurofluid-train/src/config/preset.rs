@@ -48,6 +48,7 @@ pub fn apply(exp: &mut Experiment) -> Vec<Change> {
     exp.dlf.geometry = DlfSection::default().geometry;
     exp.dlf.containment = DlfSection::default().containment;
     exp.dlf.energy_cap = DlfSection::default().energy_cap;
+    exp.dlf.gravity_scale = DlfSection::default().gravity_scale;
     exp.warmup.optim = WarmupSection::default().optim;
     let paper = JointSection::default();
     let j = &mut exp.joint;

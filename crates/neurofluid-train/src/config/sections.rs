@@ -302,6 +302,11 @@ pub struct DlfSection {
     /// where it would raise that particle's mechanical energy, as no particle of a viscous fluid's
     /// truth does; `neurofluid_dlf::energy_cap`), in every rollout, the baseline DLF's too.
     pub energy_cap: EnergyCap,
+    /// Scale of the gravity in DLF's pre-step, in every rollout, the baseline DLF's too; the
+    /// energy cap and the scene keep the true gravity. `1.0` (the reference). The published
+    /// weights let a falling clump accelerate at about 6.3 m/s² of 9.81; 1.7 makes it 9.8
+    /// (`neurofluid_dlf::DlfConfig::gravity_scale`).
+    pub gravity_scale: f64,
 }
 
 impl Default for DlfSection {
@@ -311,6 +316,7 @@ impl Default for DlfSection {
             geometry: GeometryMode::Constant,
             containment: Containment::None,
             energy_cap: EnergyCap::None,
+            gravity_scale: 1.0,
         }
     }
 }
@@ -324,6 +330,12 @@ impl DlfSection {
         }
         if self.energy_cap == EnergyCap::Particle {
             rules.push("the energy cap (`dlf.energy_cap = \"particle\"`)".to_string());
+        }
+        if self.gravity_scale != 1.0 {
+            rules.push(format!(
+                "the pre-step's gravity scaled by {} (`dlf.gravity_scale`)",
+                self.gravity_scale
+            ));
         }
         rules
     }

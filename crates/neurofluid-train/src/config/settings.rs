@@ -44,6 +44,7 @@ const ADDED_KEYS: &[(&str, &str)] = &[
     ("joint.energy_weight", "0.0"),
     ("joint.energy_per", "\"fluid\""),
     ("dlf.energy_cap", "\"none\""),
+    ("dlf.gravity_scale", "1.0"),
 ];
 
 /// Flat settings with a digest.

@@ -179,6 +179,7 @@ impl Run {
             cfg.container = Some(self.scene.manifest().box_interior);
         }
         cfg.cap_particle_energy = self.exp.dlf.energy_cap == EnergyCap::Particle;
+        cfg.gravity_scale = self.exp.dlf.gravity_scale as f32;
         cfg
     }
 
