@@ -61,7 +61,8 @@ fn quick_configs_differ_from_the_main_job_only_in_the_scene() {
     };
     let load = |name: &str| Settings::all(&experiment(name));
     // each copy runs the scene its name says, and the material's terms are what rule 6
-    // chose: water anchored and held to the energy prior, honey neither but under the energy cap
+    // chose: water anchored, held to the energy prior and falling at g (the pre-step's gravity
+    // scaled), honey none of them but under the energy cap
     for scene in ["watercube", "watersphere", "waterbunny", "honeycone"] {
         let e = experiment(&format!("quick-{scene}"));
         assert_eq!(e.scene.builtin.map(|b| b.name()), Some(scene));
@@ -70,6 +71,8 @@ fn quick_configs_differ_from_the_main_job_only_in_the_scene() {
         assert_eq!(e.joint.energy_weight > 0.0, water, "quick-{scene}: energy");
         let capped = e.dlf.energy_cap != neurofluid_train::config::EnergyCap::None;
         assert_eq!(capped, !water, "quick-{scene}: energy cap");
+        let fall = if water { 1.7 } else { 1.0 };
+        assert_eq!(e.dlf.gravity_scale, fall, "quick-{scene}: gravity scale");
     }
     let main = load("quick-watercube");
     let scene_keys = [
@@ -79,13 +82,15 @@ fn quick_configs_differ_from_the_main_job_only_in_the_scene() {
         "scene.generate.warmup_every_frame",
     ];
     // and the material: honey's DLF steps are not anchored to the pretrained (water) DLF's, nor
-    // held to the energy prior, but capped (experiments/bed/README.md, rule 6)
+    // held to the energy prior, but capped, and fall with the published DLF's gravity
+    // (experiments/bed/README.md, rule 6)
     let honey_keys = [
         &scene_keys[..],
         &[
             "joint.anchor_weight",
             "joint.energy_weight",
             "dlf.energy_cap",
+            "dlf.gravity_scale",
         ],
     ]
     .concat();
