@@ -45,10 +45,11 @@ pub fn apply(exp: &mut Experiment) -> Vec<Change> {
     p.selection = paper_nerf.selection;
     p.density = paper_nerf.density;
     p.frequencies = paper_nerf.frequencies;
-    exp.dlf.geometry = DlfSection::default().geometry;
-    exp.dlf.containment = DlfSection::default().containment;
-    exp.dlf.energy_cap = DlfSection::default().energy_cap;
-    exp.dlf.gravity_scale = DlfSection::default().gravity_scale;
+    let paper_dlf = DlfSection::default();
+    exp.dlf.geometry = paper_dlf.geometry;
+    exp.dlf.containment = paper_dlf.containment;
+    exp.dlf.energy_cap = paper_dlf.energy_cap;
+    exp.dlf.gravity_scale = paper_dlf.gravity_scale;
     exp.warmup.optim = WarmupSection::default().optim;
     let paper = JointSection::default();
     let j = &mut exp.joint;
