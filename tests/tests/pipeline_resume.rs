@@ -5,8 +5,10 @@
 use std::path::Path;
 
 use neurofluid_tests::{params, seeded_turn, tiny_experiment};
+use neurofluid_train::commands::rollout;
 use neurofluid_train::config::Experiment;
 use neurofluid_train::metrics_log::MetricsLog;
+use neurofluid_train::report::Rollout;
 use neurofluid_train::stage::Stage;
 use neurofluid_train::stages::{Run, Start, eval, joint, warmup};
 
@@ -76,6 +78,10 @@ fn resumed_run_matches_uninterrupted_run() {
             .markdown()
             .contains("| DLF† (supervised on the training frames) |")
     );
+    // `rollout` scores the pretrained DLF as the evaluation's DLF row does
+    let alone = rollout::score(&straight, straight.exp.dlf.weights.clone()).unwrap();
+    assert_eq!(Some(alone.d), report.distance_row(Rollout::Dlf));
+    assert_eq!(Some(alone.d_reverse), report.reverse_row(Rollout::Dlf));
     let plot = straight.dir.join("eval").join(eval::DISTANCE_PLOT);
     assert_eq!(image::image_dimensions(&plot).unwrap(), (720, 360));
     assert!(

@@ -1,5 +1,5 @@
 //! Run-time settings of the DLF model: gravity, time step, frame, geometry mode, container,
-//! energy cap.
+//! energy cap, gravity scale, viscosity.
 
 use neurofluid_core::scene::Aabb;
 
@@ -82,6 +82,12 @@ pub struct DlfConfig {
     /// accelerate a falling clump at about 6.3 m/s² under 9.81 (Open3D's reference rollout of
     /// the same weights agrees); 1.7 makes it fall at 9.8 (`tests/free_fall.rs`).
     pub gravity_scale: f32,
+    /// Strength in [0, 1] of the XSPH viscosity applied to each step's velocities before the
+    /// container and the energy cap ([`crate::viscosity`]). `0.0` (the reference): none.
+    pub viscosity: f32,
+    /// With [`DlfConfig::viscosity`], whether the box's particles count among each particle's
+    /// neighbours, at rest (no-slip walls). `false`: the fluid's particles alone.
+    pub no_slip: bool,
 }
 
 impl Default for DlfConfig {
@@ -97,6 +103,8 @@ impl Default for DlfConfig {
             container: None,
             cap_particle_energy: false,
             gravity_scale: 1.0,
+            viscosity: 0.0,
+            no_slip: false,
         }
     }
 }

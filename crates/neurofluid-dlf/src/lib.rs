@@ -20,6 +20,7 @@ pub mod rollout;
 pub mod scene;
 pub mod sparse;
 pub mod train;
+pub mod viscosity;
 pub mod weights;
 
 pub use config::{DlfConfig, Frame, GeometryMode};

@@ -8,7 +8,8 @@ use crate::config::{DlfConfig, GeometryMode};
 use crate::conv::ContinuousConv;
 use crate::diff_geometry::differentiable_weights;
 use crate::energy_cap::cap_particle_energy;
-use crate::geometry::{ConvGeometry, build_host_geometry};
+use crate::geometry::{ConvGeometry, build_host_geometry, search_radius};
+use crate::viscosity::smooth_velocities;
 use neurofluid_core::scene::Aabb;
 
 /// Channel widths of the published model: layer 0 branches, layers 1, 2, 3.
@@ -263,7 +264,7 @@ impl DlfNet {
     }
 
     /// One step (one frame, dt): gravity pre-step, network correction, velocity from the
-    /// position difference. `pos`, `vel` `[N, 3]` are in the scene frame.
+    /// position difference; then, where the config asks, viscosity, container, energy cap. `pos`, `vel` `[N, 3]` are in the scene frame.
     pub fn step(&self, pos: Tensor<2>, vel: Tensor<2>, boundary: &Boundary) -> StepOutput {
         self.step_traced(pos, vel, boundary).0
     }
@@ -293,6 +294,15 @@ impl DlfNet {
         let pos_new = pos_pred.clone() + raw.clone() * cfg.output_scale;
         let vel_new = (pos_new.clone() - pos) / cfg.dt;
         let (pos_new, vel_new) = (self.to_scene(pos_new), self.to_scene(vel_new));
+        let (pos_new, vel_new) = if cfg.viscosity > 0.0 {
+            let radius = search_radius(cfg.extent);
+            let (pairs, walls) = (&fluid.host.pairs, &solid.host.pairs);
+            let walls = cfg.no_slip.then_some(walls);
+            let smoothed = smooth_velocities(vel_new.clone(), pairs, walls, radius, cfg.viscosity);
+            (pos_new + (smoothed.clone() - vel_new) * cfg.dt, smoothed)
+        } else {
+            (pos_new, vel_new)
+        };
         let (pos_new, vel_new) = match &cfg.container {
             Some(c) => contain(pos_new, vel_new, c, cfg.dt),
             None => (pos_new, vel_new),

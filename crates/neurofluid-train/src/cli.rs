@@ -40,6 +40,9 @@ pub enum Command {
     Sweep(commands::sweep::Args),
     /// Supervised (pre)training or fine-tuning of DLF on `.msgpack.zst` records.
     PretrainDlf(commands::pretrain_dlf::Args),
+    /// Roll one DLF out under the experiment's `[dlf]` rules from the first test frame and score
+    /// it by d and d′ (nothing trained, nothing written).
+    Rollout(commands::rollout::Args),
     /// Print the compiled-in backends and the devices they offer.
     Devices(commands::devices::Args),
     /// Fluid surfaces (OBJ/PLY) of particle files: a scene's ground truth or an evaluation's
@@ -65,6 +68,7 @@ impl Command {
             | Self::Baseline(_) => true,
             Self::Sweep(args) => args.trains(),
             Self::Eval(_)
+            | Self::Rollout(_)
             | Self::Generate(_)
             | Self::Info(_)
             | Self::Devices(_)

@@ -7,6 +7,7 @@ pub mod info;
 pub mod mesh;
 pub mod nerf_cmds;
 pub mod pretrain_dlf;
+pub mod rollout;
 pub mod run;
 pub mod stage_cmds;
 pub mod sweep;
@@ -24,6 +25,7 @@ pub fn dispatch(command: Command) -> anyhow::Result<()> {
         Command::Info(args) => info::run(args),
         Command::Sweep(args) => sweep::run(args),
         Command::PretrainDlf(args) => pretrain_dlf::run(args),
+        Command::Rollout(args) => rollout::run(args),
         Command::Devices(args) => devices::run(args),
         Command::Mesh(args) => mesh::run(args),
         Command::InitParticles(args) => nerf_cmds::run_init(args),

@@ -11,12 +11,12 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use neurofluid_core::device::parse_device;
-use neurofluid_core::scene::{MANIFEST_FILE, Role, Scene, UpAxis};
+use neurofluid_core::scene::{Aabb, MANIFEST_FILE, Role, Scene, UpAxis};
 use neurofluid_dlf::train::{TrainingSequence, load_record_dir};
 use neurofluid_dlf::{DlfConfig, DlfNet, load_dlf};
 use serde::Serialize;
 
-use crate::config::Settings;
+use crate::config::{Containment, Experiment, Settings};
 use crate::stages::supervised_dlf::{STAGE, SupervisedConfig, SupervisedDlfTrainer};
 use crate::trainer::lock::FolderLock;
 use crate::trainer::sinks::ProgressBars;
@@ -40,6 +40,12 @@ pub struct Args {
     /// Output weights (burnpack `.bpk`); also written at every checkpoint.
     #[arg(long)]
     pub output: PathBuf,
+    /// Train under the `[dlf]` rules of this experiment file (walls, energy cap, gravity scale,
+    /// viscosity and no-slip walls, geometry mode), the rules the run that evaluates this DLF† rolls it out under.
+    /// Default: DLF's step as published.
+    #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rules: Option<PathBuf>,
     /// The training settings.
     #[command(flatten)]
     #[serde(flatten)]
@@ -54,10 +60,11 @@ pub struct Args {
     pub fresh: bool,
 }
 
-/// The sequences of a records folder (y-up, DLF's frame) or of a scene folder (its up axis).
-fn load_sequences(path: &Path) -> anyhow::Result<(Vec<TrainingSequence>, UpAxis)> {
+/// The sequences of a records folder (y-up, DLF's frame, no box) or of a scene folder (its up
+/// axis and box interior).
+fn load_sequences(path: &Path) -> anyhow::Result<(Vec<TrainingSequence>, UpAxis, Option<Aabb>)> {
     if !path.join(MANIFEST_FILE).is_file() && !path.join("view_1").is_dir() {
-        return Ok((load_record_dir(path)?, UpAxis::Y));
+        return Ok((load_record_dir(path)?, UpAxis::Y, None));
     }
     let scene =
         Scene::open(path).with_context(|| format!("opening the scene {}", path.display()))?;
@@ -71,7 +78,41 @@ fn load_sequences(path: &Path) -> anyhow::Result<(Vec<TrainingSequence>, UpAxis)
         walls.points,
         walls.normals,
     )?;
-    Ok((vec![sequence], scene.up_axis()))
+    Ok((
+        vec![sequence],
+        scene.up_axis(),
+        Some(scene.manifest().box_interior),
+    ))
+}
+
+/// DLF's settings for training data with up axis `up` and box `box_interior`: as published, or
+/// under the `[dlf]` rules of the experiment file `rules`.
+fn dlf_config(
+    up: UpAxis,
+    box_interior: Option<Aabb>,
+    rules: Option<&Path>,
+) -> anyhow::Result<DlfConfig> {
+    let config = match up {
+        UpAxis::Z => DlfConfig::z_up(),
+        UpAxis::Y => DlfConfig::default(),
+    };
+    let Some(path) = rules else {
+        return Ok(config);
+    };
+    let exp = Experiment::load(path)?;
+    let section = &exp.dlf;
+    let interior = match (box_interior, section.containment) {
+        (Some(b), _) => b,
+        (None, Containment::None) => Aabb {
+            min: [f32::MIN; 3],
+            max: [f32::MAX; 3],
+        },
+        (None, Containment::Box) => anyhow::bail!(
+            "--rules {}: dlf.containment = \"box\" needs a scene folder's box; DLF records have none",
+            path.display()
+        ),
+    };
+    Ok(section.apply(config, interior))
 }
 
 /// The folder of the checkpoints that go with `output`.
@@ -152,15 +193,12 @@ fn check_output(output: &Path) -> anyhow::Result<()> {
 pub fn run(args: Args) -> anyhow::Result<()> {
     check_output(&args.output)?;
     let device = parse_device(&args.device)?.autodiff();
-    let (train, up) = load_sequences(&args.data)?;
+    let (train, up, box_interior) = load_sequences(&args.data)?;
     let val = match &args.val {
         Some(dir) => load_sequences(dir)?.0,
         None => Vec::new(),
     };
-    let config = match up {
-        UpAxis::Z => DlfConfig::z_up(),
-        UpAxis::Y => DlfConfig::default(),
-    };
+    let config = dlf_config(up, box_interior, args.rules.as_deref())?;
     let net: DlfNet = match &args.init {
         Some(path) => load_dlf(path, config, &device)?,
         None => neurofluid_core::device::init_seeded(args.train.seed, &device, |cpu| {
@@ -232,6 +270,7 @@ mod tests {
             val: None,
             init: None,
             output: missing,
+            rules: None,
             train: SupervisedConfig {
                 iterations: 1,
                 batch_size: 1,
@@ -279,6 +318,7 @@ mod tests {
             val: Some(dir.path().to_path_buf()),
             init,
             output: output.to_path_buf(),
+            rules: None,
             train: SupervisedConfig {
                 iterations,
                 batch_size,
@@ -320,6 +360,54 @@ mod tests {
         if let Some(ckpt) = crate::trainer::checkpoint::latest(&checkpoint_dir(&in_place)) {
             load_dlf(&ckpt.join("dlf.bpk"), DlfConfig::default(), &device).unwrap();
         }
+    }
+
+    /// `--rules` takes the experiment's `[dlf]` rules, and nothing else of it; the walls need a
+    /// scene's box.
+    #[test]
+    fn rules_come_from_the_experiment() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = |name: &str, dlf: &str| {
+            let path = dir.path().join(name);
+            let text = format!("name = \"t\"\n[scene]\nbuiltin = \"watercube\"\n[dlf]\n{dlf}");
+            std::fs::write(&path, text).unwrap();
+            path
+        };
+        let rules = file(
+            "rules.toml",
+            "gravity_scale = 1.7\nviscosity = 0.25\nno_slip = true\nenergy_cap = \"particle\"\n",
+        );
+        let interior = Aabb {
+            min: [-1.0, -1.0, 0.0],
+            max: [1.0, 1.0, 2.0],
+        };
+        let cfg = dlf_config(UpAxis::Z, Some(interior), Some(&rules)).unwrap();
+        let want = DlfConfig {
+            gravity_scale: 1.7,
+            viscosity: 0.25,
+            no_slip: true,
+            cap_particle_energy: true,
+            ..DlfConfig::z_up()
+        };
+        assert_eq!(cfg, want);
+        assert_eq!(
+            dlf_config(UpAxis::Z, Some(interior), None).unwrap(),
+            DlfConfig::z_up()
+        );
+
+        let walls = file("walls.toml", "containment = \"box\"\n");
+        let cfg = dlf_config(UpAxis::Y, Some(interior), Some(&walls)).unwrap();
+        assert_eq!(cfg.container, Some(interior));
+        let err = dlf_config(UpAxis::Y, None, Some(&walls))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("dlf.containment") && err.contains("records"),
+            "{err}"
+        );
+        let bad = file("bad.toml", "viscosity = 1.5\n");
+        let err = format!("{:#}", dlf_config(UpAxis::Y, None, Some(&bad)).unwrap_err());
+        assert!(err.contains("dlf.viscosity"), "{err}");
     }
 
     /// `--lr` must be a finite positive number; `--batch-size` must fit the data.

@@ -267,6 +267,15 @@ impl Section for DlfSection {
         {
             return problem("gravity_scale", "expected a scale in (0, 4]");
         }
+        if !(0.0..=1.0).contains(&self.viscosity) {
+            return problem("viscosity", "expected a strength in [0, 1]");
+        }
+        if self.no_slip && self.viscosity == 0.0 {
+            return problem(
+                "no_slip",
+                "no-slip walls act through the viscosity; expected dlf.viscosity > 0 with it",
+            );
+        }
         None
     }
 }

@@ -389,25 +389,21 @@ mod tests {
                 "eval.weight_interpolation=0.25",
                 "dlf.energy_cap=\"particle\"",
                 "dlf.gravity_scale=1.7",
+                "dlf.viscosity=0.4",
+                "dlf.no_slip=true",
                 "preset=\"paper\"",
             ])
             .unwrap();
         assert_eq!(paper.eval.weight_interpolation, 1.0);
         let reference = parse(MINIMAL).unwrap();
         assert_eq!(paper.preset, Preset::Paper);
-        assert_eq!(paper.dlf.geometry, reference.dlf.geometry);
-        assert_eq!(
-            (
-                paper.dlf.containment,
-                paper.dlf.energy_cap,
-                paper.dlf.gravity_scale
-            ),
-            (
-                reference.dlf.containment,
-                reference.dlf.energy_cap,
-                reference.dlf.gravity_scale
-            )
-        );
+        // every DLF rule back to the reference's; the weights stay the experiment's
+        assert_eq!(paper.dlf.weights, quick.dlf.weights);
+        let paper_dlf = DlfSection {
+            weights: reference.dlf.weights.clone(),
+            ..paper.dlf.clone()
+        };
+        assert_eq!(paper_dlf, reference.dlf);
         let (p, r) = (&paper.physnerf, &reference.physnerf);
         assert_eq!((p.selection, p.density), (r.selection, r.density));
         assert_eq!(p.frequencies, r.frequencies);
@@ -536,6 +532,14 @@ mod tests {
             (
                 "[scene]\nbuiltin = \"watercube\"\n[dlf]\ngravity_scale = inf\n",
                 "dlf.gravity_scale",
+            ),
+            (
+                "[scene]\nbuiltin = \"watercube\"\n[dlf]\nviscosity = -0.1\n",
+                "dlf.viscosity",
+            ),
+            (
+                "[scene]\nbuiltin = \"watercube\"\n[dlf]\nno_slip = true\n",
+                "dlf.no_slip",
             ),
             (
                 "[scene]\nbuiltin = \"watercube\"\n[joint]\nenergy_weight = -1.0\n",

@@ -3,12 +3,13 @@
 //!
 //! `preset = "paper"` (or `--set preset=paper`) resets every rule in which this project departs
 //! from NeuroFluid's code (spec §4) to the reference's value, whatever the file says: constant
-//! DLF geometry, open walls and no energy cap, the lowest-index neighbour rule, ReLU density and
-//! the paper's encoding frequencies, the warm-up's and the joint stage's optimisers and
-//! schedules, one-step truncated BPTT with DLF stepping every transition, uniform rays, one
-//! view, no silhouette term, the boundary weight 1, and the grounded DLF evaluated as trained.
-//! Budgets (iterations, epochs, rays, samples, network widths) stay the file's: they are the
-//! scale of the experiment, not its rules. Each value the preset changes is logged.
+//! DLF geometry, open walls, no energy cap, the published gravity and no viscosity, the
+//! lowest-index neighbour rule, ReLU density and the paper's encoding frequencies, the
+//! warm-up's and the joint stage's optimisers and schedules, one-step truncated BPTT with DLF
+//! stepping every transition, uniform rays, one view, no silhouette term, the boundary weight
+//! 1, and the grounded DLF evaluated as trained. Budgets (iterations, epochs, rays, samples,
+//! network widths) stay the file's: they are the scale of the experiment, not its rules. Each
+//! value the preset changes is logged.
 
 use serde::{Deserialize, Serialize};
 
@@ -45,11 +46,10 @@ pub fn apply(exp: &mut Experiment) -> Vec<Change> {
     p.selection = paper_nerf.selection;
     p.density = paper_nerf.density;
     p.frequencies = paper_nerf.frequencies;
-    let paper_dlf = DlfSection::default();
-    exp.dlf.geometry = paper_dlf.geometry;
-    exp.dlf.containment = paper_dlf.containment;
-    exp.dlf.energy_cap = paper_dlf.energy_cap;
-    exp.dlf.gravity_scale = paper_dlf.gravity_scale;
+    exp.dlf = DlfSection {
+        weights: exp.dlf.weights.clone(),
+        ..DlfSection::default()
+    };
     exp.warmup.optim = WarmupSection::default().optim;
     let paper = JointSection::default();
     let j = &mut exp.joint;

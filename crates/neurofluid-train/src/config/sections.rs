@@ -5,8 +5,8 @@
 use std::fmt;
 use std::path::PathBuf;
 
-use neurofluid_core::scene::{Role, Scene};
-use neurofluid_dlf::GeometryMode;
+use neurofluid_core::scene::{Aabb, Role, Scene};
+use neurofluid_dlf::{DlfConfig, GeometryMode};
 use serde::{Deserialize, Serialize};
 
 use crate::optim::{JointDlfGroup, JointPhysNerfGroup, NerfGroup, OptimConfig, WarmupGroup};
@@ -307,6 +307,13 @@ pub struct DlfSection {
     /// weights let a falling clump accelerate at about 6.3 m/s² of 9.81; 1.7 makes it 9.8
     /// (`neurofluid_dlf::DlfConfig::gravity_scale`).
     pub gravity_scale: f64,
+    /// Strength in [0, 1] of an XSPH viscosity on each step's velocities (each moves this share
+    /// of the way toward its neighbours'), in every rollout, the baseline DLF's too. `0.0` (the
+    /// reference): none (`neurofluid_dlf::viscosity`).
+    pub viscosity: f64,
+    /// With `viscosity`, no-slip walls: the box's particles count among each particle's
+    /// neighbours, at rest, so the fluid beside a wall is held by it. `false` (the default).
+    pub no_slip: bool,
 }
 
 impl Default for DlfSection {
@@ -317,11 +324,27 @@ impl Default for DlfSection {
             containment: Containment::None,
             energy_cap: EnergyCap::None,
             gravity_scale: 1.0,
+            viscosity: 0.0,
+            no_slip: false,
         }
     }
 }
 
 impl DlfSection {
+    /// `cfg` with this section's geometry mode and rules; `box_interior` is the scene's, which
+    /// `containment = "box"` keeps the particles in.
+    pub fn apply(&self, mut cfg: DlfConfig, box_interior: Aabb) -> DlfConfig {
+        cfg.geometry = self.geometry;
+        if self.containment == Containment::Box {
+            cfg.container = Some(box_interior);
+        }
+        cfg.cap_particle_energy = self.energy_cap == EnergyCap::Particle;
+        cfg.gravity_scale = self.gravity_scale as f32;
+        cfg.viscosity = self.viscosity as f32;
+        cfg.no_slip = self.no_slip;
+        cfg
+    }
+
     /// The rules DLF's steps follow beyond the reference's, as a report names them.
     pub fn rules(&self) -> Vec<String> {
         let mut rules = Vec::new();
@@ -335,6 +358,17 @@ impl DlfSection {
             rules.push(format!(
                 "the pre-step's gravity scaled by {} (`dlf.gravity_scale`)",
                 self.gravity_scale
+            ));
+        }
+        if self.viscosity != 0.0 {
+            rules.push(format!(
+                "an XSPH viscosity of strength {}{} (`dlf.viscosity`)",
+                self.viscosity,
+                if self.no_slip {
+                    ", no-slip walls (`dlf.no_slip`)"
+                } else {
+                    ""
+                }
             ));
         }
         rules

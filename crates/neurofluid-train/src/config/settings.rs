@@ -45,6 +45,8 @@ const ADDED_KEYS: &[(&str, &str)] = &[
     ("joint.energy_per", "\"fluid\""),
     ("dlf.energy_cap", "\"none\""),
     ("dlf.gravity_scale", "1.0"),
+    ("dlf.viscosity", "0.0"),
+    ("dlf.no_slip", "false"),
 ];
 
 /// Flat settings with a digest.

@@ -14,7 +14,7 @@ use neurofluid_core::scene::{Scene, UpAxis};
 use neurofluid_dlf::{DlfConfig, DlfNet};
 use neurofluid_physnerf::PhysNerfConfig;
 
-use crate::config::{Containment, EnergyCap, Experiment, RESOLVED_FILE, Settings};
+use crate::config::{Experiment, RESOLVED_FILE, Settings};
 use crate::metrics_log::{CSV_FILE, JSONL_FILE, MetricsLog};
 use crate::stage::Stage;
 use crate::trainer::checkpoint;
@@ -166,21 +166,15 @@ impl Run {
     }
 
     /// DLF's config: gravity along the scene's up axis, the frame rotation that lets the y-up
-    /// public weights run on a z-up scene, the scene's time step, the experiment's geometry,
-    /// walls and energy cap.
+    /// public weights run on a z-up scene, the scene's time step, and the experiment's `[dlf]`
+    /// geometry mode and rules.
     pub fn dlf_config(&self) -> DlfConfig {
         let mut cfg = match self.scene.up_axis() {
             UpAxis::Z => DlfConfig::z_up(),
             _ => DlfConfig::default(),
         };
         cfg.dt = 1.0 / self.scene.manifest().fps;
-        cfg.geometry = self.exp.dlf.geometry;
-        if self.exp.dlf.containment == Containment::Box {
-            cfg.container = Some(self.scene.manifest().box_interior);
-        }
-        cfg.cap_particle_energy = self.exp.dlf.energy_cap == EnergyCap::Particle;
-        cfg.gravity_scale = self.exp.dlf.gravity_scale as f32;
-        cfg
+        self.exp.dlf.apply(cfg, self.scene.manifest().box_interior)
     }
 
     /// Loads DLF from `path` (`.pt`, `.safetensors` or one of our checkpoints).

@@ -40,15 +40,8 @@ pub struct Rollouts {
 impl Rollouts {
     /// Rolls every evaluated model out over the test split of `run`.
     pub fn of(run: &Run, models: &Grounded) -> anyhow::Result<Self> {
-        let scene = &run.scene;
         let cfg = &run.exp.eval;
-        let test = scene.frames(Role::Test);
-        let truth: Vec<_> = scene.particle_sequence(Role::Test)?;
-        check_sequence(&truth, test.start).context("the test split's particles")?;
-        let steps = test.len() - 1;
-        // both rollouts start from the same state: the truth, or the particles from images
-        let start = starting_particles(run, Role::Test, test.start, "first test frame")?;
-        tracing::info!(steps, "evaluating: rollouts from the first test frame");
+        let (truth, start, steps) = test_start(run)?;
         let pretrained = run.load_dlf(&run.exp.dlf.weights)?;
         let evaluated = evaluated_dlf(&pretrained, &models.dlf, cfg.weight_interpolation)?;
         let grounded = positions(run, &evaluated, &start, steps, "NeuroFluid")?;
@@ -79,6 +72,19 @@ impl Rollouts {
             baseline,
             supervised,
             interpolated,
+        })
+    }
+
+    /// The truth of the test split and one DLF's rollout from its first frame in the grounded
+    /// model's place (no baseline, no DLF†): a rule or weights file scored alone (`rollout`).
+    pub fn of_one(run: &Run, net: &DlfNet, what: &str) -> anyhow::Result<Self> {
+        let (truth, start, steps) = test_start(run)?;
+        Ok(Self {
+            truth,
+            grounded: positions(run, net, &start, steps, what)?,
+            baseline: None,
+            supervised: None,
+            interpolated: Vec::new(),
         })
     }
 
@@ -292,6 +298,17 @@ pub fn evaluated_dlf(
     );
     neurofluid_core::params::interpolate(pretrained, grounded.clone(), fraction)
         .context("eval.weight_interpolation: the grounded DLF against dlf.weights")
+}
+
+/// The test split's true particles, the state every rollout starts from (the truth of its first
+/// frame, or the particles from images) and the number of steps.
+fn test_start(run: &Run) -> anyhow::Result<(Vec<Particles>, Particles, usize)> {
+    let test = run.scene.frames(Role::Test);
+    let truth: Vec<_> = run.scene.particle_sequence(Role::Test)?;
+    check_sequence(&truth, test.start).context("the test split's particles")?;
+    let start = starting_particles(run, Role::Test, test.start, "first test frame")?;
+    tracing::info!(steps = test.len() - 1, "rollouts from the first test frame");
+    Ok((truth, start, test.len() - 1))
 }
 
 /// `net`'s rollout of `steps` steps from `start` against the scene's boundary.

@@ -1,0 +1,108 @@
+//! `rollout`: one DLF (the experiment's `dlf.weights`, or `--weights`) rolled out from the first
+//! test frame under the experiment's `[dlf]` rules and scored by d and d′ over both windows, with
+//! nothing trained and nothing written. It scores a rule of the model, or a weights file, on a
+//! scene before any run, on the same rollout and the same measures as `eval`'s DLF row.
+
+use std::path::PathBuf;
+
+use serde::Serialize;
+
+use super::experiment_args::ExperimentArgs;
+use crate::report::{DistanceRow, EvalReport, Rollout, Windows};
+use crate::stages::Run;
+use crate::stages::eval::rollouts::Rollouts;
+use neurofluid_core::scene::Role;
+
+/// Arguments of `rollout`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    #[command(flatten)]
+    exp: ExperimentArgs,
+    /// The DLF weights to roll out (`.pt`, `.safetensors`, `.bpk`). Default: `dlf.weights`.
+    #[arg(long)]
+    weights: Option<PathBuf>,
+    /// Print JSON instead of a table.
+    #[arg(long)]
+    json: bool,
+}
+
+/// What `rollout` prints.
+#[derive(Debug, Serialize)]
+pub struct Scores {
+    /// The weights rolled out.
+    pub weights: PathBuf,
+    /// The `[dlf]` rules beyond the reference's.
+    pub rules: Vec<String>,
+    /// d (truth → prediction).
+    pub d: DistanceRow,
+    /// d′ (prediction → truth).
+    pub d_reverse: DistanceRow,
+    /// (d + d′)/2, frame by frame.
+    pub symmetric: DistanceRow,
+    /// The most particles outside the box over the rollout's frames.
+    pub outside: usize,
+}
+
+/// Rolls the DLF out under `run`'s rules and scores it.
+pub fn score(run: &Run, weights: PathBuf) -> anyhow::Result<Scores> {
+    let net = run.load_dlf(&weights)?;
+    let rollouts = Rollouts::of_one(run, &net, "DLF")?;
+    let scene = &run.scene;
+    let windows = Windows::from_lengths(
+        scene.frames(Role::Train).len(),
+        scene.frames(Role::Test).len(),
+    );
+    let mut report = EvalReport::new(&run.exp.name, &scene.manifest().name, "", windows);
+    report.frames = rollouts.frame_distances();
+    let row = |r: Option<DistanceRow>| r.expect("every frame of the rollout is scored both ways");
+    let m = scene.manifest();
+    let outside = rollouts
+        .escaped(&m.box_interior, m.particle_radius)
+        .first()
+        .map_or(0, |(_, n)| *n);
+    Ok(Scores {
+        weights,
+        rules: run.exp.dlf.rules(),
+        d: row(report.distance_row(Rollout::NeuroFluid)),
+        d_reverse: row(report.reverse_row(Rollout::NeuroFluid)),
+        symmetric: row(report.symmetric_row(Rollout::NeuroFluid)),
+        outside,
+    })
+}
+
+/// Runs the command.
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let run = Run::open_existing(args.exp.load()?)?;
+    let weights = args.weights.unwrap_or_else(|| run.exp.dlf.weights.clone());
+    let s = score(&run, weights)?;
+    if args.json {
+        println!("{}", serde_json::to_string(&s)?);
+        return Ok(());
+    }
+    let f = |v: Option<f64>| v.map_or("–".to_string(), |v| format!("{v:.2}"));
+    let (g, p) = (&run.exp, &s);
+    println!(
+        "{} on {}: {}",
+        p.weights.display(),
+        run.scene.manifest().name,
+        if p.rules.is_empty() {
+            "DLF's step as published".to_string()
+        } else {
+            p.rules.join(", ")
+        }
+    );
+    println!("| ({}) | t < 50 | t ≥ 50 |\n|---|---|---|", g.name);
+    for (label, row) in [
+        ("d", &p.d),
+        ("d′", &p.d_reverse),
+        ("(d + d′)/2", &p.symmetric),
+    ] {
+        println!(
+            "| {label} | {} | {} |",
+            f(row.grounding_mean),
+            f(row.prediction_mean)
+        );
+    }
+    println!("most particles outside the box in a frame: {}", p.outside);
+    Ok(())
+}
