@@ -1,5 +1,5 @@
-//! `pretrain-dlf` fine-tunes on a generated scene folder (its training frames) and writes a
-//! checkpoint that loads.
+//! `pretrain-dlf` fine-tunes on a generated scene folder (its training frames), under an
+//! experiment's `[dlf]` rules, and writes a checkpoint that loads.
 
 use neurofluid_dlf::{DlfConfig, load_dlf};
 use neurofluid_tests::{seeded_turn, tiny_experiment, workspace_root};
@@ -14,11 +14,20 @@ fn fine_tunes_on_a_generated_scene() {
     let scene = generate_scene_if_missing(&tiny_experiment(tmp.path(), "pretrain")).unwrap();
     let weights = workspace_root().join("assets/dlf_pretrained/pretrained_model_weights.pt");
     let output = tmp.path().join("ft.bpk");
+    // every rule, the walls (which need the scene's box) among them
+    let rules = tmp.path().join("rules.toml");
+    std::fs::write(
+        &rules,
+        "name = \"rules\"\n[scene]\nbuiltin = \"watercube\"\n[dlf]\ncontainment = \"box\"\n\
+         energy_cap = \"particle\"\ngravity_scale = 1.7\nviscosity = 0.2\nno_slip = true\n",
+    )
+    .unwrap();
     run(Args {
         data: scene.clone(),
         val: Some(scene),
         init: Some(weights),
         output: output.clone(),
+        rules: Some(rules),
         train: SupervisedConfig {
             iterations: 2,
             batch_size: 1,
