@@ -264,7 +264,8 @@ impl DlfNet {
     }
 
     /// One step (one frame, dt): gravity pre-step, network correction, velocity from the
-    /// position difference; then, where the config asks, viscosity, container, energy cap. `pos`, `vel` `[N, 3]` are in the scene frame.
+    /// position difference; then, where the config asks, viscosity, container, energy cap.
+    /// `pos`, `vel` `[N, 3]` are in the scene frame.
     pub fn step(&self, pos: Tensor<2>, vel: Tensor<2>, boundary: &Boundary) -> StepOutput {
         self.step_traced(pos, vel, boundary).0
     }

@@ -16,7 +16,7 @@ use neurofluid_dlf::train::{TrainingSequence, load_record_dir};
 use neurofluid_dlf::{DlfConfig, DlfNet, load_dlf};
 use serde::Serialize;
 
-use crate::config::{Containment, Experiment, Settings};
+use crate::config::{Experiment, Settings};
 use crate::stages::supervised_dlf::{STAGE, SupervisedConfig, SupervisedDlfTrainer};
 use crate::trainer::lock::FolderLock;
 use crate::trainer::sinks::ProgressBars;
@@ -100,19 +100,9 @@ fn dlf_config(
         return Ok(config);
     };
     let exp = Experiment::load(path)?;
-    let section = &exp.dlf;
-    let interior = match (box_interior, section.containment) {
-        (Some(b), _) => b,
-        (None, Containment::None) => Aabb {
-            min: [f32::MIN; 3],
-            max: [f32::MAX; 3],
-        },
-        (None, Containment::Box) => anyhow::bail!(
-            "--rules {}: dlf.containment = \"box\" needs a scene folder's box; DLF records have none",
-            path.display()
-        ),
-    };
-    Ok(section.apply(config, interior))
+    exp.dlf
+        .apply(config, box_interior)
+        .with_context(|| format!("--rules {}", path.display()))
 }
 
 /// The folder of the checkpoints that go with `output`.
@@ -398,11 +388,14 @@ mod tests {
         let walls = file("walls.toml", "containment = \"box\"\n");
         let cfg = dlf_config(UpAxis::Y, Some(interior), Some(&walls)).unwrap();
         assert_eq!(cfg.container, Some(interior));
-        let err = dlf_config(UpAxis::Y, None, Some(&walls))
-            .unwrap_err()
-            .to_string();
+        let err = format!(
+            "{:#}",
+            dlf_config(UpAxis::Y, None, Some(&walls)).unwrap_err()
+        );
         assert!(
-            err.contains("dlf.containment") && err.contains("records"),
+            err.contains("walls.toml")
+                && err.contains("dlf.containment")
+                && err.contains("records"),
             "{err}"
         );
         let bad = file("bad.toml", "viscosity = 1.5\n");

@@ -331,18 +331,28 @@ impl Default for DlfSection {
 }
 
 impl DlfSection {
-    /// `cfg` with this section's geometry mode and rules; `box_interior` is the scene's, which
-    /// `containment = "box"` keeps the particles in.
-    pub fn apply(&self, mut cfg: DlfConfig, box_interior: Aabb) -> DlfConfig {
+    /// `cfg` with this section's geometry mode and rules; `box_interior` is the scene's box,
+    /// which `containment = "box"` keeps the particles in. `None` where no box is known (DLF
+    /// records), which only a section without walls accepts.
+    pub fn apply(
+        &self,
+        mut cfg: DlfConfig,
+        box_interior: Option<Aabb>,
+    ) -> anyhow::Result<DlfConfig> {
         cfg.geometry = self.geometry;
         if self.containment == Containment::Box {
-            cfg.container = Some(box_interior);
+            let interior = box_interior.ok_or_else(|| {
+                anyhow::anyhow!(
+                    "dlf.containment = \"box\" needs a scene's box; DLF records have none"
+                )
+            })?;
+            cfg.container = Some(interior);
         }
         cfg.cap_particle_energy = self.energy_cap == EnergyCap::Particle;
         cfg.gravity_scale = self.gravity_scale as f32;
         cfg.viscosity = self.viscosity as f32;
         cfg.no_slip = self.no_slip;
-        cfg
+        Ok(cfg)
     }
 
     /// The rules DLF's steps follow beyond the reference's, as a report names them.

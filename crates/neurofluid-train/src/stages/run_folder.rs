@@ -174,7 +174,8 @@ impl Run {
             _ => DlfConfig::default(),
         };
         cfg.dt = 1.0 / self.scene.manifest().fps;
-        self.exp.dlf.apply(cfg, self.scene.manifest().box_interior)
+        let interior = self.scene.manifest().box_interior;
+        (self.exp.dlf.apply(cfg, Some(interior))).expect("a scene has a box")
     }
 
     /// Loads DLF from `path` (`.pt`, `.safetensors` or one of our checkpoints).
