@@ -41,7 +41,8 @@ pub struct Args {
     #[arg(long)]
     pub output: PathBuf,
     /// Train under the `[dlf]` rules of this experiment file (walls, energy cap, gravity scale,
-    /// viscosity and no-slip walls, geometry mode), the rules the run that evaluates this DLF† rolls it out under.
+    /// viscosity and no-slip walls), the rules the run that evaluates this DLF† rolls it out
+    /// under. Its geometry mode is not taken: DLF trains with a constant geometry.
     /// Default: DLF's step as published.
     #[arg(long)]
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -101,7 +102,7 @@ fn dlf_config(
     };
     let exp = Experiment::load(path)?;
     exp.dlf
-        .apply(config, box_interior)
+        .apply_rules(config, box_interior)
         .with_context(|| format!("--rules {}", path.display()))
 }
 
@@ -352,8 +353,8 @@ mod tests {
         }
     }
 
-    /// `--rules` takes the experiment's `[dlf]` rules, and nothing else of it; the walls need a
-    /// scene's box.
+    /// `--rules` takes the experiment's `[dlf]` rules, and nothing else of it (not its geometry
+    /// mode, which changes only gradients); the walls need a scene's box.
     #[test]
     fn rules_come_from_the_experiment() {
         let dir = tempfile::tempdir().unwrap();
@@ -365,7 +366,8 @@ mod tests {
         };
         let rules = file(
             "rules.toml",
-            "gravity_scale = 1.7\nviscosity = 0.25\nno_slip = true\nenergy_cap = \"particle\"\n",
+            "gravity_scale = 1.7\nviscosity = 0.25\nno_slip = true\nenergy_cap = \"particle\"\n\
+             geometry = \"differentiable\"\n",
         );
         let interior = Aabb {
             min: [-1.0, -1.0, 0.0],

@@ -331,15 +331,15 @@ impl Default for DlfSection {
 }
 
 impl DlfSection {
-    /// `cfg` with this section's geometry mode and rules; `box_interior` is the scene's box,
-    /// which `containment = "box"` keeps the particles in. `None` where no box is known (DLF
-    /// records), which only a section without walls accepts.
-    pub fn apply(
+    /// `cfg` with this section's rules of the step (walls, cap, gravity scale, viscosity), which
+    /// change what a rollout does; not the geometry mode, which changes only the gradients.
+    /// `box_interior` is the scene's box, which `containment = "box"` keeps the particles in:
+    /// `None` where no box is known (DLF records), which only a section without walls accepts.
+    pub fn apply_rules(
         &self,
         mut cfg: DlfConfig,
         box_interior: Option<Aabb>,
     ) -> anyhow::Result<DlfConfig> {
-        cfg.geometry = self.geometry;
         if self.containment == Containment::Box {
             let interior = box_interior.ok_or_else(|| {
                 anyhow::anyhow!(

@@ -174,8 +174,9 @@ impl Run {
             _ => DlfConfig::default(),
         };
         cfg.dt = 1.0 / self.scene.manifest().fps;
+        cfg.geometry = self.exp.dlf.geometry;
         let interior = self.scene.manifest().box_interior;
-        (self.exp.dlf.apply(cfg, Some(interior))).expect("a scene has a box")
+        (self.exp.dlf.apply_rules(cfg, Some(interior))).expect("a scene has a box")
     }
 
     /// Loads DLF from `path` (`.pt`, `.safetensors` or one of our checkpoints).
