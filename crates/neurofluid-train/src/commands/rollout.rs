@@ -54,7 +54,14 @@ pub fn score(run: &Run, weights: PathBuf) -> anyhow::Result<Scores> {
     );
     let mut report = EvalReport::new(&run.exp.name, &scene.manifest().name, "", windows);
     report.frames = rollouts.frame_distances();
-    let row = |r: Option<DistanceRow>| r.expect("every frame of the rollout is scored both ways");
+    let row = |r: Option<DistanceRow>| {
+        r.ok_or_else(|| {
+            anyhow::anyhow!(
+                "{}: the test split has no frame after its first, so there is nothing to roll out",
+                run.scene.root().display()
+            )
+        })
+    };
     let m = scene.manifest();
     let outside = rollouts
         .escaped(&m.box_interior, m.particle_radius)
@@ -63,9 +70,9 @@ pub fn score(run: &Run, weights: PathBuf) -> anyhow::Result<Scores> {
     Ok(Scores {
         weights,
         rules: run.exp.dlf.rules(),
-        d: row(report.distance_row(Rollout::NeuroFluid)),
-        d_reverse: row(report.reverse_row(Rollout::NeuroFluid)),
-        symmetric: row(report.symmetric_row(Rollout::NeuroFluid)),
+        d: row(report.distance_row(Rollout::NeuroFluid))?,
+        d_reverse: row(report.reverse_row(Rollout::NeuroFluid))?,
+        symmetric: row(report.symmetric_row(Rollout::NeuroFluid))?,
         outside,
     })
 }
