@@ -1,7 +1,7 @@
 //! Run-time settings of the DLF model: gravity, time step, frame, geometry mode, container,
 //! energy cap, gravity scale, viscosity.
 
-use neurofluid_core::scene::Aabb;
+use neurofluid_core::scene::{Aabb, UpAxis};
 
 /// How the conv geometry (mapped coordinates, trilinear and window weights) enters autodiff.
 /// In files: `"constant"` or `"differentiable"`.
@@ -116,6 +116,15 @@ impl DlfConfig {
             gravity: [0.0, 0.0, -9.81],
             frame: Frame::ZUp,
             ..Self::default()
+        }
+    }
+
+    /// The published model on a scene with up axis `up`: [`DlfConfig::default`] for y-up,
+    /// [`DlfConfig::z_up`] for z-up.
+    pub fn for_up_axis(up: UpAxis) -> Self {
+        match up {
+            UpAxis::Y => Self::default(),
+            UpAxis::Z => Self::z_up(),
         }
     }
 

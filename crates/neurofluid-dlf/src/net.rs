@@ -297,9 +297,9 @@ impl DlfNet {
         let (pos_new, vel_new) = (self.to_scene(pos_new), self.to_scene(vel_new));
         let (pos_new, vel_new) = if cfg.viscosity > 0.0 {
             let radius = search_radius(cfg.extent);
-            let (pairs, walls) = (&fluid.host.pairs, &solid.host.pairs);
-            let walls = cfg.no_slip.then_some(walls);
-            let smoothed = smooth_velocities(vel_new.clone(), pairs, walls, radius, cfg.viscosity);
+            let walls = cfg.no_slip.then_some(&*solid.host);
+            let smoothed =
+                smooth_velocities(vel_new.clone(), &fluid.host, walls, radius, cfg.viscosity);
             (pos_new + (smoothed.clone() - vel_new) * cfg.dt, smoothed)
         } else {
             (pos_new, vel_new)

@@ -16,16 +16,16 @@
 //! from them); gradients flow through the velocities.
 
 use burn::prelude::*;
-use neurofluid_core::neighbors::PairList;
 use neurofluid_core::rows::{RowIndex, add_rows, gather_rows};
 use neurofluid_core::transfer::upload;
 
+use crate::geometry::HostGeometry;
 use crate::mapping::window_poly6;
 
-/// The window weight of every pair of `pairs` for the search radius `radius`.
-fn pair_weights(pairs: &PairList, radius: f32) -> Vec<f32> {
+/// The window weight of every pair of `g` for the search radius `radius`.
+fn pair_weights(g: &HostGeometry, radius: f32) -> Vec<f32> {
     let r2 = radius * radius;
-    pairs
+    g.pairs
         .dist2
         .iter()
         .map(|&d2| window_poly6(d2 / r2))
@@ -33,8 +33,8 @@ fn pair_weights(pairs: &PairList, radius: f32) -> Vec<f32> {
 }
 
 /// The sum of the weights of each query's pairs.
-fn row_sums(pairs: &PairList, w: &[f32]) -> Vec<f32> {
-    pairs
+fn row_sums(g: &HostGeometry, w: &[f32]) -> Vec<f32> {
+    g.pairs
         .offsets
         .windows(2)
         .map(|o| w[o[0]..o[1]].iter().sum())
@@ -42,11 +42,11 @@ fn row_sums(pairs: &PairList, w: &[f32]) -> Vec<f32> {
 }
 
 /// The coefficients of one step: `a_ij` of every fluid pair of `fluid` (query-major, as the
-/// list holds them) and, per fluid particle, the share `Σ_b a_ib` its no-slip walls hold back
-/// (zeros without `walls`, a box→fluid list with the fluid particles as queries).
+/// geometry holds them) and, per fluid particle, the share `Σ_b a_ib` its no-slip walls hold
+/// back (zeros without `walls`, a box→fluid geometry with the fluid particles as queries).
 pub fn coefficients(
-    fluid: &PairList,
-    walls: Option<&PairList>,
+    fluid: &HostGeometry,
+    walls: Option<&HostGeometry>,
     radius: f32,
     strength: f32,
 ) -> (Vec<f32>, Vec<f32>) {
@@ -66,11 +66,10 @@ pub fn coefficients(
         }
         None => vec![0.0; sums.len()],
     };
-    let queries = fluid.query_of_pair();
     let a = w
         .iter()
-        .zip(&queries)
-        .zip(&fluid.indices)
+        .zip(&fluid.query_of_pair)
+        .zip(&fluid.pairs.indices)
         .map(|((&w, &q), &j)| {
             let norm = sums[q as usize].max(sums[j as usize]);
             if norm > 0.0 { strength * w / norm } else { 0.0 }
@@ -79,13 +78,14 @@ pub fn coefficients(
     (a, held)
 }
 
-/// `vel` `[N, 3]` smoothed over the pairs `fluid` (a fluid→fluid list over the same N points,
-/// symmetric, self excluded) and, when no-slip, held by the walls of `walls` (a box→fluid list,
-/// the N fluid particles as queries), with strength `strength` ([module docs](self)).
+/// `vel` `[N, 3]` smoothed over the pairs of `fluid` (a fluid→fluid geometry over the same N
+/// points, symmetric, self excluded) and, when no-slip, held by the walls of `walls` (a
+/// box→fluid geometry, the N fluid particles as queries), with strength `strength`
+/// ([module docs](self)).
 pub fn smooth_velocities(
     vel: Tensor<2>,
-    fluid: &PairList,
-    walls: Option<&PairList>,
+    fluid: &HostGeometry,
+    walls: Option<&HostGeometry>,
     radius: f32,
     strength: f32,
 ) -> Tensor<2> {
@@ -95,7 +95,7 @@ pub fn smooth_velocities(
     }
     let (a, held) = coefficients(fluid, walls, radius, strength);
     let n = vel.dims()[0];
-    let queries = fluid.query_of_pair();
+    let queries = &fluid.query_of_pair;
     let mut pulled_away = held;
     for (&q, &a) in queries.iter().zip(&a) {
         pulled_away[q as usize] += a;
@@ -107,7 +107,7 @@ pub fn smooth_velocities(
         return kept;
     }
     let a: Tensor<2> = upload(TensorData::new(a, [p, 1]), &device);
-    let inputs = RowIndex::new(fluid.indices.iter().map(|&j| j as usize), &device);
+    let inputs = RowIndex::new(fluid.pairs.indices.iter().map(|&j| j as usize), &device);
     let outputs = RowIndex::new(queries.iter().map(|&q| q as usize), &device);
     let pulled = gather_rows(vel, &inputs) * a;
     add_rows(kept, &outputs, pulled)
@@ -116,7 +116,7 @@ pub fn smooth_velocities(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use neurofluid_core::neighbors::NeighborGrid;
+    use crate::geometry::build_host_geometry;
     use neurofluid_core::tensors::{points_tensor, tensor_points};
 
     const RADIUS: f32 = 0.1125;
@@ -144,8 +144,13 @@ mod tests {
         (x, v)
     }
 
-    fn pairs(x: &[[f32; 3]]) -> PairList {
-        NeighborGrid::new(x, RADIUS).pairs(x, RADIUS, true)
+    /// The geometry of a conv over `inputs` at `outputs` with search radius [`RADIUS`].
+    fn geometry(inputs: &[[f32; 3]], outputs: &[[f32; 3]]) -> HostGeometry {
+        build_host_geometry(inputs, outputs, 2.0 * RADIUS, true, None)
+    }
+
+    fn pairs(x: &[[f32; 3]]) -> HostGeometry {
+        geometry(x, x)
     }
 
     fn smooth(x: &[[f32; 3]], v: &[[f32; 3]], s: f32) -> Vec<[f32; 3]> {
@@ -245,7 +250,7 @@ mod tests {
                 ]
             })
             .collect();
-        let walls = NeighborGrid::new(&floor, RADIUS).pairs(&x, RADIUS, true);
+        let walls = geometry(&floor, &x);
         let uniform = vec![[0.5, 0.0, 0.0]; x.len()];
         let out = tensor_points(&smooth_velocities(
             points_tensor(&uniform, &device),
@@ -279,10 +284,10 @@ mod tests {
         let floor: Vec<[f32; 3]> = (0..100)
             .map(|k| [(k % 10) as f32 * 0.03, (k / 10) as f32 * 0.03, -0.04])
             .collect();
-        let walls = NeighborGrid::new(&floor, RADIUS).pairs(&x, RADIUS, true);
+        let walls = geometry(&floor, &x);
         for walls in [None, Some(&walls)] {
             let (a, held) = coefficients(&list, walls, RADIUS, 0.8);
-            for (q, o) in list.offsets.windows(2).enumerate() {
+            for (q, o) in list.pairs.offsets.windows(2).enumerate() {
                 let row: f32 = a[o[0]..o[1]].iter().sum::<f32>() + held[q];
                 assert!(row <= 0.8 + 1e-6, "{row}");
             }

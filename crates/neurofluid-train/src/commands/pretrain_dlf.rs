@@ -93,10 +93,7 @@ fn dlf_config(
     box_interior: Option<Aabb>,
     rules: Option<&Path>,
 ) -> anyhow::Result<DlfConfig> {
-    let config = match up {
-        UpAxis::Z => DlfConfig::z_up(),
-        UpAxis::Y => DlfConfig::default(),
-    };
+    let config = DlfConfig::for_up_axis(up);
     let Some(path) = rules else {
         return Ok(config);
     };

@@ -87,22 +87,21 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         return Ok(());
     }
     let f = |v: Option<f64>| v.map_or("–".to_string(), |v| format!("{v:.2}"));
-    let (g, p) = (&run.exp, &s);
     println!(
         "{} on {}: {}",
-        p.weights.display(),
+        s.weights.display(),
         run.scene.manifest().name,
-        if p.rules.is_empty() {
+        if s.rules.is_empty() {
             "DLF's step as published".to_string()
         } else {
-            p.rules.join(", ")
+            s.rules.join(", ")
         }
     );
-    println!("| ({}) | t < 50 | t ≥ 50 |\n|---|---|---|", g.name);
+    println!("| ({}) | t < 50 | t ≥ 50 |\n|---|---|---|", run.exp.name);
     for (label, row) in [
-        ("d", &p.d),
-        ("d′", &p.d_reverse),
-        ("(d + d′)/2", &p.symmetric),
+        ("d", &s.d),
+        ("d′", &s.d_reverse),
+        ("(d + d′)/2", &s.symmetric),
     ] {
         println!(
             "| {label} | {} | {} |",
@@ -110,6 +109,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             f(row.prediction_mean)
         );
     }
-    println!("most particles outside the box in a frame: {}", p.outside);
+    println!("most particles outside the box in a frame: {}", s.outside);
     Ok(())
 }

@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use burn::prelude::*;
-use neurofluid_core::scene::{Scene, UpAxis};
+use neurofluid_core::scene::Scene;
 use neurofluid_dlf::{DlfConfig, DlfNet};
 use neurofluid_physnerf::PhysNerfConfig;
 
@@ -169,10 +169,7 @@ impl Run {
     /// public weights run on a z-up scene, the scene's time step, and the experiment's `[dlf]`
     /// geometry mode and rules.
     pub fn dlf_config(&self) -> DlfConfig {
-        let mut cfg = match self.scene.up_axis() {
-            UpAxis::Z => DlfConfig::z_up(),
-            _ => DlfConfig::default(),
-        };
+        let mut cfg = DlfConfig::for_up_axis(self.scene.up_axis());
         cfg.dt = 1.0 / self.scene.manifest().fps;
         cfg.geometry = self.exp.dlf.geometry;
         let interior = self.scene.manifest().box_interior;
