@@ -7,7 +7,9 @@ use burn::prelude::*;
 use burn::tensor::DType;
 use common::*;
 use neurofluid_physnerf::safetensors_file::{StFile, StWriter};
-use neurofluid_physnerf::{EncodingTerms, NeighborSelection, PhysNerf, PhysNerfConfig, RayBatch};
+use neurofluid_physnerf::{
+    EncodingTerms, NeighborSelection, PhysNerf, PhysNerfConfig, Positions, RayBatch,
+};
 use rand::SeedableRng;
 
 /// The case's renderer under `config`, with the case's reference weights.
@@ -186,6 +188,44 @@ fn ablations_change_the_input_widths_and_nearest_k_changes_the_picture() {
     );
     assert_ne!(a.coarse.nbr_idx_sum, b.coarse.nbr_idx_sum);
     assert!(max_abs(&vals(a.coarse.rgb_map), &vals(b.coarse.rgb_map)) > 1e-2);
+}
+
+/// With relative positions the picture is the same when the particles and the cameras move
+/// together (a translation invariance the world encoding does not have: the control).
+#[test]
+fn relative_positions_move_the_field_with_its_particles() {
+    let (inputs, _) = case();
+    let device = neurofluid_core::device::test_device();
+    let rays = centre_rays(&inputs);
+    let shift = [0.5f64, -0.25, 0.125];
+    let moved_rays = RayBatch {
+        origins: rays
+            .origins
+            .iter()
+            .map(|o| [o[0] + shift[0], o[1] + shift[1], o[2] + shift[2]])
+            .collect(),
+        dirs: rays.dirs.clone(),
+    };
+    let p = inputs.particles_tensor(&device, DType::F32);
+    let offset = Tensor::<1>::from_floats(shift.map(|s| s as f32), &device).reshape([1, 3]);
+    let moved = p.clone() + offset;
+    let mut change = Vec::new();
+    for positions in [Positions::Relative, Positions::World] {
+        let cfg = PhysNerfConfig {
+            positions,
+            width: 32,
+            ..inputs.config.clone()
+        };
+        let model = PhysNerf::new(cfg, &device).unwrap();
+        let a = model.render_rays(&p, &rays, None).unwrap();
+        let b = model.render_rays(&moved, &moved_rays, None).unwrap();
+        assert!(a.coarse.evaluated > 0, "no sample reached the networks");
+        assert_eq!(a.coarse.evaluated, b.coarse.evaluated);
+        change.push(max_abs(&vals(a.final_rgb()), &vals(b.final_rgb())));
+    }
+    eprintln!("colour change, relative / world: {change:?}");
+    assert!(change[0] < 1e-5, "relative: {change:?}");
+    assert!(change[1] > 1e-4, "world (control): {change:?}");
 }
 
 #[test]

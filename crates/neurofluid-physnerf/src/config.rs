@@ -50,6 +50,20 @@ impl EncodingTerms {
     }
 }
 
+/// Where the position-like inputs of the density are measured from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Positions {
+    /// γ(x) and γ(p_c) in world coordinates (the paper code): the field can tie what it learned
+    /// on the warm-up's frame to where that frame's fluid was.
+    #[default]
+    World,
+    /// No γ(x), and p_c as the offset p_c − x: every input of the networks but the directions
+    /// is the particles' geometry seen from the sample, so the field moves with its particles
+    /// (shifting the particles and the cameras together shifts the picture, nothing else).
+    Relative,
+}
+
 /// How a network's raw density output becomes the density σ ≥ 0 that is composited.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -142,6 +156,8 @@ pub struct PhysNerfConfig {
     pub density: DensityActivation,
     /// Encoding-term switches (the paper's Table 5 ablations).
     pub encoding: EncodingTerms,
+    /// World or sample-relative positions (world in the paper code).
+    pub positions: Positions,
     /// Encoding frequency counts.
     pub frequencies: Frequencies,
     /// MLP depth D (8).
@@ -172,6 +188,7 @@ impl Default for PhysNerfConfig {
             white_background: true,
             density: DensityActivation::Relu,
             encoding: EncodingTerms::all(),
+            positions: Positions::World,
             frequencies: Frequencies::default(),
             depth: 8,
             width: 256,
@@ -188,11 +205,12 @@ pub fn encoded_width(channels: usize, freqs: usize) -> usize {
 }
 
 impl PhysNerfConfig {
-    /// Width of the position-like network input e_x (198 with every term on).
+    /// Width of the position-like network input e_x (198 with every term on, 135 with
+    /// relative positions).
     pub fn in_xyz(&self) -> usize {
         let f = &self.frequencies;
         let t = &self.encoding;
-        encoded_width(3, f.x)
+        usize::from(self.positions == Positions::World) * encoded_width(3, f.x)
             + usize::from(t.sigma_p) * encoded_width(1, f.sigma_p)
             + usize::from(t.pc) * encoded_width(3, f.pc)
             + usize::from(t.vd) * encoded_width(3, f.vd)
@@ -251,6 +269,14 @@ impl PhysNerfConfig {
         if self.chunk == 0 {
             return Some(("chunk", "expected at least 1 ray per chunk".into()));
         }
+        let t = &self.encoding;
+        if self.positions == Positions::Relative && !(t.sigma_p || t.pc || t.vd) {
+            return Some((
+                "positions",
+                "\"relative\" drops γ(x): it needs one of the encoding terms sigma_p, pc, vd on"
+                    .into(),
+            ));
+        }
         self.mlp_shape().problem()
     }
 }
@@ -277,6 +303,11 @@ mod tests {
         assert_eq!((c.in_xyz(), c.in_dir()), (198, 27));
         c.encoding = EncodingTerms::none();
         assert_eq!((c.in_xyz(), c.in_dir()), (63, 27));
+        c.positions = Positions::Relative;
+        assert!(c.validate().unwrap_err().starts_with("positions:"));
+        c.encoding = EncodingTerms::all();
+        assert_eq!((c.in_xyz(), c.in_dir()), (135, 54));
+        assert!(c.validate().is_ok());
     }
 
     #[test]

@@ -40,7 +40,7 @@ pub mod volume;
 pub mod weights;
 
 pub use config::{
-    DensityActivation, EncodingTerms, Frequencies, NeighborSelection, PhysNerfConfig,
+    DensityActivation, EncodingTerms, Frequencies, NeighborSelection, PhysNerfConfig, Positions,
 };
 pub use error::{PhysNerfError, Result};
 

@@ -391,6 +391,7 @@ mod tests {
                 "dlf.gravity_scale=1.7",
                 "dlf.viscosity=0.4",
                 "dlf.no_slip=true",
+                "physnerf.positions=\"relative\"",
                 "preset=\"paper\"",
             ])
             .unwrap();
@@ -406,7 +407,7 @@ mod tests {
         assert_eq!(paper_dlf, reference.dlf);
         let (p, r) = (&paper.physnerf, &reference.physnerf);
         assert_eq!((p.selection, p.density), (r.selection, r.density));
-        assert_eq!(p.frequencies, r.frequencies);
+        assert_eq!((p.frequencies, p.positions), (r.frequencies, r.positions));
         assert_eq!(paper.warmup.optim, reference.warmup.optim);
         let (j, r) = (&paper.joint, &reference.joint);
         assert_eq!((j.bptt_steps, j.dlf_every), (r.bptt_steps, r.dlf_every));

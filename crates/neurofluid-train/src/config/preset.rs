@@ -4,10 +4,10 @@
 //! `preset = "paper"` (or `--set preset=paper`) resets every rule in which this project departs
 //! from NeuroFluid's code (spec §4) to the reference's value, whatever the file says: constant
 //! DLF geometry, open walls, no energy cap, the published gravity and no viscosity, the
-//! lowest-index neighbour rule, ReLU density and the paper's encoding frequencies, the
-//! warm-up's and the joint stage's optimisers and schedules, one-step truncated BPTT with DLF
-//! stepping every transition, uniform rays, one view, no silhouette term, the boundary weight
-//! 1, and the grounded DLF evaluated as trained. Budgets (iterations, epochs, rays, samples,
+//! lowest-index neighbour rule, ReLU density, world positions and the paper's encoding
+//! frequencies, the warm-up's and the joint stage's optimisers and schedules, one-step
+//! truncated BPTT with DLF stepping every transition, uniform rays, one view, no silhouette
+//! term, the boundary weight 1, and the grounded DLF evaluated as trained. Budgets (iterations, epochs, rays, samples,
 //! network widths) stay the file's: they are the scale of the experiment, not its rules. Each
 //! value the preset changes is logged.
 
@@ -46,6 +46,7 @@ pub fn apply(exp: &mut Experiment) -> Vec<Change> {
     p.selection = paper_nerf.selection;
     p.density = paper_nerf.density;
     p.frequencies = paper_nerf.frequencies;
+    p.positions = paper_nerf.positions;
     exp.dlf = DlfSection {
         weights: exp.dlf.weights.clone(),
         ..DlfSection::default()

@@ -47,6 +47,7 @@ const ADDED_KEYS: &[(&str, &str)] = &[
     ("dlf.gravity_scale", "1.0"),
     ("dlf.viscosity", "0.0"),
     ("dlf.no_slip", "false"),
+    ("physnerf.positions", "\"world\""),
 ];
 
 /// Flat settings with a digest.
