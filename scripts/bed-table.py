@@ -9,7 +9,8 @@ DLF (and, where evaluated with `eval.supervised_dlf`, DLF†) rows, the particle
 walls and, where present, the share of particles alone, where the far particles lie and the
 novel-view table; its `metrics.csv` gives the warm-up's and the joint stage's seconds (the
 largest `time_s` of each; a run whose warm-up was shared with the other variants of its sweep
-shows that warm-up's).
+shows that warm-up's) and the joint stage's last `psnr_true` (the renderer on the true
+particles of the training frames at the training view; rule 8 of experiments/bed/README.md).
 Prints markdown tables: every run; per scene the mean ± sd over seeds beside DLF and DLF†, with
 the issue's targets checked per window (d at least 10 % below DLF's, on honey 30 % over t < 50;
 d′ not above DLF's); and the novel-view rows (NeuroFluid, NeRF-T, the renderer on the true
@@ -62,15 +63,18 @@ def report_rows(path):
     return first, second, views, alone, far, walls
 
 
-def stage_seconds(path):
-    most = {}
+def stage_log(path):
+    """The warm-up's and the joint stage's seconds, and the joint stage's last `psnr_true`."""
+    most, psnr_true = {}, None
     with open(path, newline="", encoding="utf-8") as f:
         for row in csv.DictReader(f):
             stage, t = row["stage"], row.get("time_s") or ""
             if stage in ("warmup", "warmup-preview", "joint", "joint-preview") and t:
                 key = stage.split("-")[0]
                 most[key] = max(most.get(key, 0.0), float(t))
-    return most.get("warmup"), most.get("joint")
+            if stage == "joint-preview" and row.get("psnr_true"):
+                psnr_true = float(row["psnr_true"])
+    return most.get("warmup"), most.get("joint"), psnr_true
 
 
 def load(runs_file):
@@ -85,7 +89,7 @@ def load(runs_file):
             print(f"<!-- {scene} seed {seed}: no {report} yet -->")
             continue
         first, second, views, alone, far, walls = report_rows(report)
-        warm, joint = stage_seconds(os.path.join(folder, "metrics.csv"))
+        warm, joint, psnr_true = stage_log(os.path.join(folder, "metrics.csv"))
         runs.append(
             dict(
                 scene=scene,
@@ -98,6 +102,7 @@ def load(runs_file):
                 walls=walls,
                 warm=warm,
                 joint=joint,
+                psnr_true=psnr_true,
             )
         )
     return runs
@@ -131,8 +136,8 @@ def msd(vs):
 def main():
     runs_file = sys.argv[1] if len(sys.argv) > 1 else "experiments/bed/table-runs.txt"
     runs = load(runs_file)
-    print("| scene | seed | d (t<50 / t≥50) | d′ (t<50 / t≥50) | (d+d′)/2 (t<50 / t≥50) | PSNR / SSIM / LPIPS | through walls | alone % (t<50 / t≥50) | far % beside / above / within (t<50) | warm-up / joint s |")
-    print("|---|---:|---|---|---|---|---:|---|---|---|")
+    print("| scene | seed | d (t<50 / t≥50) | d′ (t<50 / t≥50) | (d+d′)/2 (t<50 / t≥50) | PSNR / SSIM / LPIPS | through walls | alone % (t<50 / t≥50) | far % beside / above / within (t<50) | renderer on the truth, training view (dB) | warm-up / joint s |")
+    print("|---|---:|---|---|---|---|---:|---|---|---:|---|")
     for r in runs:
         nf, nfp = r["first"]["NeuroFluid"], r["second"]["NeuroFluid"]
         al = r["alone"].get("NeuroFluid", [None, None])
@@ -141,7 +146,7 @@ def main():
             f"| {r['scene']} | {r['seed']} | {f2(nf[0])} / {f2(nf[2])} | {f2(nfp[0])} / {f2(nfp[2])} | "
             f"{f2(nfp[4])} / {f2(nfp[5])} | {f2(nf[4])} / {f4(nf[5])} / {f4(nf[6])} | "
             f"{r['walls'] or '–'} | {f2(al[0])} / {f2(al[1])} | {f1(fa[1])} / {f1(fa[2])} / {f1(fa[3])} | "
-            f"{f0(r['warm'])} / {f0(r['joint'])} |"
+            f"{f2(r['psnr_true'])} | {f0(r['warm'])} / {f0(r['joint'])} |"
         )
     print()
     print("| scene | model | seeds | d (t<50) | d (t≥50) | d′ (t<50) | d′ (t≥50) | targets (d, d′ per window) |")

@@ -101,7 +101,9 @@ pub struct SupervisedDlfTrainer {
 }
 
 impl SupervisedDlfTrainer {
-    /// Training of `net` (on an autodiff device) on `train`, validated on `val`.
+    /// Training of `net` (on an autodiff device) on `train`, validated on `val`. Under walls
+    /// (`DlfConfig::container`) the samples are not rotated: the walls are the scene's
+    /// axis-aligned box, which does not turn with a rotated sample.
     pub fn new(
         cfg: &SupervisedConfig,
         net: DlfNet,
@@ -126,10 +128,18 @@ impl SupervisedDlfTrainer {
             samples.len(),
             samples.len()
         );
+        let mut cfg = cfg.clone();
+        if net.config.container.is_some() && !cfg.no_rotation {
+            tracing::info!(
+                "the walls are the scene's axis-aligned box, which does not turn: the training \
+                 samples are not rotated about the gravity axis"
+            );
+            cfg.no_rotation = true;
+        }
         Ok(Self {
             opt: cfg.optim().group(),
             rng: Rng::stream(cfg.seed, STAGE.folder()),
-            cfg: cfg.clone(),
+            cfg,
             net,
             train,
             val,
@@ -219,5 +229,70 @@ impl Trainer for SupervisedDlfTrainer {
         checkpoint::load_group(&mut self.opt, &self.net, &adam, "dlf", &state, || done)?;
         self.rng = Rng::from_stage_state(&state, dir)?;
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use neurofluid_core::scene::Aabb;
+    use neurofluid_dlf::rollout::rollout;
+    use neurofluid_dlf::scene::{block_in_box, dlf_wall_spacing};
+    use neurofluid_dlf::{DlfConfig, load_dlf};
+
+    /// The first step's loss of a trainer on one 3-frame window, whose only randomness is then
+    /// the rotation of the sample.
+    fn first_loss(container: Option<Aabb>, seed: u64) -> f64 {
+        let weights = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../assets/dlf_pretrained/pretrained_model_weights.pt");
+        let cpu = neurofluid_core::device::cpu();
+        let config = DlfConfig {
+            container,
+            ..DlfConfig::default()
+        };
+        let s = block_in_box(125, dlf_wall_spacing(), [0.3, 0.0, 0.1], 0.002, 4, 0.05);
+        let traj = {
+            let net = load_dlf(&weights, DlfConfig::default(), &cpu).unwrap();
+            let boundary = net.boundary(&s.box_points, &s.box_normals, &cpu);
+            rollout(&net, &s.pos, &s.vel, &boundary, 2, |_| {})
+        };
+        let net = load_dlf(&weights, config, &cpu.autodiff()).unwrap();
+        let seq = TrainingSequence::new(
+            "block",
+            traj.pos.clone(),
+            traj.vel.clone(),
+            s.box_points.clone(),
+            s.box_normals.clone(),
+        )
+        .unwrap();
+        let cfg = SupervisedConfig {
+            iterations: 1,
+            batch_size: 1,
+            lr: 1e-5,
+            validate_every: 1,
+            frame_skip: 1,
+            no_rotation: false,
+            seed,
+        };
+        let mut trainer = SupervisedDlfTrainer::new(&cfg, net, vec![seq], Vec::new()).unwrap();
+        trainer.step(0).unwrap().loss
+    }
+
+    /// Under walls the sample is not rotated (the seed, which draws the angle, changes
+    /// nothing); without them it is (DLF's convolutions are not rotation invariant, so the
+    /// angle changes the loss: the control).
+    #[test]
+    fn samples_under_walls_are_not_rotated() {
+        let walls = Some(Aabb {
+            min: [-0.5, 0.0, -0.5],
+            max: [0.5, 1.0, 0.5],
+        });
+        let (a, b) = (first_loss(walls, 1), first_loss(walls, 2));
+        assert_eq!(a, b, "under walls the loss must not depend on a rotation");
+        let (c, d) = (first_loss(None, 1), first_loss(None, 2));
+        assert!(
+            (c - d).abs() > 1e-6 * c.abs(),
+            "without walls the rotation changes the loss: {c} {d}"
+        );
     }
 }
