@@ -62,11 +62,30 @@ pub struct Args {
     pub fresh: bool,
 }
 
-/// The sequences of a records folder (y-up, DLF's frame, no box) or of a scene folder (its up
-/// axis and box interior).
-fn load_sequences(path: &Path) -> anyhow::Result<(Vec<TrainingSequence>, UpAxis, Option<Aabb>)> {
+/// What DLF's step takes from its training data: the up axis, the box interior (a scene's;
+/// DLF records have none) and the time between frames.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct DataFrame {
+    up: UpAxis,
+    box_interior: Option<Aabb>,
+    dt: f32,
+}
+
+impl DataFrame {
+    /// DLF records: y-up, no box, DLF's own time step.
+    fn records() -> Self {
+        Self {
+            up: UpAxis::Y,
+            box_interior: None,
+            dt: DlfConfig::default().dt,
+        }
+    }
+}
+
+/// The sequences of a records folder or of a scene folder, and their frame.
+fn load_sequences(path: &Path) -> anyhow::Result<(Vec<TrainingSequence>, DataFrame)> {
     if !path.join(MANIFEST_FILE).is_file() && !path.join("view_1").is_dir() {
-        return Ok((load_record_dir(path)?, UpAxis::Y, None));
+        return Ok((load_record_dir(path)?, DataFrame::records()));
     }
     let scene =
         Scene::open(path).with_context(|| format!("opening the scene {}", path.display()))?;
@@ -80,27 +99,25 @@ fn load_sequences(path: &Path) -> anyhow::Result<(Vec<TrainingSequence>, UpAxis,
         walls.points,
         walls.normals,
     )?;
-    Ok((
-        vec![sequence],
-        scene.up_axis(),
-        Some(scene.manifest().box_interior),
-    ))
+    let frame = DataFrame {
+        up: scene.up_axis(),
+        box_interior: Some(scene.manifest().box_interior),
+        dt: 1.0 / scene.manifest().fps,
+    };
+    Ok((vec![sequence], frame))
 }
 
-/// DLF's settings for training data with up axis `up` and box `box_interior`: as published, or
+/// DLF's settings for training data in `frame` (its up axis and time step): as published, or
 /// under the `[dlf]` rules of the experiment file `rules`.
-fn dlf_config(
-    up: UpAxis,
-    box_interior: Option<Aabb>,
-    rules: Option<&Path>,
-) -> anyhow::Result<DlfConfig> {
-    let config = DlfConfig::for_up_axis(up);
+fn dlf_config(frame: &DataFrame, rules: Option<&Path>) -> anyhow::Result<DlfConfig> {
+    let mut config = DlfConfig::for_up_axis(frame.up);
+    config.dt = frame.dt;
     let Some(path) = rules else {
         return Ok(config);
     };
     let exp = Experiment::load(path)?;
     exp.dlf
-        .apply_rules(config, box_interior)
+        .apply_rules(config, frame.box_interior)
         .with_context(|| format!("--rules {}", path.display()))
 }
 
@@ -182,12 +199,12 @@ fn check_output(output: &Path) -> anyhow::Result<()> {
 pub fn run(args: Args) -> anyhow::Result<()> {
     check_output(&args.output)?;
     let device = parse_device(&args.device)?.autodiff();
-    let (train, up, box_interior) = load_sequences(&args.data)?;
+    let (train, frame) = load_sequences(&args.data)?;
     let val = match &args.val {
         Some(dir) => load_sequences(dir)?.0,
         None => Vec::new(),
     };
-    let config = dlf_config(up, box_interior, args.rules.as_deref())?;
+    let config = dlf_config(&frame, args.rules.as_deref())?;
     let net: DlfNet = match &args.init {
         Some(path) => load_dlf(path, config, &device)?,
         None => neurofluid_core::device::init_seeded(args.train.seed, &device, |cpu| {
@@ -371,7 +388,12 @@ mod tests {
             min: [-1.0, -1.0, 0.0],
             max: [1.0, 1.0, 2.0],
         };
-        let cfg = dlf_config(UpAxis::Z, Some(interior), Some(&rules)).unwrap();
+        let frame = |up, box_interior| DataFrame {
+            up,
+            box_interior,
+            dt: DlfConfig::default().dt,
+        };
+        let cfg = dlf_config(&frame(UpAxis::Z, Some(interior)), Some(&rules)).unwrap();
         let want = DlfConfig {
             gravity_scale: 1.7,
             viscosity: 0.25,
@@ -381,16 +403,16 @@ mod tests {
         };
         assert_eq!(cfg, want);
         assert_eq!(
-            dlf_config(UpAxis::Z, Some(interior), None).unwrap(),
+            dlf_config(&frame(UpAxis::Z, Some(interior)), None).unwrap(),
             DlfConfig::z_up()
         );
 
         let walls = file("walls.toml", "containment = \"box\"\n");
-        let cfg = dlf_config(UpAxis::Y, Some(interior), Some(&walls)).unwrap();
+        let cfg = dlf_config(&frame(UpAxis::Y, Some(interior)), Some(&walls)).unwrap();
         assert_eq!(cfg.container, Some(interior));
         let err = format!(
             "{:#}",
-            dlf_config(UpAxis::Y, None, Some(&walls)).unwrap_err()
+            dlf_config(&frame(UpAxis::Y, None), Some(&walls)).unwrap_err()
         );
         assert!(
             err.contains("walls.toml")
@@ -399,8 +421,41 @@ mod tests {
             "{err}"
         );
         let bad = file("bad.toml", "viscosity = 1.5\n");
-        let err = format!("{:#}", dlf_config(UpAxis::Y, None, Some(&bad)).unwrap_err());
+        let err = format!(
+            "{:#}",
+            dlf_config(&frame(UpAxis::Y, None), Some(&bad)).unwrap_err()
+        );
         assert!(err.contains("dlf.viscosity"), "{err}");
+    }
+
+    /// A scene's DLF steps at the scene's frame rate, with or without rules: DLF† of a 25 fps
+    /// scene learns 40 ms steps, not DLF's 20 ms.
+    #[test]
+    fn a_scene_sets_the_time_step() {
+        let dir = tempfile::tempdir().unwrap();
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+        let mut exp = Experiment::load(&root.join("experiments/tiny-ci.toml")).unwrap();
+        exp.scene.dir = Some(dir.path().join("scene"));
+        let scene = crate::stages::scene_source::generate_scene_if_missing(&exp).unwrap();
+        let manifest = scene.join(MANIFEST_FILE);
+        let text = std::fs::read_to_string(&manifest).unwrap();
+        let mut json: serde_json::Value = serde_json::from_str(&text).unwrap();
+        json["fps"] = serde_json::json!(25.0);
+        std::fs::write(&manifest, json.to_string()).unwrap();
+        let (seqs, frame) = load_sequences(&scene).unwrap();
+        assert_eq!(seqs.len(), 1);
+        assert_eq!(frame.dt, 1.0 / 25.0);
+        assert!(frame.box_interior.is_some());
+        assert_eq!(dlf_config(&frame, None).unwrap().dt, 1.0 / 25.0);
+        let walls = dir.path().join("walls.toml");
+        std::fs::write(
+            &walls,
+            "name = \"t\"\n[scene]\nbuiltin = \"watercube\"\n[dlf]\ncontainment = \"box\"\n",
+        )
+        .unwrap();
+        assert_eq!(dlf_config(&frame, Some(&walls)).unwrap().dt, 1.0 / 25.0);
+        let records = DataFrame::records();
+        assert_eq!(dlf_config(&records, None).unwrap(), DlfConfig::default());
     }
 
     /// `--lr` must be a finite positive number; `--batch-size` must fit the data.
