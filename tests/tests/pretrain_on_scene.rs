@@ -35,6 +35,7 @@ fn fine_tunes_on_a_generated_scene() {
             validate_every: 1,
             frame_skip: 1,
             no_rotation: false,
+            backward_velocities: false,
             seed: 1,
         },
         device: neurofluid_core::device::test_device_name(),

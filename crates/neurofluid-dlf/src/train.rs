@@ -134,6 +134,32 @@ impl TrainingSequence {
         self.pos.len()
     }
 
+    /// The sequence from its second frame on, each velocity replaced by the backward difference
+    /// `(x_t − x_{t−1}) / dt`: the velocity a DLF rollout carries (its last step's mean), where
+    /// a simulator stores its own (in free fall half a step of gravity ahead). Frames whose
+    /// particle count differs from the one before keep their stored velocities.
+    pub fn with_backward_velocities(&self, dt: f32) -> Self {
+        let vel = (1..self.pos.len())
+            .map(|t| {
+                let (now, before) = (&self.pos[t], &self.pos[t - 1]);
+                if now.len() != before.len() {
+                    return self.vel[t].clone();
+                }
+                now.iter()
+                    .zip(before)
+                    .map(|(a, b)| std::array::from_fn(|k| (a[k] - b[k]) / dt))
+                    .collect()
+            })
+            .collect();
+        Self {
+            name: self.name.clone(),
+            pos: self.pos[1.min(self.pos.len())..].to_vec(),
+            vel,
+            box_points: self.box_points.clone(),
+            box_normals: self.box_normals.clone(),
+        }
+    }
+
     /// Start frames t of the 3-frame windows (t, t+1, t+2) with a constant particle count.
     pub fn windows(&self) -> Vec<usize> {
         (0..self.num_frames().saturating_sub(2))
@@ -295,4 +321,35 @@ pub fn supervised_loss(
     let s2 = net.step(s1.pos, s1.vel, &boundary);
     let l2 = dlf_step_loss(s2.pos, gt2, &s2.num_fluid_neighbors);
     l1 * 0.5 + l2 * 0.5
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Under a constant acceleration a, x_t = ½·a·(t·dt)², the backward difference is
+    /// a·dt·(t − ½), one frame fewer, the stored velocities ignored.
+    #[test]
+    fn backward_velocities_are_the_last_steps_mean() {
+        let (dt, a) = (0.02f32, -9.81f32);
+        let pos: Vec<Vec<[f32; 3]>> = (0..5)
+            .map(|t| {
+                let y = 0.5 * a * (t as f32 * dt).powi(2);
+                vec![[0.1, y, 0.0], [0.2, y + 0.5, -0.1]]
+            })
+            .collect();
+        let vel = vec![vec![[9.0; 3]; 2]; 5];
+        let seq = TrainingSequence::new("fall", pos.clone(), vel, vec![], vec![]).unwrap();
+        let back = seq.with_backward_velocities(dt);
+        assert_eq!(back.pos, pos[1..].to_vec());
+        assert_eq!(back.vel.len(), 4);
+        for (i, frame) in back.vel.iter().enumerate() {
+            let t = (i + 1) as f32;
+            for v in frame {
+                assert!(v[0].abs() < 1e-4 && v[2].abs() < 1e-4, "{v:?}");
+                assert!((v[1] - a * dt * (t - 0.5)).abs() < 1e-3, "t {t}: {v:?}");
+            }
+        }
+        assert_eq!(back.windows(), vec![0, 1]);
+    }
 }

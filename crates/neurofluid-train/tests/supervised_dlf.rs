@@ -71,6 +71,7 @@ fn config(iterations: u64) -> SupervisedConfig {
         validate_every: iterations,
         frame_skip: 1,
         no_rotation: false,
+        backward_velocities: false,
         seed: 7,
     }
 }

@@ -44,6 +44,12 @@ pub struct SupervisedConfig {
     /// Turn off the random rotation about the gravity axis (DLF's dambreak setting).
     #[arg(long)]
     pub no_rotation: bool,
+    /// Start each window from the backward-difference velocity (x_t − x_{t−1})/dt, the
+    /// velocity DLF's rollouts carry, instead of the stored one (DLF's training); the first
+    /// frame, which has none, is dropped.
+    #[arg(long)]
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub backward_velocities: bool,
     /// Seed of sample order, rotations and initialisation.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -110,6 +116,15 @@ impl SupervisedDlfTrainer {
         train: Vec<TrainingSequence>,
         val: Vec<TrainingSequence>,
     ) -> anyhow::Result<Self> {
+        let train: Vec<TrainingSequence> = if cfg.backward_velocities {
+            let dt = net.config.dt;
+            train
+                .iter()
+                .map(|s| s.with_backward_velocities(dt))
+                .collect()
+        } else {
+            train
+        };
         let samples: Vec<(usize, usize)> = train
             .iter()
             .enumerate()
@@ -272,6 +287,7 @@ mod tests {
             validate_every: 1,
             frame_skip: 1,
             no_rotation: false,
+            backward_velocities: false,
             seed,
         };
         let mut trainer = SupervisedDlfTrainer::new(&cfg, net, vec![seq], Vec::new()).unwrap();
