@@ -211,16 +211,22 @@ fn relative_positions_move_the_field_with_its_particles() {
     let moved = p.clone() + offset;
     let mut change = Vec::new();
     for positions in [Positions::Relative, Positions::World] {
+        // seeded, and a density that cannot start dead (a dead ReLU field renders white
+        // whatever the particles, which no translation changes)
         let cfg = PhysNerfConfig {
             positions,
             width: 32,
+            density: neurofluid_physnerf::DensityActivation::Softplus,
             ..inputs.config.clone()
         };
-        let model = PhysNerf::new(cfg, &device).unwrap();
+        let model = neurofluid_core::device::init_seeded(7, &device, |cpu| PhysNerf::new(cfg, cpu))
+            .unwrap();
         let a = model.render_rays(&p, &rays, None).unwrap();
         let b = model.render_rays(&moved, &moved_rays, None).unwrap();
         assert!(a.coarse.evaluated > 0, "no sample reached the networks");
         assert_eq!(a.coarse.evaluated, b.coarse.evaluated);
+        let darkest = vals(a.final_rgb()).into_iter().fold(1.0, f64::min);
+        assert!(darkest < 0.99, "the picture is empty: darkest {darkest}");
         change.push(max_abs(&vals(a.final_rgb()), &vals(b.final_rgb())));
     }
     eprintln!("colour change, relative / world: {change:?}");
