@@ -7,9 +7,9 @@
 //! lowest-index neighbour rule, ReLU density, world positions and the paper's encoding
 //! frequencies, the warm-up's and the joint stage's optimisers and schedules, one-step
 //! truncated BPTT with DLF stepping every transition, uniform rays, one view, no silhouette
-//! term, the boundary weight 1, and the grounded DLF evaluated as trained. Budgets (iterations, epochs, rays, samples,
-//! network widths) stay the file's: they are the scale of the experiment, not its rules. Each
-//! value the preset changes is logged.
+//! term, the boundary weight 1, and the grounded DLF evaluated as trained. Budgets
+//! (iterations, epochs, rays, samples, network widths) stay the file's: they are the scale of
+//! the experiment, not its rules. Each value the preset changes is logged.
 
 use serde::{Deserialize, Serialize};
 

@@ -119,7 +119,7 @@ impl SupervisedDlfTrainer {
         let train: Vec<TrainingSequence> = if cfg.backward_velocities {
             let dt = net.config.dt;
             train
-                .iter()
+                .into_iter()
                 .map(|s| s.with_backward_velocities(dt))
                 .collect()
         } else {
