@@ -11,7 +11,7 @@ use neurofluid_train::config::Experiment;
 use neurofluid_train::metrics_log::MetricsLog;
 use neurofluid_train::stage::Stage;
 use neurofluid_train::stages::joint::{JointData, JointTrainer};
-use neurofluid_train::stages::nerf::{self, NerfKind};
+use neurofluid_train::stages::nerf::{self, NerfData, NerfKind};
 use neurofluid_train::stages::{Run, Start, baseline, eval, initial, run_all, warmup};
 use neurofluid_train::trainer::Trainer;
 
@@ -68,6 +68,58 @@ fn nerf_t_needs_the_warmup_views_at_every_frame() {
             .unwrap();
         assert_eq!(Particles::read(&path).unwrap().pos, p0.pos, "{v}");
     }
+}
+
+#[test]
+fn nerf_t_on_neurofluids_images_sees_the_warmup_frame_and_the_joint_views() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    // the rig: warm-up views at frame 0 only, which the cycling protocol refuses
+    let mut e = experiment(tmp.path(), "same", false, 2);
+    e.apply_overrides(&["nerf.t_images=\"neurofluid\""])
+        .unwrap();
+    let run = Run::prepare(e, Start::Resume, &[Stage::NerfT]).unwrap();
+    let scene = &run.scene;
+    let data = NerfData::load(scene, NerfKind::NerfT, &run.exp, false).unwrap();
+    let (warm, train) = (scene.frames(Role::Warmup), scene.frames(Role::Train));
+    let views = scene.views(Role::Warmup);
+    let joint = scene.views(Role::Train)[0].clone();
+    let mut expected: Vec<(Role, String, usize)> = views
+        .iter()
+        .map(|v| (Role::Warmup, v.clone(), warm.start))
+        .collect();
+    expected.extend(train.clone().map(|t| (Role::Train, joint.clone(), t)));
+    assert_eq!(data.images.len(), expected.len());
+    for (image, (role, view, t)) in data.images.iter().zip(&expected) {
+        assert_eq!(
+            image.view.image.rgb,
+            scene.image(*role, view, *t).unwrap().rgb
+        );
+        assert_eq!(image.time, Some(nerf::time_of(*t, &train)), "{view} {t}");
+    }
+    let mut log = run.open_log().unwrap();
+    let model = nerf::train(&run, &mut log, NerfKind::NerfT).unwrap();
+    let scores = baseline::evaluate(&run, &model, NerfKind::NerfT).unwrap();
+    assert_eq!(scores.model, "NeRF-T (NeuroFluid's images)");
+
+    // with joint.extra_views those views join at every training frame, as in the joint stage
+    let mut e = experiment(tmp.path(), "same_extra", true, 2);
+    let extra = views[1].clone();
+    e.apply_overrides(&[
+        "nerf.t_images=\"neurofluid\"".to_string(),
+        format!("joint.extra_views=[\"{extra}\"]"),
+    ])
+    .unwrap();
+    let run = Run::prepare(e, Start::Resume, &[Stage::NerfT]).unwrap();
+    let data = NerfData::load(&run.scene, NerfKind::NerfT, &run.exp, false).unwrap();
+    let frames = run.scene.frames(Role::Train).len();
+    assert_eq!(data.images.len(), views.len() + 2 * frames);
+    let last = data.images.last().unwrap();
+    let t = run.scene.frames(Role::Train).end - 1;
+    assert_eq!(
+        last.view.image.rgb,
+        run.scene.image(Role::Warmup, &extra, t).unwrap().rgb
+    );
 }
 
 #[test]
@@ -220,7 +272,10 @@ fn a_nerf_without_warmup_views_is_refused() {
         .to_string();
     assert!(err.contains("warmup.views"), "{err}");
     let run = Run::prepare(e, Start::Resume, &[Stage::Nerf]).unwrap();
-    let err = nerf::NerfData::load(&run.scene, NerfKind::Nerf, &[], false)
+    // a scene without warm-up views (validation refuses an empty list in a config)
+    let mut exp = run.exp.clone();
+    exp.warmup.views = Some(Vec::new());
+    let err = nerf::NerfData::load(&run.scene, NerfKind::Nerf, &exp, false)
         .unwrap_err()
         .to_string();
     assert!(err.contains("no warm-up views"), "{err}");

@@ -40,8 +40,8 @@ pub(crate) use errors::{from_table, read_text};
 pub use preset::Preset;
 pub use sections::{
     AnchorAlong, BuiltinScene, Containment, DlfSection, EnergyCap, EnergyPer, EvalSection,
-    InitialParticles, InitialSection, JointSection, NerfSection, PlyEncoding, SceneScale,
-    SceneSection, SurfaceThreshold, WarmupSection,
+    InitialParticles, InitialSection, JointSection, NerfSection, NerfTImages, PlyEncoding,
+    SceneScale, SceneSection, SurfaceThreshold, WarmupSection,
 };
 pub use settings::Settings;
 

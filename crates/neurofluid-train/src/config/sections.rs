@@ -146,6 +146,19 @@ pub enum InitialParticles {
     FromImages,
 }
 
+/// The images NeRF-T trains on.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum NerfTImages {
+    /// One warm-up view per training frame, cycling through the warm-up views: four viewpoints
+    /// over time, which a scene has only when its warm-up views are rendered at every frame.
+    #[default]
+    Cycle,
+    /// The images NeuroFluid trains on: the warm-up views of the warm-up frame and the joint
+    /// stage's views (`joint.view`, `joint.extra_views`) at every training frame.
+    Neurofluid,
+}
+
 /// `[nerf]`: a plain NeRF or NeRF-T, trained for the initial particles or as a novel-view
 /// baseline. The network is `[nerf.model]` ([`NerfConfig`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -159,6 +172,8 @@ pub struct NerfSection {
     pub rays: usize,
     /// Images drawn per iteration (4: the warm-up views of frame 0 for NeRF).
     pub images_per_step: usize,
+    /// NeRF-T's images (`"cycle"`; `"neurofluid"`: the same images as NeuroFluid's).
+    pub t_images: NerfTImages,
     /// Density only inside the scene's box (false: the original NeRF, density anywhere on the
     /// ray). With four views a NeRF explains each view by floaters near its camera; the fluid
     /// is known to be inside the box.
@@ -184,6 +199,7 @@ impl Default for NerfSection {
             iters: 200_000,
             rays: 1024,
             images_per_step: 4,
+            t_images: NerfTImages::Cycle,
             clip_to_box: false,
             optim: OptimConfig::default(),
             precrop_iters: 500,

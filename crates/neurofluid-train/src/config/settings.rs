@@ -48,6 +48,7 @@ const ADDED_KEYS: &[(&str, &str)] = &[
     ("dlf.viscosity", "0.0"),
     ("dlf.no_slip", "false"),
     ("physnerf.positions", "\"world\""),
+    ("nerf.t_images", "\"cycle\""),
 ];
 
 /// Flat settings with a digest.

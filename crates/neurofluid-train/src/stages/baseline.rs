@@ -14,6 +14,7 @@ use super::nerf::{NerfKind, time_of};
 use super::run_folder::Run;
 use super::scoring::{as_image, rendered_steps, scaled_view, score};
 use super::views::{ViewFrame, side_by_side};
+use crate::config::NerfTImages;
 use crate::report::BaselineScores;
 
 /// A baseline's scores inside its stage folder.
@@ -34,10 +35,14 @@ pub fn evaluate(run: &Run, nerf: &Nerf, kind: NerfKind) -> anyhow::Result<Baseli
     let dir = run.stage_dir(kind.stage());
     let lpips = Lpips::new(&neurofluid_core::device::cpu())?;
     let frames = rendered_steps(test.len(), cfg.render_every);
+    let model = match (kind, run.exp.nerf.t_images) {
+        (NerfKind::NerfT, NerfTImages::Neurofluid) => "NeRF-T (NeuroFluid's images)",
+        _ => kind.label(),
+    };
     let mut images = Vec::new();
     for view in cfg.views(scene) {
-        let bar = indicatif::ProgressBar::new(frames.len() as u64)
-            .with_prefix(format!("{} {view}", kind.label()));
+        let bar =
+            indicatif::ProgressBar::new(frames.len() as u64).with_prefix(format!("{model} {view}"));
         for &t in &frames {
             let frame = test.start + t;
             let vf = ViewFrame::load(scene, Role::Test, &view, frame)?;
@@ -59,7 +64,7 @@ pub fn evaluate(run: &Run, nerf: &Nerf, kind: NerfKind) -> anyhow::Result<Baseli
         bar.finish_and_clear();
     }
     let scores = BaselineScores {
-        model: kind.label().into(),
+        model: model.into(),
         images,
     };
     let path = scores_path(run, kind);

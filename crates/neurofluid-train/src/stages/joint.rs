@@ -35,8 +35,8 @@ use neurofluid_physnerf::{PhysNerf, RayBatch};
 
 use super::run_folder::Run;
 use super::views::{
-    ViewFrame, batch_of, check_sequence, load_particles, points_tensor, ray_share,
-    render_beside_truth, require_warmup_every_frame, scalar, tensor_points,
+    ViewFrame, batch_of, check_sequence, joint_sources, load_particles, points_tensor, ray_share,
+    render_beside_truth, scalar, tensor_points,
 };
 use super::warmup::{self, WarmupData};
 use crate::config::Cadenced;
@@ -151,17 +151,12 @@ impl JointData {
             "the training split has {} frame(s); joint training needs at least 2",
             frames.len()
         );
-        let view = cfg.view(scene).context("the scene has no training view")?;
-        if !cfg.extra_views.is_empty() {
-            require_warmup_every_frame(scene, &cfg.extra_views_label())?;
-        }
-        let sources = std::iter::once((Role::Train, &view))
-            .chain(cfg.extra_views.iter().map(|v| (Role::Warmup, v)));
-        let views = sources
+        let views = joint_sources(scene, cfg)?
+            .into_iter()
             .map(|(role, v)| {
                 frames
                     .clone()
-                    .map(|t| ViewFrame::load(scene, role, v, t))
+                    .map(|t| ViewFrame::load(scene, role, &v, t))
                     .collect::<anyhow::Result<Vec<_>>>()
             })
             .collect::<anyhow::Result<Vec<_>>>()?;

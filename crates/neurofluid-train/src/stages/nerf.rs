@@ -2,7 +2,8 @@
 //! (checkpoints, exact resume, progress, previews, metrics log). NeRF trains on the warm-up views
 //! of frame 0 (the paper's NeRF baseline, and the density field of the initial particles);
 //! NeRF-T on one warm-up view per training frame, cycling through the views (the paper's protocol
-//! for its time-conditioned baselines).
+//! for its time-conditioned baselines), or on the images NeuroFluid trains on
+//! (`nerf.t_images = "neurofluid"`).
 
 use std::path::Path;
 
@@ -13,9 +14,11 @@ use neurofluid_core::scene::{Role, Scene};
 use neurofluid_physnerf::{Nerf, NerfConfig};
 
 use super::run_folder::Run;
-use super::views::{ViewFrame, batch_of, ray_share, require_warmup_every_frame, side_by_side};
+use super::views::{
+    ViewFrame, batch_of, joint_sources, ray_share, require_warmup_every_frame, side_by_side,
+};
 use crate::config::Cadenced;
-use crate::config::NerfSection;
+use crate::config::{Experiment, NerfSection, NerfTImages};
 use crate::metrics_log::{MetricsLog, psnr_from_mse};
 use crate::optim::{Group, NerfGroup};
 use crate::sampler::Rng;
@@ -72,42 +75,46 @@ pub fn time_of(t: usize, frames: &std::ops::Range<usize>) -> f64 {
 }
 
 impl NerfData {
-    /// The images of `kind`'s protocol from `scene`.
+    /// The images of `kind`'s protocol from `scene`, as `exp` sets them: the warm-up views
+    /// (`warmup.views`) and, for NeRF-T, `nerf.t_images`.
     pub fn load(
         scene: &Scene,
         kind: NerfKind,
-        views: &[String],
+        exp: &Experiment,
         preview: bool,
     ) -> anyhow::Result<Self> {
+        let views = exp.warmup.views(scene);
         anyhow::ensure!(
             !views.is_empty(),
             "the scene has no warm-up views (scene.json `warmup.views`): a NeRF needs images of \
              frame 0 from several views"
         );
-        let warm = scene.frames(Role::Warmup);
-        let t0 = warm.start;
+        let t0 = scene.frames(Role::Warmup).start;
         let train = scene.frames(Role::Train);
-        let images = match kind {
-            NerfKind::Nerf => views
-                .iter()
-                .map(|v| {
-                    Ok(TimedView {
-                        view: ViewFrame::load(scene, Role::Warmup, v, t0)?,
-                        time: None,
-                    })
-                })
-                .collect::<anyhow::Result<Vec<_>>>()?,
-            NerfKind::NerfT => {
+        let time = |t| (kind == NerfKind::NerfT).then(|| time_of(t, &train));
+        let load = |role, view: &str, t| -> anyhow::Result<TimedView> {
+            Ok(TimedView {
+                view: ViewFrame::load(scene, role, view, t)?,
+                time: time(t),
+            })
+        };
+        let first_frame = || views.iter().map(|v| load(Role::Warmup, v, t0));
+        let images = match (kind, exp.nerf.t_images) {
+            (NerfKind::Nerf, _) => first_frame().collect::<anyhow::Result<Vec<_>>>()?,
+            (NerfKind::NerfT, NerfTImages::Cycle) => {
                 require_warmup_every_frame(scene, "NeRF-T (one warm-up view per frame)")?;
                 train
                     .clone()
-                    .map(|t| {
-                        let v = &views[(t - train.start) % views.len()];
-                        Ok(TimedView {
-                            view: ViewFrame::load(scene, Role::Warmup, v, t)?,
-                            time: Some(time_of(t, &train)),
-                        })
-                    })
+                    .map(|t| load(Role::Warmup, &views[(t - train.start) % views.len()], t))
+                    .collect::<anyhow::Result<Vec<_>>>()?
+            }
+            (NerfKind::NerfT, NerfTImages::Neurofluid) => {
+                let joint = joint_sources(scene, &exp.joint)?;
+                let over_time = joint
+                    .iter()
+                    .flat_map(|(role, v)| train.clone().map(move |t| (*role, v, t)));
+                first_frame()
+                    .chain(over_time.map(|(role, v, t)| load(role, v, t)))
                     .collect::<anyhow::Result<Vec<_>>>()?
             }
         };
@@ -298,8 +305,7 @@ fn nerf_config(run: &Run, kind: NerfKind) -> NerfConfig {
 /// Trains (or resumes, or finds finished) the NeRF of `kind` in `run` and returns it.
 pub fn train(run: &Run, log: &mut MetricsLog, kind: NerfKind) -> anyhow::Result<Nerf> {
     let cfg = &run.exp.nerf;
-    let views = run.exp.warmup.views(&run.scene);
-    let data = NerfData::load(&run.scene, kind, &views, cfg.preview_every > 0)?;
+    let data = NerfData::load(&run.scene, kind, &run.exp, cfg.preview_every > 0)?;
     tracing::info!(
         model = kind.label(),
         images = data.images.len(),

@@ -127,7 +127,7 @@ pub fn check(run: &Run, stages: &[Stage], start: Start) -> anyhow::Result<()> {
     ];
     for (stage, kind, needed) in nerfs {
         if stages.contains(&stage) && needed {
-            match NerfData::load(scene, kind, &exp.warmup.views(scene), false) {
+            match NerfData::load(scene, kind, exp, false) {
                 Ok(data) => {
                     let cfg = &exp.nerf;
                     let k = cfg.images_per_step.min(data.images.len()).max(1);

@@ -9,6 +9,7 @@ use neurofluid_core::metrics::{RgbImage, psnr};
 use neurofluid_core::scene::{Image, Particles, Role, Scene};
 use neurofluid_physnerf::{PhysNerf, RayBatch, render_image};
 
+use crate::config::JointSection;
 use crate::trainer::{Evaluation, Picture};
 
 /// One view of one frame: camera and target image.
@@ -60,6 +61,18 @@ pub fn ray_share(rays: usize, parts: usize, i: usize) -> usize {
 }
 
 pub use neurofluid_core::tensors::{points_tensor, tensor_points};
+
+/// The views the joint stage trains on, each at every training frame: the training view (split
+/// `train`), then `joint.extra_views` (warm-up views).
+pub fn joint_sources(scene: &Scene, cfg: &JointSection) -> anyhow::Result<Vec<(Role, String)>> {
+    let view = cfg.view(scene).context("the scene has no training view")?;
+    if !cfg.extra_views.is_empty() {
+        require_warmup_every_frame(scene, &cfg.extra_views_label())?;
+    }
+    Ok(std::iter::once((Role::Train, view))
+        .chain(cfg.extra_views.iter().map(|v| (Role::Warmup, v.clone())))
+        .collect())
+}
 
 /// Checks that `scene` has its warm-up views at every training frame, which `what` trains on;
 /// the error says how a built-in scene gets them.
