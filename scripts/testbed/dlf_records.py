@@ -50,11 +50,11 @@ def scalar_i64(v):
 def random_spec(seed, frames):
     """One scene of seed `seed`: box, fluid body and throw (y-up)."""
     rng = np.random.default_rng(seed)
-    w, h, d = rng.uniform(1.0, 1.8), rng.uniform(1.2, 1.8), rng.uniform(1.0, 1.8)
+    w, h, d = rng.uniform(1.2, 2.0), rng.uniform(1.3, 2.0), rng.uniform(1.2, 2.0)
     lo, hi = np.array([-w / 2, 0.0, -d / 2]), np.array([w / 2, h, d / 2])
     kind = ["block", "sphere", "cylinder", "torus"][int(rng.integers(4))]
-    # the body's extent: ~1.5k–4k particles at spacing 2r
-    size = rng.uniform(0.45, 0.7)
+    # the body's extent: ~1.5k–5k particles at spacing 2r
+    size = rng.uniform(0.65, 0.95)
     vel = [float(rng.uniform(-2, 2)), float(rng.uniform(-0.5, 0.5)), float(rng.uniform(-2, 2))]
     if kind == "block":
         ext = np.minimum(np.array([size, size * rng.uniform(0.7, 1.4), size * rng.uniform(0.7, 1.4)]), hi - lo - 0.1)
@@ -69,7 +69,7 @@ def random_spec(seed, frames):
             fluid = {"shape": "cylinder", "radius": size / 2, "height": height}
             reach = math.hypot(size / 2, height / 2)
         else:
-            minor = size * 0.22
+            minor = size * 0.3
             fluid = {"shape": "torus", "major": size / 2, "minor": minor}
             reach = size / 2 + minor
         axis = rng.normal(size=3)

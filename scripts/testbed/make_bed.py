@@ -12,7 +12,8 @@ DFSPH (bed_sim.py, pysplishsplash), render with Blender Cycles (bed_render.py, b
 into <out>/.tmp-<scene>/ first, renamed to <out>/<scene> when complete. The simulation is kept in
 <out>/.work/<scene>/sim.npz and reused while the scene's "sim" spec is unchanged (--resim forces
 it). Timings are appended to <out>/timings.jsonl. Options: --frames-only N (render only the
-first N frames: a smoke test), --samples S, --keep-going.
+first N frames: a smoke test), --samples S, --keep-going, --no-render (no images: a scene for
+DLF rollouts only, e.g. `--out data/bed-particles`).
 """
 
 import argparse
@@ -292,25 +293,28 @@ def build(name, spec, out_root, args):
         "cameras": [{"name": v["name"], "c2w": v["c2w"].tolist(), "angle_x": v["angle_x"]} for v in views],
         "renders": renders,
     }
-    # images of the scene already built with the same simulation, cameras and render settings
-    # are kept (hard links), so adding frames (e.g. warm-up views at every frame) renders only
-    # the new ones; Cycles with a fixed seed would render them the same
-    reused = reuse_images(os.path.join(out_root, name), spec, sim, job, renders, tmp)
-    job["renders"] = [r for r in renders if not os.path.isfile(r[2])]
-    timings["images_reused"] = reused
-    job_path = os.path.join(work, "render_job.json")
-    with open(job_path, "w") as f:
-        json.dump(job, f)
-    t0 = time.time()
-    with open(os.path.join(work, "render.log"), "w") as log:
-        subprocess.run(["nice", "-n", "5", sys.executable, os.path.join(HERE, "bed_render.py"), job_path],
-                       stdout=log, stderr=subprocess.STDOUT, check=True)
-    timings["render_s"] = time.time() - t0
-    timings["images"] = len(renders)
-    timings["images_rendered"] = len(job["renders"])
-    missing = [r[2] for r in renders if not os.path.isfile(r[2])]
-    if missing:
-        raise RuntimeError(f"{len(missing)} images missing, e.g. {missing[0]} (see {work}/render.log)")
+    if args.no_render:
+        timings["images"] = 0
+    else:
+        # images of the scene already built with the same simulation, cameras and render settings
+        # are kept (hard links), so adding frames (e.g. warm-up views at every frame) renders only
+        # the new ones; Cycles with a fixed seed would render them the same
+        reused = reuse_images(os.path.join(out_root, name), spec, sim, job, renders, tmp)
+        job["renders"] = [r for r in renders if not os.path.isfile(r[2])]
+        timings["images_reused"] = reused
+        job_path = os.path.join(work, "render_job.json")
+        with open(job_path, "w") as f:
+            json.dump(job, f)
+        t0 = time.time()
+        with open(os.path.join(work, "render.log"), "w") as log:
+            subprocess.run(["nice", "-n", "5", sys.executable, os.path.join(HERE, "bed_render.py"), job_path],
+                           stdout=log, stderr=subprocess.STDOUT, check=True)
+        timings["render_s"] = time.time() - t0
+        timings["images"] = len(renders)
+        timings["images_rendered"] = len(job["renders"])
+        missing = [r[2] for r in renders if not os.path.isfile(r[2])]
+        if missing:
+            raise RuntimeError(f"{len(missing)} images missing, e.g. {missing[0]} (see {work}/render.log)")
 
     manifest = {
         "name": name,
@@ -365,6 +369,8 @@ def main():
     ap.add_argument("--resim", action="store_true", help="simulate again even if the spec is unchanged")
     ap.add_argument("--frames-only", type=int, default=None, help="render only the first N frames (smoke test)")
     ap.add_argument("--samples", type=int, default=None, help="override the Cycles samples")
+    ap.add_argument("--no-render", action="store_true",
+                    help="particles, box and cameras only, no images (for DLF rollouts; needs no bpy)")
     ap.add_argument("--keep-going", action="store_true", help="go on with the next scene after a failure")
     ap.add_argument("--ready-file", default=None, help="append each finished scene's folder to this file")
     args = ap.parse_args()

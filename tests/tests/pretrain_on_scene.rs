@@ -34,9 +34,8 @@ fn fine_tunes_on_a_generated_scene() {
             lr: 1e-5,
             validate_every: 1,
             frame_skip: 1,
-            no_rotation: false,
-            backward_velocities: false,
             seed: 1,
+            ..SupervisedConfig::DLF
         },
         device: neurofluid_core::device::test_device_name(),
         fresh: false,

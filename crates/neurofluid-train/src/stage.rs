@@ -4,6 +4,8 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::config::{Experiment, InitialParticles, NerfTImages};
+
 /// A stage.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Stage {
@@ -66,30 +68,38 @@ impl Stage {
             .find(|s| s.folder() == name)
     }
 
-    /// Whether `key` (a dotted setting, not a free one) shapes the stage's state: the warm-up's
-    /// seed, scene, PhysNeRF and warm-up (not where it stops; the NeRF and `[initial]` count
-    /// only with initial particles from images, see `Settings::of_stage`), the joint stage's
-    /// everything the warm-up's state depends on, how long the warm-up ran, DLF and the joint
-    /// settings (not where it stops), a NeRF's seed, scene and `[nerf]` (not where it stops).
+    /// Whether `key` (a dotted setting, not a free one) shapes the stage's state in `exp`:
+    /// - a NeRF's (the baselines, the initial particles'): the seed, the scene, `[nerf]` (not
+    ///   where it stops) and the keys its images come from: `warmup.views`; for NeRF-T also
+    ///   `nerf.t_images` and, under `"neurofluid"`, the joint stage's views (`joint.view`,
+    ///   `joint.extra_views`);
+    /// - the warm-up's: the seed, the scene, PhysNeRF and the warm-up (not where it stops), and
+    ///   with initial particles from images the initial particles' NeRF (where it stops too)
+    ///   and `[initial]`;
+    /// - the joint stage's: everything the warm-up's state depends on, how long the warm-up
+    ///   ran, DLF and the joint settings (not where it stops).
+    ///
     /// The other stages keep no state that settings shape.
-    pub fn shaped_by(self, key: &str) -> bool {
+    pub fn shaped_by(self, key: &str, exp: &Experiment) -> bool {
         let under = |prefix: &str| key == prefix || key.starts_with(&format!("{prefix}."));
-        let warmup = ["seed", "scene", "physnerf", "warmup", "nerf", "initial"]
-            .iter()
-            .any(|p| under(p));
+        let common = under("seed") || under("scene");
+        let nerf_model = under("nerf") && !under("nerf.t_images");
+        let nerf_t_images = under("nerf.t_images")
+            || (exp.nerf.t_images == NerfTImages::Neurofluid
+                && (under("joint.view") || under("joint.extra_views")));
+        let nerf = |kind_images: bool| {
+            (common || nerf_model || under("warmup.views") || kind_images) && !under("nerf.iters")
+        };
+        let from_images = exp.scene.initial == InitialParticles::FromImages
+            && (nerf_model || under("initial") || under("warmup.views"));
+        let warmup = common || under("physnerf") || under("warmup") || from_images;
         match self {
-            Stage::Nerf | Stage::NerfT | Stage::Initial => {
-                ["seed", "scene", "nerf"].iter().any(|p| under(p)) && !under("nerf.iters")
-            }
+            Stage::Nerf | Stage::Initial => nerf(false),
+            Stage::NerfT => nerf(nerf_t_images),
             Stage::Warmup => warmup && !under("warmup.iters"),
             Stage::Joint => (warmup || under("dlf") || under("joint")) && !under("joint.epochs"),
             Stage::Eval | Stage::PretrainDlf => false,
         }
-    }
-
-    /// Whether the stage trains a NeRF (settings of `[nerf]`, no particles).
-    pub const fn is_nerf(self) -> bool {
-        matches!(self, Stage::Nerf | Stage::NerfT | Stage::Initial)
     }
 }
 

@@ -70,9 +70,8 @@ fn config(iterations: u64) -> SupervisedConfig {
         lr: 1e-3,
         validate_every: iterations,
         frame_skip: 1,
-        no_rotation: false,
-        backward_velocities: false,
         seed: 7,
+        ..SupervisedConfig::DLF
     }
 }
 

@@ -283,9 +283,8 @@ mod tests {
                 lr: 1e-5,
                 validate_every: 1,
                 frame_skip: 1,
-                no_rotation: false,
-                backward_velocities: false,
                 seed: 1,
+                ..SupervisedConfig::DLF
             },
             device: "cpu".into(),
             fresh: false,
@@ -332,9 +331,8 @@ mod tests {
                 lr,
                 validate_every: 1,
                 frame_skip: 1,
-                no_rotation: false,
-                backward_velocities: false,
                 seed: 1,
+                ..SupervisedConfig::DLF
             },
             device: "cpu".into(),
             fresh: false,

@@ -111,15 +111,10 @@ impl Settings {
         Self::of(&exp.resolved())
     }
 
-    /// The settings that shape `stage`'s state. The NeRF and `[initial]` shape the warm-up and
-    /// the joint stage only when the initial particles come from images.
+    /// The settings that shape `stage`'s state (`Stage::shaped_by`).
     pub fn of_stage(exp: &Experiment, stage: Stage) -> Self {
-        let from_images = exp.scene.initial == super::InitialParticles::FromImages;
         let mut all = Self::all(exp);
-        all.0.retain(|k, _| {
-            let nerf = k.starts_with("nerf.") || k.starts_with("initial.");
-            !is_free(k) && stage.shaped_by(k) && (stage.is_nerf() || !nerf || from_images)
-        });
+        all.0.retain(|k, _| !is_free(k) && stage.shaped_by(k, exp));
         all
     }
 
@@ -300,6 +295,52 @@ mod tests {
         );
         let longer = from(&["nerf.iters=5"]).changes_since(&from(&[]));
         assert_eq!(changes_keys(&longer), ["nerf.iters"]);
+    }
+
+    /// A NeRF is shaped by the keys its images come from and no other stage by those: the
+    /// protocol `nerf.t_images` NeRF-T only (with initial particles from images too), the joint
+    /// stage's views NeRF-T only when it trains on NeuroFluid's images, the warm-up views every
+    /// NeRF (and the stages PhysNeRF warms up in).
+    #[test]
+    fn a_nerf_is_shaped_by_where_its_images_come_from() {
+        let changed = |base: &[&str], extra: &[&str], stage| -> Vec<String> {
+            let with: Vec<&str> = base.iter().chain(extra).copied().collect();
+            Settings::of_stage(&exp(&with), stage)
+                .changes_since(&Settings::of_stage(&exp(base), stage))
+                .into_iter()
+                .map(|c| c.key)
+                .collect()
+        };
+        let neurofluid = ["nerf.t_images=neurofluid"];
+        for base in [&[][..], &["scene.initial=from_images"][..]] {
+            assert_eq!(changed(base, &neurofluid, Stage::NerfT), ["nerf.t_images"]);
+            for stage in [Stage::Nerf, Stage::Initial, Stage::Warmup, Stage::Joint] {
+                assert!(changed(base, &neurofluid, stage).is_empty(), "{stage}");
+            }
+        }
+        let views = ["joint.view=view_2", "joint.extra_views=[\"view_3\"]"];
+        assert_eq!(
+            changed(&neurofluid, &views, Stage::NerfT),
+            ["joint.extra_views", "joint.view"]
+        );
+        assert!(changed(&[], &views, Stage::NerfT).is_empty());
+        for stage in [Stage::Nerf, Stage::Initial, Stage::Warmup] {
+            assert!(changed(&neurofluid, &views, stage).is_empty(), "{stage}");
+        }
+        let warmup_views = ["warmup.views=[\"view_2\", \"view_3\"]"];
+        for stage in [
+            Stage::Nerf,
+            Stage::NerfT,
+            Stage::Initial,
+            Stage::Warmup,
+            Stage::Joint,
+        ] {
+            assert_eq!(
+                changed(&[], &warmup_views, stage),
+                ["warmup.views"],
+                "{stage}"
+            );
+        }
     }
 
     fn changes_keys(c: &[Change]) -> Vec<&str> {

@@ -27,19 +27,19 @@ pub const STAGE: Stage = Stage::PretrainDlf;
 #[derive(Debug, Clone, PartialEq, Serialize, clap::Args)]
 pub struct SupervisedConfig {
     /// Optimiser steps (DLF: 50000).
-    #[arg(long, default_value_t = 50_000, value_parser = clap::value_parser!(u64).range(1..))]
+    #[arg(long, default_value_t = SupervisedConfig::DLF.iterations, value_parser = clap::value_parser!(u64).range(1..))]
     pub iterations: u64,
     /// Samples per step (DLF: 16).
-    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u64).range(1..))]
+    #[arg(long, default_value_t = SupervisedConfig::DLF.batch_size, value_parser = clap::value_parser!(u64).range(1..))]
     pub batch_size: u64,
     /// Base learning rate (DLF: 1e-3; the piecewise decay is applied on top).
-    #[arg(long, default_value_t = 1e-3, value_parser = positive_finite)]
+    #[arg(long, default_value_t = SupervisedConfig::DLF.lr, value_parser = positive_finite)]
     pub lr: f64,
     /// Validate (and checkpoint) every this many steps.
-    #[arg(long, default_value_t = 1000)]
+    #[arg(long, default_value_t = SupervisedConfig::DLF.validate_every)]
     pub validate_every: u64,
     /// Frame skip of the validation errors (DLF training: 20, `evaluate_network.py`: 5).
-    #[arg(long, default_value_t = 20, value_parser = at_least_one)]
+    #[arg(long, default_value_t = SupervisedConfig::DLF.frame_skip, value_parser = at_least_one)]
     pub frame_skip: usize,
     /// Turn off the random rotation about the gravity axis (DLF's dambreak setting).
     #[arg(long)]
@@ -51,7 +51,7 @@ pub struct SupervisedConfig {
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub backward_velocities: bool,
     /// Seed of sample order, rotations and initialisation.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = SupervisedConfig::DLF.seed)]
     pub seed: u64,
 }
 
@@ -85,6 +85,18 @@ impl OptimDefaults for SupervisedDlfGroup {
 }
 
 impl SupervisedConfig {
+    /// DLF's published training: the flags' defaults.
+    pub const DLF: Self = Self {
+        iterations: 50_000,
+        batch_size: 16,
+        lr: 1e-3,
+        validate_every: 1000,
+        frame_skip: 20,
+        no_rotation: false,
+        backward_velocities: false,
+        seed: 0,
+    };
+
     /// The optimiser group: this learning rate on DLF's schedule for this run length.
     pub fn optim(&self) -> OptimConfig<SupervisedDlfGroup> {
         let mut optim = OptimConfig::default();
@@ -255,6 +267,23 @@ mod tests {
     use neurofluid_dlf::scene::{block_in_box, dlf_wall_spacing};
     use neurofluid_dlf::{DlfConfig, load_dlf};
 
+    /// `pretrain-dlf` without flags trains as DLF did.
+    #[test]
+    fn the_flags_default_to_dlfs_training() {
+        #[derive(clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            train: SupervisedConfig,
+        }
+        use clap::Parser;
+        assert_eq!(
+            Cli::parse_from(["pretrain-dlf"]).train,
+            SupervisedConfig::DLF
+        );
+        let bv = Cli::parse_from(["pretrain-dlf", "--backward-velocities", "--lr", "1e-4"]);
+        assert!(bv.train.backward_velocities && bv.train.lr == 1e-4);
+    }
+
     /// The first step's loss of a trainer on one 3-frame window, whose only randomness is then
     /// the rotation of the sample.
     fn first_loss(container: Option<Aabb>, seed: u64) -> f64 {
@@ -286,9 +315,8 @@ mod tests {
             lr: 1e-5,
             validate_every: 1,
             frame_skip: 1,
-            no_rotation: false,
-            backward_velocities: false,
             seed,
+            ..SupervisedConfig::DLF
         };
         let mut trainer = SupervisedDlfTrainer::new(&cfg, net, vec![seq], Vec::new()).unwrap();
         trainer.step(0).unwrap().loss
