@@ -271,6 +271,10 @@ def build(name, spec, out_root, args):
             f = 0.5 * size / np.tan(0.5 * v["angle_x"])
             # nerfstudio's principal point: pixel i's ray through i + 0.5, as Blender renders it
             tf.update({"fl_x": f, "fl_y": f, "cx": size / 2.0, "cy": size / 2.0, "w": size, "h": size})
+        if args.no_render:
+            # no images to read the size from: the transforms give it (nerfstudio's w, h)
+            tf.setdefault("w", size)
+            tf.setdefault("h", size)
         tf["frames"] = entries
         with open(os.path.join(vdir, f"transforms_{split}.json"), "w") as fh:
             json.dump(tf, fh, indent=1)

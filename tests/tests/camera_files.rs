@@ -1,7 +1,8 @@
 //! Camera files in both conventions: a generated scene's transforms carry NeRF's
 //! `camera_angle_x` and nerfstudio's `fl_x`, `fl_y`, `cx`, `cy`, `w`, `h` for the same camera; either
 //! alone gives the same rays; per-frame intrinsics override the file's; distortion and a size
-//! that is not the images' are refused with the key named.
+//! that is not the images' are refused with the key named; a scene without images opens where the
+//! transforms give their size.
 
 use neurofluid_core::scene::{Role, Scene, TransformsFile, transforms_path};
 use neurofluid_tests::{seeded_turn, tiny_experiment};
@@ -91,4 +92,56 @@ fn nerf_and_nerfstudio_intrinsics_describe_the_same_camera() {
         err.contains("camera_angle_x") && err.contains("fl_x"),
         "{err}"
     );
+}
+
+/// A scene of particles only (no images: DLF rollouts and training) opens where its transforms
+/// give the images' size, with the cameras it had; an image it lacks is named when loaded, and
+/// without `w` and `h` the missing first image is named at once.
+#[test]
+fn a_scene_without_images_opens_where_the_transforms_give_their_size() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let run = Run::prepare(
+        tiny_experiment(tmp.path(), "noimg"),
+        Start::Resume,
+        &[Stage::Warmup],
+    )
+    .unwrap();
+    let root = run.scene.root().to_path_buf();
+    let before = run.scene.camera(Role::Test, "view_5", 1).unwrap();
+    let particles = run.scene.particles(Role::Test, 1).unwrap();
+    drop(run);
+    let pngs: Vec<_> = walk(&root)
+        .into_iter()
+        .filter(|p| p.extension().is_some_and(|e| e == "png"))
+        .collect();
+    assert!(!pngs.is_empty());
+    for p in &pngs {
+        std::fs::remove_file(p).unwrap();
+    }
+    let scene = Scene::open(&root).unwrap();
+    assert_eq!(scene.camera(Role::Test, "view_5", 1).unwrap(), before);
+    assert_eq!(scene.particles(Role::Test, 1).unwrap(), particles);
+    let err = scene
+        .image(Role::Test, "view_5", 1)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("view_5") && err.contains(".png"), "{err}");
+
+    let path = transforms_path(&root, "view_5", "test");
+    let mut t = TransformsFile::read(&path).unwrap();
+    (t.intrinsics.w, t.intrinsics.h) = (None, None);
+    t.write(&path).unwrap();
+    let err = Scene::open(&root).unwrap_err().to_string();
+    assert!(err.contains("view_5") && err.contains(".png"), "{err}");
+}
+
+fn walk(dir: &std::path::Path) -> Vec<std::path::PathBuf> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .flat_map(|e| {
+            let p = e.unwrap().path();
+            if p.is_dir() { walk(&p) } else { vec![p] }
+        })
+        .collect()
 }

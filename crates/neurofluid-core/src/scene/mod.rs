@@ -116,6 +116,13 @@ impl ViewSplit {
         })
     }
 
+    /// The images' size that the transforms give for frame `t` (nerfstudio's `w` and `h`).
+    fn declared_size(&self, t: usize) -> Option<(u32, u32)> {
+        let e = self.entry(t).ok()?;
+        let k = e.intrinsics.or(self.transforms.intrinsics);
+        k.w.zip(k.h)
+    }
+
     /// An image of this view must have the size of its first one (the camera's).
     fn check_size(&self, path: &Path, size: (u32, u32)) -> Result<()> {
         let (w, h) = self.image_size;
@@ -212,7 +219,9 @@ impl Scene {
     /// Opens the scene at `dir`: reads `scene.json` (or uses the released-layout defaults named
     /// after the directory), parses every transforms file of the warm-up, training and test
     /// views, and checks that each has the frames the manifest asks for and that their first
-    /// image exists.
+    /// image exists. A scene without images (its particles only: for DLF rollouts and DLF
+    /// training) opens where its transforms give the images' size (`w`, `h`); loading an image
+    /// it lacks is then the error that names it.
     pub fn open(dir: impl AsRef<Path>) -> Result<Self> {
         let root = dir.as_ref().to_path_buf();
         if !root.is_dir() {
@@ -256,7 +265,10 @@ impl Scene {
                 };
                 vs.entry(needed - 1)?;
                 let first = vs.image_path(set.frames.start)?;
-                vs.image_size = png_size(&first)?;
+                vs.image_size = match vs.declared_size(set.frames.start) {
+                    Some(size) if !first.exists() => size,
+                    _ => png_size(&first)?,
+                };
                 splits.insert(key, vs);
             }
         }

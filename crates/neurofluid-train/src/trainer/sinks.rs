@@ -70,9 +70,10 @@ impl EventSink for ProgressBars {
                 for (name, v) in &evaluation.scores {
                     line.push_str(&format!(" {name} {v:.6}"));
                 }
+                // a hidden bar (stderr not a terminal) prints nothing: the log keeps the line
                 match &self.bar {
-                    Some(bar) => bar.println(line),
-                    None => tracing::info!("{line}"),
+                    Some(bar) if !bar.is_hidden() => bar.println(line),
+                    _ => tracing::info!("{line}"),
                 }
             }
             Event::Diverged { message, .. } => {
@@ -188,5 +189,66 @@ impl EventSink for CurvesPlot {
             crate::pictures::plot::plot_metrics_file(&self.jsonl, &self.png)?;
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::io::Write;
+    use std::sync::{Arc, Mutex};
+
+    use super::*;
+    use crate::trainer::Evaluation;
+
+    #[derive(Clone, Default)]
+    struct Captured(Arc<Mutex<Vec<u8>>>);
+
+    impl Write for Captured {
+        fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+            self.0.lock().unwrap().extend_from_slice(buf);
+            Ok(buf.len())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    /// Under a stage's bar, hidden when stderr is not a terminal (this test's), every
+    /// evaluation's line still reaches the log: `pretrain-dlf`'s validation errors were lost.
+    #[test]
+    fn evaluations_reach_the_log_under_a_hidden_bar() {
+        let out = Captured::default();
+        let writer = out.clone();
+        let subscriber = tracing_subscriber::fmt()
+            .with_writer(move || writer.clone())
+            .with_ansi(false)
+            .finish();
+        tracing::subscriber::with_default(subscriber, || {
+            let mut bars = ProgressBars::new();
+            bars.on_event(&Event::Started {
+                stage: "pretrain-dlf",
+                start: 0,
+                total: 10,
+                resumed_from: None,
+            })
+            .unwrap();
+            assert!(bars.bar.as_ref().is_some_and(|b| b.is_hidden()));
+            let evaluation = Evaluation {
+                scores: vec![("whole_seq_err", 0.0123)],
+                ..Evaluation::default()
+            };
+            bars.on_event(&Event::Evaluated {
+                stage: "pretrain-dlf",
+                done: 5,
+                time_s: 1.0,
+                evaluation: &evaluation,
+            })
+            .unwrap();
+        });
+        let text = String::from_utf8(out.0.lock().unwrap().clone()).unwrap();
+        assert!(
+            text.contains("pretrain-dlf step 5: whole_seq_err 0.012300"),
+            "{text}"
+        );
     }
 }
