@@ -17,9 +17,10 @@ use neurofluid_dlf::{DlfConfig, DlfNet, load_dlf};
 use serde::Serialize;
 
 use crate::config::{Experiment, Settings};
+use crate::metrics_log::MetricsLog;
 use crate::stages::supervised_dlf::{STAGE, SupervisedConfig, SupervisedDlfTrainer};
 use crate::trainer::lock::FolderLock;
-use crate::trainer::sinks::ProgressBars;
+use crate::trainer::sinks::{MetricsSink, ProgressBars};
 use crate::trainer::{Cadence, Driver, Event, EventSink, Trainer};
 
 /// Arguments of `pretrain-dlf`.
@@ -225,15 +226,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         reset_checkpoints(&dir)?;
     }
     let mut bars = ProgressBars::new();
+    // the training curve and the validation errors; the rows past the checkpoint resumed
+    // dropped (every row when none is)
+    let saved = crate::trainer::checkpoint::latest(&dir)
+        .map(|_| crate::trainer::checkpoint::saved_step(&dir));
+    let mut log = MetricsLog::open_resumed(&dir, |row| saved.is_some_and(|s| row.step <= s))?;
+    let mut metrics = MetricsSink(&mut log);
     if crate::trainer::checkpoint::latest(&dir).is_none()
         && let Some(e) = trainer.evaluate(0)?
     {
-        bars.on_event(&Event::Evaluated {
+        let event = Event::Evaluated {
             stage: STAGE.folder(),
             done: 0,
             time_s: 0.0,
             evaluation: &e,
-        })?;
+        };
+        bars.on_event(&event)?;
+        metrics.on_event(&event)?;
     }
     let cadence = Cadence {
         log_every: 1,
@@ -246,6 +255,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     Driver::new(&dir, cadence, Settings::of(&args))
         .with_sink(&mut bars)
+        .with_sink(&mut metrics)
         .with_sink(&mut export)
         .run(&mut trainer, None)?;
     tracing::info!("wrote {}", args.output.display());
@@ -337,8 +347,36 @@ mod tests {
             device: "cpu".into(),
             fresh: false,
         };
-        run(args(Some(weights), &output, 2, 1, 1e-5)).unwrap();
+        run(args(Some(weights.clone()), &output, 2, 1, 1e-5)).unwrap();
         load_dlf(&output, DlfConfig::default(), &device).unwrap();
+        // its training curve and validation errors are in the checkpoints' folder, once each,
+        // also when it starts over
+        let rows = || {
+            crate::metrics_log::read_jsonl(
+                &checkpoint_dir(&output).join(crate::metrics_log::JSONL_FILE),
+            )
+            .unwrap()
+        };
+        let steps = |stage: &str| -> Vec<u64> {
+            rows()
+                .iter()
+                .filter(|r| r.stage == stage)
+                .map(|r| r.step)
+                .collect()
+        };
+        assert_eq!(steps("pretrain-dlf-validation"), [0, 1, 2]);
+        assert_eq!(steps("pretrain-dlf"), [1, 2]);
+        let val = rows()
+            .into_iter()
+            .find(|r| r.stage == "pretrain-dlf-validation")
+            .unwrap();
+        assert!(val.get("whole_seq_err").is_some_and(f64::is_finite));
+        assert_eq!(Some(val.loss), val.get("err_n1"));
+        let mut again = args(Some(weights.clone()), &output, 2, 1, 1e-5);
+        again.fresh = true;
+        run(again).unwrap();
+        assert_eq!(steps("pretrain-dlf-validation"), [0, 1, 2]);
+        assert_eq!(steps("pretrain-dlf"), [1, 2]);
         assert!(
             checkpoint_dir(&output)
                 .join("checkpoint/state.json")

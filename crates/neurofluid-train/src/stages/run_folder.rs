@@ -133,7 +133,11 @@ impl Run {
         let resumed = [Stage::Warmup, Stage::Joint, Stage::Nerf, Stage::NerfT]
             .map(|s| (s, checkpoint::saved_step(&self.stage_dir(s))));
         let log = MetricsLog::open_resumed(&self.dir, |row| {
-            let stage = Stage::of_folder(row.stage.trim_end_matches("-preview"));
+            let stage = Stage::of_folder(
+                row.stage
+                    .trim_end_matches("-preview")
+                    .trim_end_matches("-validation"),
+            );
             resumed
                 .iter()
                 .find(|(s, _)| Some(*s) == stage)

@@ -97,9 +97,10 @@ impl EventSink for ProgressBars {
     }
 }
 
-/// The run's metrics log: the driver's rows, and one `<stage>-preview` row per evaluation with
-/// a PSNR (its loss is the MSE that PSNR stands for) holding the evaluation's named scores
-/// (the joint stage's diagnostics).
+/// The run's metrics log: the driver's rows, and one row per evaluation holding its named
+/// scores: `<stage>-preview` for an evaluation with a PSNR (its loss is the MSE that PSNR
+/// stands for; the joint stage's diagnostics), `<stage>-validation` for one without (its loss is
+/// its first score: DLF†'s one-step error).
 #[derive(Debug)]
 pub struct MetricsSink<'a>(pub &'a mut MetricsLog);
 
@@ -113,15 +114,23 @@ impl EventSink for MetricsSink<'_> {
                 time_s,
                 evaluation,
             } => {
-                if let Some(psnr) = evaluation.psnr {
-                    let mse = 10f64.powf(-psnr / 10.0);
-                    let mut row = MetricsRow::new(&format!("{stage}-preview"), *done, mse, *time_s);
-                    row.set("psnr", psnr);
-                    for (name, v) in &evaluation.scores {
-                        row.set(name, *v);
+                let mut row = match (evaluation.psnr, evaluation.scores.first()) {
+                    (Some(psnr), _) => {
+                        let mse = 10f64.powf(-psnr / 10.0);
+                        let mut row =
+                            MetricsRow::new(&format!("{stage}-preview"), *done, mse, *time_s);
+                        row.set("psnr", psnr);
+                        row
                     }
-                    self.0.append(&row)?;
+                    (None, Some((_, first))) => {
+                        MetricsRow::new(&format!("{stage}-validation"), *done, *first, *time_s)
+                    }
+                    (None, None) => return Ok(()),
+                };
+                for (name, v) in &evaluation.scores {
+                    row.set(name, *v);
                 }
+                self.0.append(&row)?;
             }
             _ => {}
         }
