@@ -47,15 +47,17 @@ def scalar_i64(v):
     return {b"nd": False, b"type": "<i8", b"kind": b"", b"data": np.int64(v).tobytes()}
 
 
-def random_spec(seed, frames):
-    """One scene of seed `seed`: box, fluid body and throw (y-up)."""
+def random_spec(seed, frames, speed=1.0):
+    """One scene of seed `seed`: box, fluid body and throw (y-up); `speed` scales DLF's
+    velocity ranges."""
     rng = np.random.default_rng(seed)
     w, h, d = rng.uniform(1.2, 2.0), rng.uniform(1.3, 2.0), rng.uniform(1.2, 2.0)
     lo, hi = np.array([-w / 2, 0.0, -d / 2]), np.array([w / 2, h, d / 2])
     kind = ["block", "sphere", "cylinder", "torus"][int(rng.integers(4))]
     # the body's extent: ~1.5k–5k particles at spacing 2r
     size = rng.uniform(0.65, 0.95)
-    vel = [float(rng.uniform(-2, 2)), float(rng.uniform(-0.5, 0.5)), float(rng.uniform(-2, 2))]
+    vel = [speed * float(rng.uniform(-2, 2)), speed * float(rng.uniform(-0.5, 0.5)),
+           speed * float(rng.uniform(-2, 2))]
     if kind == "block":
         ext = np.minimum(np.array([size, size * rng.uniform(0.7, 1.4), size * rng.uniform(0.7, 1.4)]), hi - lo - 0.1)
         start = lo + 0.05 + rng.uniform(0, 1, 3) * (hi - lo - 0.1 - ext)
@@ -132,6 +134,8 @@ def main():
     ap.add_argument("--seeds", required=True, help="e.g. 1-8 or 201,202")
     ap.add_argument("--frames", type=int, default=80)
     ap.add_argument("--frames-per-file", type=int, default=40)
+    ap.add_argument("--speed", type=float, default=1.0,
+                    help="scales DLF's throw velocities (x, z U(-2, 2), y U(-0.5, 0.5) m/s)")
     ap.add_argument("--work", default=None, help="simulation folder (default <out>/.work)")
     args = ap.parse_args()
     os.makedirs(args.out, exist_ok=True)
@@ -141,7 +145,7 @@ def main():
         if any(f.startswith(scene_id + "_") and f.endswith(".msgpack.zst") for f in os.listdir(args.out)):
             print(f"[{scene_id}] already written", flush=True)
             continue
-        spec = random_spec(seed, args.frames)
+        spec = random_spec(seed, args.frames, args.speed)
         t0 = time.time()
         sim = simulate(spec, os.path.join(work_root, scene_id))
         lo, hi = np.array(spec["walls_lo"]), np.array(spec["walls_hi"])
