@@ -4,24 +4,27 @@
 //! that is not the images' are refused with the key named; a scene without images opens where the
 //! transforms give their size.
 
+use std::path::{Path, PathBuf};
+
+use neurofluid_core::camera::Camera;
 use neurofluid_core::scene::{Role, Scene, TransformsFile, transforms_path};
-use neurofluid_tests::{seeded_turn, tiny_experiment};
+use neurofluid_tests::{files_under, seeded_turn, tiny_experiment};
 use neurofluid_train::stage::Stage;
 use neurofluid_train::stages::{Run, Start};
+
+/// The tiny experiment's scene, generated into `tmp`: its root and the test view's camera at
+/// frame 1.
+fn tiny_scene(tmp: &Path, name: &str) -> (PathBuf, Camera) {
+    let run = Run::prepare(tiny_experiment(tmp, name), Start::Resume, &[Stage::Warmup]).unwrap();
+    let camera = run.scene.camera(Role::Test, "view_5", 1).unwrap();
+    (run.scene.root().to_path_buf(), camera)
+}
 
 #[test]
 fn nerf_and_nerfstudio_intrinsics_describe_the_same_camera() {
     let _turn = seeded_turn();
     let tmp = tempfile::tempdir().unwrap();
-    let run = Run::prepare(
-        tiny_experiment(tmp.path(), "cams"),
-        Start::Resume,
-        &[Stage::Warmup],
-    )
-    .unwrap();
-    let root = run.scene.root().to_path_buf();
-    let before = run.scene.camera(Role::Test, "view_5", 1).unwrap();
-    drop(run);
+    let (root, before) = tiny_scene(tmp.path(), "cams");
     let path = transforms_path(&root, "view_5", "test");
     let original = TransformsFile::read(&path).unwrap();
     assert!(original.camera_angle_x.is_some() && original.intrinsics.fl_x.is_some());
@@ -101,23 +104,18 @@ fn nerf_and_nerfstudio_intrinsics_describe_the_same_camera() {
 fn a_scene_without_images_opens_where_the_transforms_give_their_size() {
     let _turn = seeded_turn();
     let tmp = tempfile::tempdir().unwrap();
-    let run = Run::prepare(
-        tiny_experiment(tmp.path(), "noimg"),
-        Start::Resume,
-        &[Stage::Warmup],
-    )
-    .unwrap();
-    let root = run.scene.root().to_path_buf();
-    let before = run.scene.camera(Role::Test, "view_5", 1).unwrap();
-    let particles = run.scene.particles(Role::Test, 1).unwrap();
-    drop(run);
-    let pngs: Vec<_> = walk(&root)
+    let (root, before) = tiny_scene(tmp.path(), "noimg");
+    let particles = Scene::open(&root)
+        .unwrap()
+        .particles(Role::Test, 1)
+        .unwrap();
+    let pngs: Vec<_> = files_under(&root)
         .into_iter()
         .filter(|p| p.extension().is_some_and(|e| e == "png"))
         .collect();
     assert!(!pngs.is_empty());
     for p in &pngs {
-        std::fs::remove_file(p).unwrap();
+        std::fs::remove_file(root.join(p)).unwrap();
     }
     let scene = Scene::open(&root).unwrap();
     assert_eq!(scene.camera(Role::Test, "view_5", 1).unwrap(), before);
@@ -134,14 +132,4 @@ fn a_scene_without_images_opens_where_the_transforms_give_their_size() {
     t.write(&path).unwrap();
     let err = Scene::open(&root).unwrap_err().to_string();
     assert!(err.contains("view_5") && err.contains(".png"), "{err}");
-}
-
-fn walk(dir: &std::path::Path) -> Vec<std::path::PathBuf> {
-    std::fs::read_dir(dir)
-        .unwrap()
-        .flat_map(|e| {
-            let p = e.unwrap().path();
-            if p.is_dir() { walk(&p) } else { vec![p] }
-        })
-        .collect()
 }

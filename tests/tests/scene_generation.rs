@@ -1,10 +1,11 @@
 //! Physical and reproducibility checks of the built-in scene generator (small sizes).
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use neurofluid_core::scene::{BoxParticles, Particles, Role, Scene, UpAxis};
 use neurofluid_scenegen::shapes::Shape;
 use neurofluid_scenegen::{Preset, Scale, SceneConfig, SceneKind, generate, simulate};
+use neurofluid_tests::files_under;
 
 fn tmp(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("nf_scene_{name}_{}", std::process::id()));
@@ -139,23 +140,6 @@ fn tiny(seed: u64) -> Preset {
     p
 }
 
-fn files(root: &Path) -> Vec<PathBuf> {
-    let mut out = Vec::new();
-    let mut stack = vec![root.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                stack.push(p);
-            } else {
-                out.push(p.strip_prefix(root).unwrap().to_path_buf());
-            }
-        }
-    }
-    out.sort();
-    out
-}
-
 #[test]
 fn same_seed_gives_byte_identical_files_and_reads_back() {
     let (a, b, c) = (tmp("seed_a"), tmp("seed_b"), tmp("seed_c"));
@@ -168,8 +152,8 @@ fn same_seed_gives_byte_identical_files_and_reads_back() {
         .unwrap()
         .install(|| generate::generate(&p, &b, false))
         .unwrap();
-    let fa = files(&a);
-    assert_eq!(fa, files(&b));
+    let fa = files_under(&a);
+    assert_eq!(fa, files_under(&b));
     // 4 warm-up + 2 more train frames + 4 test frames, each with an image and a particle file,
     // 5 transforms files, box.npz, box.pt and scene.json
     assert_eq!(ra.images, 4 + 2 + 4);

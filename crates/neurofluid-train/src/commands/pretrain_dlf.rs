@@ -228,11 +228,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut bars = ProgressBars::new();
     // the training curve and the validation errors; the rows past the checkpoint resumed
     // dropped (every row when none is)
-    let saved = crate::trainer::checkpoint::latest(&dir)
+    let resumed = crate::trainer::checkpoint::latest(&dir)
         .map(|_| crate::trainer::checkpoint::saved_step(&dir));
-    let mut log = MetricsLog::open_resumed(&dir, |row| saved.is_some_and(|s| row.step <= s))?;
+    let mut log = MetricsLog::open_resumed(&dir, |row| resumed.is_some_and(|s| row.step <= s))?;
     let mut metrics = MetricsSink(&mut log);
-    if crate::trainer::checkpoint::latest(&dir).is_none()
+    if resumed.is_none()
         && let Some(e) = trainer.evaluate(0)?
     {
         let event = Event::Evaluated {
