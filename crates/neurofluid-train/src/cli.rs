@@ -23,12 +23,15 @@ pub fn parse() -> Cli {
 /// The stages of the pipeline; each can run alone.
 #[derive(Debug, Subcommand)]
 pub enum Command {
-    /// The whole pipeline of an experiment: scene (generated if missing), warm-up, joint, eval.
+    /// The whole pipeline of an experiment: scene (generated if missing), warm-up, joint, refit
+    /// (with `refit.enabled`), eval.
     Run(commands::run::Args),
     /// Warm up the renderer on frame 0 from the warm-up views.
     Warmup(commands::stage_cmds::Args),
     /// Ground DLF and PhysNeRF jointly on the training view.
     Joint(commands::stage_cmds::Args),
+    /// Fit a second renderer to the grounded rollout for the novel views (`refit.enabled`).
+    Refit(commands::stage_cmds::Args),
     /// Evaluate a grounded model: particle distance, PSNR/SSIM, renders, PLY.
     Eval(commands::stage_cmds::Args),
     /// Generate a built-in scene (SPH simulation + renders) in NeuroFluid's layout.
@@ -63,6 +66,7 @@ impl Command {
             Self::Run(_)
             | Self::Warmup(_)
             | Self::Joint(_)
+            | Self::Refit(_)
             | Self::PretrainDlf(_)
             | Self::InitParticles(_)
             | Self::Baseline(_) => true,

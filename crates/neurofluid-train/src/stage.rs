@@ -15,6 +15,8 @@ pub enum Stage {
     Warmup,
     /// Joint grounding.
     Joint,
+    /// The second renderer fitted to the grounded rollout (only when `refit.enabled`).
+    Refit,
     /// Evaluation.
     Eval,
     /// The NeRF baseline (also the NeRF of the initial particles).
@@ -27,7 +29,13 @@ pub enum Stage {
 
 impl Stage {
     /// Every stage of `run`, in the order they run (the baselines stand apart).
-    pub const ALL: [Stage; 4] = [Stage::Initial, Stage::Warmup, Stage::Joint, Stage::Eval];
+    pub const ALL: [Stage; 5] = [
+        Stage::Initial,
+        Stage::Warmup,
+        Stage::Joint,
+        Stage::Refit,
+        Stage::Eval,
+    ];
 
     /// The novel-view baselines.
     pub const BASELINES: [Stage; 2] = [Stage::Nerf, Stage::NerfT];
@@ -39,6 +47,7 @@ impl Stage {
             Stage::Initial => "initial",
             Stage::Warmup => "warmup",
             Stage::Joint => "joint",
+            Stage::Refit => "refit",
             Stage::Eval => "eval",
             Stage::Nerf => "nerf",
             Stage::NerfT => "nerf-t",
@@ -52,6 +61,7 @@ impl Stage {
             Stage::Initial => "initial particles",
             Stage::Warmup => "warm-up",
             Stage::Joint => "joint",
+            Stage::Refit => "renderer refit",
             Stage::Eval => "evaluation",
             Stage::Nerf => "NeRF",
             Stage::NerfT => "NeRF-T",
@@ -77,7 +87,9 @@ impl Stage {
     ///   with initial particles from images the initial particles' NeRF (where it stops too)
     ///   and `[initial]`;
     /// - the joint stage's: everything the warm-up's state depends on, how long the warm-up
-    ///   ran, DLF and the joint settings (not where it stops).
+    ///   ran, DLF and the joint settings (not where it stops);
+    /// - the refit's: everything the joint stage's state depends on, where the joint stage stops
+    ///   (the grounded DLF it fits to) and `[refit]`.
     ///
     /// The other stages keep no state that settings shape.
     pub fn shaped_by(self, key: &str, exp: &Experiment) -> bool {
@@ -98,6 +110,7 @@ impl Stage {
             Stage::NerfT => nerf(nerf_t_images),
             Stage::Warmup => warmup && !under("warmup.iters"),
             Stage::Joint => (warmup || under("dlf") || under("joint")) && !under("joint.epochs"),
+            Stage::Refit => warmup || under("dlf") || under("joint") || under("refit"),
             Stage::Eval | Stage::PretrainDlf => false,
         }
     }
@@ -148,6 +161,12 @@ pub mod files {
     pub const WARMUP_PHYSNERF_ADAM: CheckpointFile = CheckpointFile {
         name: "optim_physnerf.bpk",
         formerly: &["optim.bpk"],
+    };
+    /// The refit's Adam of PhysNeRF on the grounded rollout (its warm-up's is
+    /// [`WARMUP_PHYSNERF_ADAM`]).
+    pub const REFIT_PHYSNERF_ADAM: CheckpointFile = CheckpointFile {
+        name: "optim_fit.bpk",
+        formerly: &[],
     };
     /// The joint stage's Adam of PhysNeRF.
     pub const JOINT_PHYSNERF_ADAM: CheckpointFile = CheckpointFile {

@@ -20,6 +20,7 @@ pub fn dispatch(command: Command) -> anyhow::Result<()> {
         Command::Run(args) => run::run(args),
         Command::Warmup(args) => stage_cmds::run_warmup(args),
         Command::Joint(args) => stage_cmds::run_joint(args),
+        Command::Refit(args) => stage_cmds::run_refit(args),
         Command::Eval(args) => stage_cmds::run_eval(args),
         Command::Generate(args) => generate::run(args),
         Command::Info(args) => info::run(args),

@@ -1,7 +1,7 @@
-//! `warmup`, `joint` and `eval`: the stages of `run`, one at a time.
+//! `warmup`, `joint`, `refit` and `eval`: the stages of `run`, one at a time.
 
 use crate::stage::Stage;
-use crate::stages::{eval, joint, warmup};
+use crate::stages::{eval, joint, refit, warmup};
 
 use super::experiment_args::ExperimentArgs;
 
@@ -36,11 +36,31 @@ pub fn run_joint(args: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The renderer refit to the grounded rollout (needs a finished joint stage and
+/// `refit.enabled`).
+pub fn run_refit(args: Args) -> anyhow::Result<()> {
+    let run = args.exp.prepare(&[Stage::Refit])?;
+    anyhow::ensure!(
+        run.exp.refit.enabled,
+        "refit.enabled is false in {}: set it (e.g. `--set refit.enabled=true`) to fit a second \
+         renderer to the grounded rollout",
+        args.exp.experiment.display()
+    );
+    let mut log = run.open_log()?;
+    let grounded = joint::load_trained(&run)?;
+    refit::run(&run, &mut log, &grounded.dlf)?;
+    println!(
+        "refit checkpoint in {}",
+        run.stage_dir(refit::STAGE).display()
+    );
+    Ok(())
+}
+
 /// Evaluation of a finished joint stage (reads the scene and checkpoints; simulates nothing;
 /// `--fresh` replaces an earlier evaluation).
 pub fn run_eval(args: Args) -> anyhow::Result<()> {
     let run = args.exp.prepare(&[Stage::Eval])?;
-    let grounded = joint::load_trained(&run)?;
+    let grounded = refit::for_views(&run, joint::load_trained(&run)?)?;
     let summary = eval::run(&run, &grounded)?;
     println!("{}", summary.markdown());
     Ok(())

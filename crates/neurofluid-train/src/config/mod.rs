@@ -41,7 +41,7 @@ pub use preset::Preset;
 pub use sections::{
     AnchorAlong, BuiltinScene, Containment, DlfSection, EnergyCap, EnergyPer, EvalSection,
     InitialParticles, InitialSection, JointSection, NerfSection, NerfTImages, PlyEncoding,
-    SceneScale, SceneSection, SurfaceThreshold, WarmupSection,
+    RefitSection, SceneScale, SceneSection, SurfaceThreshold, WarmupSection,
 };
 pub use settings::Settings;
 
@@ -84,6 +84,9 @@ pub struct Experiment {
     /// Joint grounding (spec §4.2).
     #[serde(default)]
     pub joint: JointSection,
+    /// A second renderer fitted to the grounded rollout, for novel views (an option).
+    #[serde(default)]
+    pub refit: RefitSection,
     /// Evaluation (spec §6).
     #[serde(default)]
     pub eval: EvalSection,
@@ -222,11 +225,35 @@ impl Experiment {
             .or_else(|| checks::problem_of(&self.joint))
             .or_else(|| checks::problem_of(&self.nerf))
             .or_else(|| checks::problem_of(&self.initial))
-            .or_else(|| checks::problem_of(&self.eval));
+            .or_else(|| checks::problem_of(&self.eval))
+            .or_else(|| self.refit_problem());
         match problem {
             Some((key, msg)) => Err(ConfigError::invalid(origin, &key, &msg)),
             None => Ok(()),
         }
+    }
+
+    /// The refitted renderer's `[physnerf]` (the first renderer's with `refit.positions`).
+    pub fn refit_physnerf(&self) -> PhysNerfConfig {
+        PhysNerfConfig {
+            positions: self.refit.positions,
+            ..self.physnerf.clone()
+        }
+    }
+
+    /// What `[physnerf]` with `refit.positions` cannot run with, named under `refit`.
+    fn refit_problem(&self) -> checks::Problem {
+        if !self.refit.enabled {
+            return None;
+        }
+        checks::problem_of(&self.refit_physnerf()).map(|(key, msg)| {
+            let key = if key == "physnerf.positions" {
+                "refit.positions".to_string()
+            } else {
+                key
+            };
+            (key, format!("{msg} (the refitted renderer's [physnerf])"))
+        })
     }
 
     /// The keys that never shape a training state (prefixes on whole key segments): what is
@@ -392,10 +419,15 @@ mod tests {
                 "dlf.viscosity=0.4",
                 "dlf.no_slip=true",
                 "physnerf.positions=\"relative\"",
+                "refit.enabled=true",
                 "preset=\"paper\"",
             ])
             .unwrap();
         assert_eq!(paper.eval.weight_interpolation, 1.0);
+        assert!(
+            !paper.refit.enabled,
+            "the paper renders with the joint PhysNeRF"
+        );
         let reference = parse(MINIMAL).unwrap();
         assert_eq!(paper.preset, Preset::Paper);
         // every DLF rule back to the reference's; the weights stay the experiment's
@@ -471,6 +503,21 @@ mod tests {
         let err = parse(&format!("seeed = 3\n{MINIMAL}")).unwrap_err();
         assert_eq!(err.key(), "seeed");
         assert!(err.to_string().starts_with("exp.toml:1:"), "{err}");
+    }
+
+    /// The refitted renderer is `[physnerf]` with `refit.positions`: what that cannot run with
+    /// is refused under `refit.positions`, and only when the refit is on.
+    #[test]
+    fn a_refit_that_cannot_run_names_its_positions() {
+        let no_particle_terms =
+            "[physnerf.encoding]\npc = false\nsigma_p = false\nvd = false\n[refit]\n";
+        let text = format!("{MINIMAL}{no_particle_terms}enabled = true\n");
+        let err = parse(&text).unwrap_err();
+        assert_eq!(err.key(), "refit.positions");
+        assert!(err.to_string().contains("refitted renderer"), "{err}");
+        let world = format!("{MINIMAL}{no_particle_terms}enabled = true\npositions = \"world\"\n");
+        assert!(parse(&world).is_ok());
+        assert!(parse(&format!("{MINIMAL}{no_particle_terms}")).is_ok());
     }
 
     #[test]

@@ -7,14 +7,17 @@
 //! lowest-index neighbour rule, ReLU density, world positions and the paper's encoding
 //! frequencies, the warm-up's and the joint stage's optimisers and schedules, one-step
 //! truncated BPTT with DLF stepping every transition, uniform rays, one view, no silhouette
-//! term, the boundary weight 1, and the grounded DLF evaluated as trained. Budgets
+//! term, the boundary weight 1, the grounded DLF evaluated as trained and the novel views
+//! rendered by the jointly trained PhysNeRF (no refit). Budgets
 //! (iterations, epochs, rays, samples, network widths) stay the file's: they are the scale of
 //! the experiment, not its rules. Each value the preset changes is logged.
 
 use serde::{Deserialize, Serialize};
 
 use super::settings::Change;
-use super::{DlfSection, EvalSection, Experiment, JointSection, Settings, WarmupSection};
+use super::{
+    DlfSection, EvalSection, Experiment, JointSection, RefitSection, Settings, WarmupSection,
+};
 use neurofluid_physnerf::PhysNerfConfig;
 
 /// A named set of training rules.
@@ -70,5 +73,6 @@ pub fn apply(exp: &mut Experiment) -> Vec<Change> {
     j.replay_rays = paper.replay_rays;
     j.extra_views = paper.extra_views;
     exp.eval.weight_interpolation = EvalSection::default().weight_interpolation;
+    exp.refit = RefitSection::default();
     Settings::all(exp).changes_since(&before)
 }

@@ -10,7 +10,7 @@ use neurofluid_dlf::{DlfConfig, GeometryMode};
 use serde::{Deserialize, Serialize};
 
 use crate::optim::{JointDlfGroup, JointPhysNerfGroup, NerfGroup, OptimConfig, WarmupGroup};
-use neurofluid_physnerf::NerfConfig;
+use neurofluid_physnerf::{NerfConfig, Positions};
 
 /// Built-in scenes the generator knows.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -298,6 +298,31 @@ impl InitialSection {
             SurfaceThreshold::HalfMax => Some(0.5 * max_density),
             SurfaceThreshold::Opacity => Some(-(1.0 - self.opacity).ln() / (2.0 * radius)),
             SurfaceThreshold::Silhouette => None,
+        }
+    }
+}
+
+/// `[refit]`: a second renderer for novel views, fitted to the grounded rollout after the joint
+/// stage (an option; the paper renders with the PhysNeRF trained jointly). Grounding is left as
+/// it is: DLF is frozen, so d and d′ are the joint stage's; the evaluation renders NeuroFluid's
+/// views (and the renderer on the true particles) with the refitted PhysNeRF.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RefitSection {
+    /// Fit the second renderer (`false`: the evaluation renders with the joint stage's).
+    pub enabled: bool,
+    /// `physnerf.positions` of the second renderer (`relative`: it moves with its particles,
+    /// which carries over better from frame to frame but, trained during grounding, moved DLF
+    /// less; BENCHMARKS.md, "a renderer that moves with its particles"); the rest of
+    /// `[physnerf]` is the first renderer's.
+    pub positions: Positions,
+}
+
+impl Default for RefitSection {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            positions: Positions::Relative,
         }
     }
 }

@@ -343,6 +343,34 @@ mod tests {
         }
     }
 
+    /// The refit's renderer is fitted to the grounded DLF after the joint stage: `[refit]` shapes
+    /// it alone, and where the joint stage stops (the DLF it fits to) and the warm-up's length
+    /// (its own warm-up phase) shape it too.
+    #[test]
+    fn the_refit_is_shaped_by_its_section_and_the_stages_before_it() {
+        let changed = |extra: &[&str], stage| -> Vec<String> {
+            Settings::of_stage(&exp(extra), stage)
+                .changes_since(&Settings::of_stage(&exp(&[]), stage))
+                .into_iter()
+                .map(|c| c.key)
+                .collect()
+        };
+        let refit = ["refit.enabled=true", "refit.positions=\"world\""];
+        assert_eq!(
+            changed(&refit, Stage::Refit),
+            ["refit.enabled", "refit.positions"]
+        );
+        for stage in [Stage::Initial, Stage::Warmup, Stage::Joint, Stage::Nerf] {
+            assert!(changed(&refit, stage).is_empty(), "{stage}");
+        }
+        for key in ["joint.epochs=3", "warmup.iters=9", "dlf.gravity_scale=1.5"] {
+            let name = key.split('=').next().unwrap();
+            assert_eq!(changed(&[key], Stage::Refit), [name]);
+        }
+        assert!(changed(&["joint.epochs=3"], Stage::Joint).is_empty());
+        assert!(changed(&["joint.log_every=3"], Stage::Refit).is_empty());
+    }
+
     fn changes_keys(c: &[Change]) -> Vec<&str> {
         c.iter().map(|c| c.key.as_str()).collect()
     }

@@ -383,6 +383,71 @@ pub fn updates_before(cfg: &JointSection, transitions: u64, total: u64, done: u6
         })
 }
 
+/// The rays and target colours of a joint step at iteration `step` predicting training frame
+/// `t` (its positions `pred`, on the host): `joint.rays` shared among the views, each view's
+/// drawn uniformly (the reference) or partly from where the fluid is (`joint.foreground_rays`).
+pub fn training_rays(
+    cfg: &JointSection,
+    data: &JointData,
+    rng: &mut Rng,
+    step: u64,
+    t: usize,
+    pred: &[[f32; 3]],
+    device: &Device,
+) -> anyhow::Result<(RayBatch, Tensor<2>)> {
+    let focused = cfg.foreground_rays > 0.0;
+    let n_views = data.views.len();
+    let mut parts = Vec::with_capacity(n_views);
+    for (v, frames) in data.views.iter().enumerate() {
+        let target = &frames[t];
+        let (w, h) = (target.camera.width, target.camera.height);
+        let count = ray_share(cfg.rays, n_views, v);
+        let pixels = match cfg.precrop_at(step) {
+            None if focused => {
+                let mut mask = data.foreground[v][t].clone();
+                mark_particles(&mut mask, &target.camera, pred, data.radius);
+                sample_focused(rng, count, w, h, &mask, cfg.foreground_rays)?
+            }
+            precrop => rng.sample_pixels(count, w, h, precrop)?,
+        };
+        parts.push((target, pixels));
+    }
+    let parts: Vec<(&ViewFrame, &[u32])> = parts.iter().map(|(v, p)| (*v, &p[..])).collect();
+    Ok(batch_of(&parts, device))
+}
+
+/// PSNR of `physnerf` on the *true* particles of every [`PSNR_TRUE_EVERY`]-th training frame at
+/// the training view, at `rays` pixels drawn from `seed`'s diagnostics stream (the same pixels
+/// at every call): renderer error apart from dynamics error. `None` without true particles.
+pub fn psnr_on_truth(
+    physnerf: &PhysNerf,
+    data: &JointData,
+    rays: usize,
+    seed: u64,
+) -> anyhow::Result<Option<f64>> {
+    let Some(truth) = &data.truth else {
+        return Ok(None);
+    };
+    let physnerf = physnerf.valid();
+    let device = physnerf
+        .devices()
+        .into_iter()
+        .next()
+        .context("PhysNeRF has a device")?;
+    let mut rng = Rng::stream(seed, "joint-diagnostics");
+    let (mut mse, mut frames) = (0.0, 0);
+    for t in (1..truth.len()).step_by(PSNR_TRUE_EVERY) {
+        let target = data.target(t);
+        let (w, h) = (target.camera.width, target.camera.height);
+        let pixels = rng.sample_pixels(rays, w, h, None)?;
+        let (rays, colours) = target.batch(&pixels, &device);
+        let out = physnerf.render_rays(&points_tensor(&truth[t], &device), &rays, None)?;
+        mse += scalar(&physnerf.loss(&out, colours).fine);
+        frames += 1;
+    }
+    Ok((frames > 0).then(|| psnr_from_mse(mse / frames as f64)))
+}
+
 /// Every this many training frames the renderer is scored on the true particles.
 const PSNR_TRUE_EVERY: usize = 7;
 
@@ -520,7 +585,15 @@ impl Trainer for JointTrainer {
         // silhouette, the alignment and the state check all use it
         let pred_host = tensor_points(&pred.pos);
         self.last_target = t + 1;
-        let (rays, colours) = self.rays_at(step, t + 1, &pred.pos, &pred_host)?;
+        let (rays, colours) = training_rays(
+            &self.cfg,
+            &self.data,
+            &mut self.rng,
+            step,
+            t + 1,
+            &pred_host,
+            &device,
+        )?;
         let jitter: Option<&mut dyn rand::RngCore> = if self.physnerf.config.stratified {
             Some(&mut self.rng)
         } else {
@@ -829,38 +902,6 @@ impl JointTrainer {
         Ok((value, grads))
     }
 
-    /// The rays and target colours of a step predicting training frame `t` (its positions
-    /// `pred`): `joint.rays` shared among the views, each view's drawn uniformly (the
-    /// reference) or partly from where the fluid is (`joint.foreground_rays`).
-    fn rays_at(
-        &mut self,
-        step: u64,
-        t: usize,
-        pred: &Tensor<2>,
-        pred_host: &[[f32; 3]],
-    ) -> anyhow::Result<(RayBatch, Tensor<2>)> {
-        let predicted = (self.cfg.foreground_rays > 0.0).then_some(pred_host);
-        let n_views = self.data.views.len();
-        let mut parts = Vec::with_capacity(n_views);
-        for (v, frames) in self.data.views.iter().enumerate() {
-            let target = &frames[t];
-            let (w, h) = (target.camera.width, target.camera.height);
-            let count = ray_share(self.cfg.rays, n_views, v);
-            let pixels = match (self.cfg.precrop_at(step), &predicted) {
-                (None, Some(predicted)) => {
-                    let mut mask = self.data.foreground[v][t].clone();
-                    mark_particles(&mut mask, &target.camera, predicted, self.data.radius);
-                    let share = self.cfg.foreground_rays;
-                    sample_focused(&mut self.rng, count, w, h, &mask, share)?
-                }
-                (precrop, _) => self.rng.sample_pixels(count, w, h, precrop)?,
-            };
-            parts.push((target, pixels));
-        }
-        let parts: Vec<(&ViewFrame, &[u32])> = parts.iter().map(|(v, p)| (*v, &p[..])).collect();
-        Ok(batch_of(&parts, &pred.device()))
-    }
-
     /// The weighted silhouette term of training frame `t` over every view, and its gradient
     /// with respect to the predicted positions `pred`.
     fn silhouette_at(&self, t: usize, points: &[[f32; 3]]) -> (f64, Vec<[f32; 3]>) {
@@ -946,22 +987,7 @@ impl JointTrainer {
             gt_to_pred_distance(&rollout.pos[t], &truth[t]).mean
         }));
         // the renderer on the true particles, at the same pixels every time
-        let physnerf = self.physnerf.valid();
-        let device = dlf.device();
-        let mut rng = Rng::stream(self.seed, "joint-diagnostics");
-        let (mut mse, mut frames) = (0.0, 0);
-        for t in (1..truth.len()).step_by(PSNR_TRUE_EVERY) {
-            let target = self.data.target(t);
-            let (w, h) = (target.camera.width, target.camera.height);
-            let pixels = rng.sample_pixels(self.cfg.rays, w, h, None)?;
-            let (rays, colours) = target.batch(&pixels, &device);
-            let out = physnerf.render_rays(&points_tensor(&truth[t], &device), &rays, None)?;
-            mse += scalar(&physnerf.loss(&out, colours).fine);
-            frames += 1;
-        }
-        if frames > 0 {
-            d.psnr_true = Some(psnr_from_mse(mse / frames as f64));
-        }
+        d.psnr_true = psnr_on_truth(&self.physnerf, &self.data, self.cfg.rays, self.seed)?;
         Ok(d)
     }
 }
@@ -997,13 +1023,7 @@ pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::
 
 /// The models of a finished joint stage (its last checkpoint).
 pub fn load_trained(run: &Run) -> anyhow::Result<Grounded> {
-    let stage_dir = run.stage_dir(STAGE);
-    let ckpt = checkpoint::latest(&stage_dir).with_context(|| {
-        format!(
-            "no joint checkpoint in {}: run the `joint` stage first",
-            stage_dir.display()
-        )
-    })?;
+    let ckpt = run.latest_checkpoint(STAGE)?;
     let physnerf = PhysNerf::new(run.physnerf_config(), &run.device)?;
     let physnerf = checkpoint::load_module(physnerf, &files::PHYSNERF.load_path(&ckpt))?;
     let dlf = run.load_dlf(&run.exp.dlf.weights)?;

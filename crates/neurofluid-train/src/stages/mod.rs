@@ -1,4 +1,5 @@
-//! The stages `run` chains: PhysNeRF's warm-up, joint grounding, evaluation; and supervised
+//! The stages `run` chains: PhysNeRF's warm-up, joint grounding, the optional renderer refit,
+//! evaluation; and supervised
 //! DLF training (`pretrain-dlf`). Each training stage is a [`crate::trainer::Trainer`] that the
 //! [`crate::trainer::Driver`] runs.
 
@@ -10,6 +11,7 @@ pub mod joint;
 pub mod nerf;
 pub mod preflight;
 mod prepare;
+pub mod refit;
 pub mod run_folder;
 pub mod scene_source;
 pub mod scoring;
@@ -28,6 +30,9 @@ pub fn run_all(run: &Run, log: &mut MetricsLog) -> anyhow::Result<crate::report:
         initial::recover(run, log)?;
     }
     warmup::run(run, log)?;
-    let grounded = joint::run(run, log)?;
+    let mut grounded = joint::run(run, log)?;
+    if run.exp.refit.enabled {
+        grounded.physnerf = refit::run(run, log, &grounded.dlf)?;
+    }
     eval::run(run, &grounded)
 }

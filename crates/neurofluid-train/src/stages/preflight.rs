@@ -73,15 +73,9 @@ fn image_size(scene: &Scene, role: Role, view: &str) -> Option<(u32, u32)> {
 /// A finished stage another stage starts from: its checkpoint must exist, hold all of its steps
 /// and match the current settings.
 fn finished(p: &mut Problems, run: &Run, stage: Stage, steps: u64) {
-    let dir = run.stage_dir(stage);
-    let Some(ckpt) = checkpoint::latest(&dir) else {
-        p.0.push(format!(
-            "no {} checkpoint in {}: run the `{}` stage first",
-            stage.folder(),
-            dir.display(),
-            stage.folder()
-        ));
-        return;
+    let ckpt = match run.latest_checkpoint(stage) {
+        Ok(ckpt) => ckpt,
+        Err(e) => return p.0.push(format!("{e:#}")),
     };
     match checkpoint::load_matching(&ckpt, stage.folder(), &run.settings(stage)) {
         Ok(state) if state.step < steps => p.0.push(format!(
@@ -109,7 +103,7 @@ pub fn check(run: &Run, stages: &[Stage], start: Start) -> anyhow::Result<()> {
         }
     };
     if start == Start::Resume {
-        for stage in [Stage::Warmup, Stage::Joint] {
+        for stage in [Stage::Warmup, Stage::Joint, Stage::Refit] {
             if stages.contains(&stage)
                 && let Some(ckpt) = checkpoint::latest(&run.stage_dir(stage))
                 && let Err(e) =
@@ -228,6 +222,15 @@ pub fn check(run: &Run, stages: &[Stage], start: Start) -> anyhow::Result<()> {
         check_dlf(&mut p);
         if !stages.contains(&Stage::Warmup) {
             finished(&mut p, run, Stage::Warmup, exp.warmup.iters);
+        }
+    }
+    if exp.refit.enabled {
+        // the refit reads what the warm-up and the joint stage read, and the grounded DLF
+        if stages.contains(&Stage::Refit) && !stages.contains(&Stage::Joint) {
+            finished(&mut p, run, Stage::Joint, joint_steps);
+        }
+        if stages.contains(&Stage::Eval) && !stages.contains(&Stage::Refit) {
+            finished(&mut p, run, Stage::Refit, exp.warmup.iters + joint_steps);
         }
     }
     if stages.contains(&Stage::Eval) {

@@ -33,6 +33,7 @@ const RUN_CONTENTS: &[&str] = &[
     Stage::NerfT.folder(),
     Stage::Warmup.folder(),
     Stage::Joint.folder(),
+    Stage::Refit.folder(),
     Stage::Eval.folder(),
     CSV_FILE,
     JSONL_FILE,
@@ -149,6 +150,20 @@ impl Run {
     /// The folder of one stage inside the run folder.
     pub fn stage_dir(&self, stage: Stage) -> PathBuf {
         self.dir.join(stage.folder())
+    }
+
+    /// The latest checkpoint of `stage`, which another stage or the evaluation starts from;
+    /// the error says to run that stage first.
+    pub fn latest_checkpoint(&self, stage: Stage) -> anyhow::Result<PathBuf> {
+        let dir = self.stage_dir(stage);
+        crate::trainer::checkpoint::latest(&dir).with_context(|| {
+            format!(
+                "no {} checkpoint in {}: run the `{}` stage first",
+                stage.folder(),
+                dir.display(),
+                stage.folder()
+            )
+        })
     }
 
     /// The settings that shape a stage's state (checked when a checkpoint is resumed).

@@ -93,6 +93,60 @@ impl WarmupTrainer {
     pub fn into_physnerf(self) -> PhysNerf {
         self.physnerf
     }
+
+    /// PhysNeRF now.
+    pub fn physnerf(&self) -> &PhysNerf {
+        &self.physnerf
+    }
+}
+
+/// One renderer update: what [`renderer_update`] read back and the updated PhysNeRF.
+pub struct RendererUpdate {
+    /// The updated PhysNeRF (`None` when the loss or the gradients were not finite, or the loss
+    /// depended on nothing trainable: the guard stops the run on a non-finite loss).
+    pub physnerf: Option<PhysNerf>,
+    /// The loss.
+    pub loss: f64,
+    /// PSNR of the mean of the fine MSEs.
+    pub psnr: f64,
+    /// The L2 norm of the gradients (0 without any).
+    pub grad_norm: f64,
+}
+
+/// Differentiates `total` (whose fine MSEs, one per image batch, are `fine`) and takes one step
+/// of `opt` on `physnerf`, reading back once: the fine MSEs, the loss and the gradients' squares.
+pub fn renderer_update<G: crate::optim::OptimDefaults>(
+    physnerf: &PhysNerf,
+    opt: &mut Group<G>,
+    fine: Vec<Tensor<1>>,
+    total: Tensor<1>,
+) -> anyhow::Result<RendererUpdate> {
+    let batches = fine.len();
+    let grads = guard::backward(total.clone()).map(|g| GradientsParams::from_grads(g, physnerf));
+    let sums = grads
+        .as_ref()
+        .and_then(|g| guard::grad_square_sums(g, physnerf));
+    let mut parts = fine;
+    parts.push(total);
+    parts.extend(sums);
+    let values: Vec<f64> = read_vec(Tensor::cat(parts, 0))?;
+    let fine_mse = values[..batches].iter().sum::<f64>() / batches.max(1) as f64;
+    let loss = values[batches];
+    let mut update = RendererUpdate {
+        physnerf: None,
+        loss,
+        psnr: psnr_from_mse(fine_mse),
+        grad_norm: 0.0,
+    };
+    if loss.is_finite()
+        && let Some(grads) = grads
+    {
+        update.grad_norm = guard::norm_of(&values[batches + 1..]);
+        if update.grad_norm.is_finite() {
+            update.physnerf = Some(opt.step(physnerf.clone(), grads));
+        }
+    }
+    Ok(update)
 }
 
 impl Trainer for WarmupTrainer {
@@ -109,7 +163,6 @@ impl Trainer for WarmupTrainer {
         let device = self.particles.device();
         let mut total: Option<Tensor<1>> = None;
         let mut fine = Vec::with_capacity(self.data.views.len());
-        let n = self.data.views.len() as f64;
         for view in &self.data.views {
             let (w, h) = (view.camera.width, view.camera.height);
             let pixels = self
@@ -135,35 +188,16 @@ impl Trainer for WarmupTrainer {
             });
         }
         let total = total.context("the warm-up has no views")?;
-        // one read for the step: each view's fine MSE, the loss and the gradients' squares (a
-        // non-finite loss is not used to update: the guard stops the run on it)
-        let views = fine.len();
-        let grads =
-            guard::backward(total.clone()).map(|g| GradientsParams::from_grads(g, &self.physnerf));
-        let sums = grads
-            .as_ref()
-            .and_then(|g| guard::grad_square_sums(g, &self.physnerf));
-        let mut parts = fine;
-        parts.push(total);
-        parts.extend(sums);
-        let values: Vec<f64> = read_vec(Tensor::cat(parts, 0))?;
-        let fine_mse = values[..views].iter().fold(0.0, |sum, v| sum + v / n);
-        let loss = values[views];
-        let mut grad_norm = 0.0;
-        if loss.is_finite()
-            && let Some(grads) = grads
-        {
-            grad_norm = guard::norm_of(&values[views + 1..]);
-            if grad_norm.is_finite() {
-                self.physnerf = self.opt.step(self.physnerf.clone(), grads);
-            }
+        let update = renderer_update(&self.physnerf, &mut self.opt, fine, total)?;
+        if let Some(updated) = update.physnerf {
+            self.physnerf = updated;
         }
         Ok(StepStats {
-            loss,
-            psnr: Some(psnr_from_mse(fine_mse)),
+            loss: update.loss,
+            psnr: Some(update.psnr),
             rays: self.cfg.rays * self.data.views.len(),
             lrs: vec![("physnerf", lr)],
-            grad_norms: vec![("physnerf", grad_norm)],
+            grad_norms: vec![("physnerf", update.grad_norm)],
             updated: true,
             ..StepStats::default()
         })
@@ -244,13 +278,7 @@ pub fn warmup_data(run: &Run) -> anyhow::Result<WarmupData> {
 
 /// PhysNeRF of a finished warm-up (its last checkpoint).
 pub fn load_trained(run: &Run) -> anyhow::Result<PhysNerf> {
-    let stage_dir = run.stage_dir(STAGE);
-    let ckpt = checkpoint::latest(&stage_dir).with_context(|| {
-        format!(
-            "no warm-up checkpoint in {}: run the `warmup` stage first",
-            stage_dir.display()
-        )
-    })?;
+    let ckpt = run.latest_checkpoint(STAGE)?;
     let model = PhysNerf::new(run.physnerf_config(), &run.device)?;
     checkpoint::load_module(model, &files::PHYSNERF.load_path(&ckpt))
 }

@@ -1,0 +1,285 @@
+//! The renderer refit (`refit.enabled`, an option; the paper renders its novel views with the
+//! PhysNeRF trained jointly with DLF). After grounding, a second PhysNeRF (`[physnerf]` with
+//! `refit.positions`) is warmed up on frame 0 exactly as the warm-up stage says (`[warmup]`), then
+//! trained on the joint stage's images as the joint stage trains its renderer (`joint.rays`,
+//! `joint.foreground_rays`, `joint.precrop_iters`, `joint.physnerf_optim`, `joint.epochs` over the
+//! transitions), with two differences: DLF is frozen, so every frame's particles are the grounded
+//! DLF's rollout from the first training frame's true state, and the renderer is updated after
+//! every transition. The evaluation then renders NeuroFluid's views, and the renderer on the true
+//! particles, with it; d and d′ are the joint stage's.
+//!
+//! Why: a renderer that moves with its particles (`positions = "relative"`) carries over from the
+//! warm-up's frame to the others better than the paper's, but trained during grounding it moved
+//! DLF less (BENCHMARKS.md, "a renderer that moves with its particles"). Fitted afterwards, it
+//! cannot change the dynamics.
+
+use std::path::Path;
+
+use anyhow::Context;
+use burn::prelude::*;
+use neurofluid_core::scene::Role;
+use neurofluid_dlf::DlfNet;
+use neurofluid_physnerf::PhysNerf;
+
+use super::joint::{self, JointData, psnr_on_truth, training_rays};
+use super::run_folder::Run;
+use super::views::points_tensor;
+use super::warmup::{self, WarmupTrainer, renderer_update};
+use crate::config::{Cadenced, JointSection, WarmupSection};
+use crate::metrics_log::MetricsLog;
+use crate::optim::{Group, JointPhysNerfGroup};
+use crate::sampler::Rng;
+use crate::stage::{Stage, files};
+use crate::trainer::checkpoint;
+use crate::trainer::{Evaluation, StageState, StepStats, Trainer};
+
+/// Folder of the stage inside the run folder.
+pub const STAGE: Stage = Stage::Refit;
+
+/// The name of the refit's PhysNeRF group in its checkpoints and logs.
+const GROUP: &str = "physnerf";
+
+/// The second phase: the renderer on the grounded rollout.
+struct FitPhase {
+    physnerf: PhysNerf,
+    opt: Group<JointPhysNerfGroup>,
+    rng: Rng,
+}
+
+/// The refit: its warm-up (a [`WarmupTrainer`] of the second renderer), then its fit to the
+/// grounded rollout.
+pub struct RefitTrainer {
+    warmup_iters: u64,
+    joint: JointSection,
+    warmup: WarmupTrainer,
+    fit: Option<FitPhase>,
+    data: JointData,
+    /// The grounded DLF's rollout over the training frames (index 0: the true first state).
+    rollout: Vec<Vec<[f32; 3]>>,
+    seed: u64,
+}
+
+impl RefitTrainer {
+    /// A refit of the fresh renderer `physnerf`: its warm-up as `warmup` says on `warmup_data`,
+    /// then the joint stage's images `data` with the particles of `rollout`.
+    pub fn new(
+        warmup: &WarmupSection,
+        joint: &JointSection,
+        physnerf: PhysNerf,
+        warmup_data: warmup::WarmupData,
+        data: JointData,
+        rollout: Vec<Vec<[f32; 3]>>,
+        seed: u64,
+    ) -> anyhow::Result<Self> {
+        anyhow::ensure!(
+            rollout.len() == data.views[0].len(),
+            "the grounded rollout has {} states for {} training frames",
+            rollout.len(),
+            data.views[0].len()
+        );
+        Ok(Self {
+            warmup_iters: warmup.iters,
+            joint: joint.clone(),
+            warmup: WarmupTrainer::new(warmup, physnerf, warmup_data, seed),
+            fit: None,
+            data,
+            rollout,
+            seed,
+        })
+    }
+
+    /// The renderer now.
+    pub fn physnerf(&self) -> &PhysNerf {
+        match &self.fit {
+            Some(fit) => &fit.physnerf,
+            None => self.warmup.physnerf(),
+        }
+    }
+
+    /// The second phase, begun from the warm-up's renderer when it has not begun yet.
+    fn fit_phase(&mut self) -> &mut FitPhase {
+        let (warmup, joint, seed) = (&self.warmup, &self.joint, self.seed);
+        self.fit.get_or_insert_with(|| FitPhase {
+            physnerf: warmup.physnerf().clone(),
+            opt: joint.physnerf_optim.group(),
+            rng: Rng::stream(seed, STAGE.folder()),
+        })
+    }
+
+    fn fit_step(&mut self, step: u64) -> anyhow::Result<StepStats> {
+        let i = step - self.warmup_iters;
+        let t = (i % self.data.transitions()) as usize + 1;
+        let (cfg, data, rollout) = (&self.joint, &self.data, &self.rollout);
+        let fit = self.fit.as_mut().context("the fit phase has begun")?;
+        let device = fit
+            .physnerf
+            .devices()
+            .into_iter()
+            .next()
+            .context("PhysNeRF has a device")?;
+        let particles = &rollout[t];
+        let (rays, colours) = training_rays(cfg, data, &mut fit.rng, i, t, particles, &device)?;
+        let jitter: Option<&mut dyn rand::RngCore> = if fit.physnerf.config.stratified {
+            Some(&mut fit.rng)
+        } else {
+            None
+        };
+        let positions = points_tensor(particles, &device);
+        let out = fit
+            .physnerf
+            .render_rays_with_host(&positions, particles, &rays, jitter)?;
+        let loss = fit.physnerf.loss(&out, colours);
+        let lr = fit.opt.lr();
+        let update = renderer_update(&fit.physnerf, &mut fit.opt, vec![loss.fine], loss.total)?;
+        if let Some(updated) = update.physnerf {
+            fit.physnerf = updated;
+        }
+        Ok(StepStats {
+            loss: update.loss,
+            psnr: Some(update.psnr),
+            rays: cfg.rays,
+            lrs: vec![(GROUP, lr)],
+            grad_norms: vec![(GROUP, update.grad_norm)],
+            updated: true,
+            ..StepStats::default()
+        })
+    }
+}
+
+impl Trainer for RefitTrainer {
+    fn stage(&self) -> &'static str {
+        STAGE.folder()
+    }
+
+    fn total_steps(&self) -> u64 {
+        self.warmup_iters + self.joint.epochs * self.data.transitions()
+    }
+
+    fn step(&mut self, step: u64) -> anyhow::Result<StepStats> {
+        if step < self.warmup_iters {
+            return self.warmup.step(step);
+        }
+        self.fit_phase();
+        self.fit_step(step)
+    }
+
+    fn evaluate(&mut self, done: u64) -> anyhow::Result<Option<Evaluation>> {
+        let mut evaluation = if done <= self.warmup_iters {
+            self.warmup.evaluate(done)?.unwrap_or_default()
+        } else {
+            Evaluation::default()
+        };
+        let psnr_true = psnr_on_truth(self.physnerf(), &self.data, self.joint.rays, self.seed)?;
+        evaluation
+            .scores
+            .extend(psnr_true.map(|p| ("psnr_true", p)));
+        Ok(Some(evaluation).filter(|e| e.picture.is_some() || !e.scores.is_empty()))
+    }
+
+    fn save(&self, dir: &Path) -> anyhow::Result<StageState> {
+        let Some(fit) = &self.fit else {
+            return self.warmup.save(dir);
+        };
+        checkpoint::save_module(&fit.physnerf, &files::PHYSNERF.save_path(dir))?;
+        let mut state = fit.rng.to_state();
+        let adam = files::REFIT_PHYSNERF_ADAM.save_path(dir);
+        checkpoint::save_group(&fit.opt, &adam, GROUP, &mut state)?;
+        Ok(state)
+    }
+
+    fn load(&mut self, dir: &Path, done: u64, state: StageState) -> anyhow::Result<()> {
+        if done <= self.warmup_iters {
+            self.fit = None;
+            return self.warmup.load(dir, done, state);
+        }
+        let physnerf = self.warmup.physnerf().clone();
+        let physnerf = checkpoint::load_module(physnerf, &files::PHYSNERF.load_path(dir))?;
+        let mut opt = self.joint.physnerf_optim.group();
+        let adam = files::REFIT_PHYSNERF_ADAM.load_path(dir);
+        // every step of the fit updates
+        let fitted = done - self.warmup_iters;
+        checkpoint::load_group(&mut opt, &physnerf, &adam, GROUP, &state, || fitted)?;
+        self.fit = Some(FitPhase {
+            physnerf,
+            opt,
+            rng: Rng::from_stage_state(&state, dir)?,
+        });
+        Ok(())
+    }
+}
+
+/// A fresh second renderer for `run` (`[physnerf]` with `refit.positions`), initialised from
+/// the experiment's seed.
+fn new_renderer(run: &Run) -> anyhow::Result<PhysNerf> {
+    neurofluid_core::device::init_seeded(run.exp.seed, &run.device, |cpu| {
+        PhysNerf::new(refit_config(run), cpu)
+    })
+    .context("building the refitted PhysNeRF from [physnerf] and refit.positions")
+}
+
+/// The second renderer's config in `run`.
+fn refit_config(run: &Run) -> neurofluid_physnerf::PhysNerfConfig {
+    neurofluid_physnerf::PhysNerfConfig {
+        positions: run.exp.refit.positions,
+        ..run.physnerf_config()
+    }
+}
+
+/// The grounded DLF's rollout over the training frames of `data`, from its true first state.
+fn grounded_rollout(dlf: &DlfNet, data: &JointData) -> Vec<Vec<[f32; 3]>> {
+    let dlf = dlf.valid();
+    let boundary = dlf.boundary(&data.walls.0, &data.walls.1, &dlf.device());
+    let first = &data.initial;
+    let steps = data.transitions() as usize;
+    neurofluid_dlf::rollout::rollout(&dlf, &first.pos, &first.vel, &boundary, steps, |_| {}).pos
+}
+
+/// Runs (or resumes) the refit of `run` to the grounded `dlf` and returns its renderer.
+pub fn run(run: &Run, log: &mut MetricsLog, dlf: &DlfNet) -> anyhow::Result<PhysNerf> {
+    run_until(run, log, dlf, None)
+}
+
+/// Runs (or resumes) the refit up to step `stop` (all of it for `None`), checkpointing there.
+pub fn run_until(
+    run: &Run,
+    log: &mut MetricsLog,
+    dlf: &DlfNet,
+    stop: Option<u64>,
+) -> anyhow::Result<PhysNerf> {
+    let exp = &run.exp;
+    let mut data = JointData::load(&run.scene, &exp.joint)?;
+    let first = run.scene.frames(Role::Train).start;
+    data.initial =
+        super::initial::starting_particles(run, Role::Train, first, "first training frame")?;
+    let rollout = grounded_rollout(dlf, &data);
+    tracing::info!(
+        positions = ?exp.refit.positions,
+        warmup_iters = exp.warmup.iters,
+        fit_steps = exp.joint.epochs * data.transitions(),
+        "renderer refit to the grounded rollout"
+    );
+    let mut trainer = RefitTrainer::new(
+        &exp.warmup,
+        &exp.joint,
+        new_renderer(run)?,
+        warmup::warmup_data(run)?,
+        data,
+        rollout,
+        exp.seed,
+    )?;
+    // the joint stage's cadence, through both phases
+    super::drive::drive(run, log, &mut trainer, STAGE, exp.joint.cadence(), stop)?;
+    Ok(trainer.physnerf().clone())
+}
+
+/// The models the evaluation of `run` renders with: the joint stage's, with the refitted renderer
+/// in place of the jointly trained one when `refit.enabled` (its last checkpoint).
+pub fn for_views(run: &Run, mut grounded: joint::Grounded) -> anyhow::Result<joint::Grounded> {
+    if !run.exp.refit.enabled {
+        return Ok(grounded);
+    }
+    let ckpt = run.latest_checkpoint(STAGE)?;
+    let model = PhysNerf::new(refit_config(run), &run.device)?;
+    grounded.physnerf = checkpoint::load_module(model, &files::PHYSNERF.load_path(&ckpt))?;
+    Ok(grounded)
+}
