@@ -9,8 +9,9 @@ DLF (and, where evaluated with `eval.supervised_dlf`, DLF†) rows, the particle
 walls and, where present, the share of particles alone, where the far particles lie and the
 novel-view table; its `metrics.csv` gives the warm-up's and the joint stage's seconds (the
 largest `time_s` of each; a run whose warm-up was shared with the other variants of its sweep
-shows that warm-up's) and the joint stage's last `psnr_true` (the renderer on the true
-particles of the training frames at the training view; rule 8 of experiments/bed/README.md).
+shows that warm-up's) and the last `psnr_true` (the renderer on the true
+particles of the training frames at the training view, the refit's where the run has one; rules
+8 and 12 of experiments/bed/README.md).
 Prints markdown tables: every run; per scene the mean ± sd over seeds beside DLF and DLF†, with
 the issue's targets checked per window (d at least 10 % below DLF's, on honey 30 % over t < 50;
 d′ not above DLF's); and the novel-view rows (NeuroFluid, NeRF-T, the renderer on the true
@@ -64,17 +65,20 @@ def report_rows(path):
 
 
 def stage_log(path):
-    """The warm-up's and the joint stage's seconds, and the joint stage's last `psnr_true`."""
-    most, psnr_true = {}, None
+    """The warm-up's and the joint stage's seconds, and the last `psnr_true` of the renderer the
+    views are rendered with: the refit's where the run has one (`refit.enabled`), else the joint
+    stage's."""
+    most, psnr_true = {}, {}
     with open(path, newline="", encoding="utf-8") as f:
         for row in csv.DictReader(f):
             stage, t = row["stage"], row.get("time_s") or ""
             if stage in ("warmup", "warmup-preview", "joint", "joint-preview") and t:
                 key = stage.split("-")[0]
                 most[key] = max(most.get(key, 0.0), float(t))
-            if stage == "joint-preview" and row.get("psnr_true"):
-                psnr_true = float(row["psnr_true"])
-    return most.get("warmup"), most.get("joint"), psnr_true
+            key = stage.split("-")[0]
+            if key in ("joint", "refit") and stage != key and row.get("psnr_true"):
+                psnr_true[key] = float(row["psnr_true"])
+    return most.get("warmup"), most.get("joint"), psnr_true.get("refit", psnr_true.get("joint"))
 
 
 def load(runs_file):

@@ -50,6 +50,8 @@ struct FitPhase {
 /// grounded rollout.
 pub struct RefitTrainer {
     warmup_iters: u64,
+    /// The warm-up's own preview cadence (its held-out pictures during the warm-up phase).
+    warmup_previews: u64,
     joint: JointSection,
     warmup: WarmupTrainer,
     fit: Option<FitPhase>,
@@ -79,6 +81,7 @@ impl RefitTrainer {
         );
         Ok(Self {
             warmup_iters: warmup.iters,
+            warmup_previews: warmup.preview_every,
             joint: joint.clone(),
             warmup: WarmupTrainer::new(warmup, physnerf, warmup_data, seed),
             fit: None,
@@ -164,7 +167,12 @@ impl Trainer for RefitTrainer {
     }
 
     fn evaluate(&mut self, done: u64) -> anyhow::Result<Option<Evaluation>> {
-        let mut evaluation = if done <= self.warmup_iters {
+        // the held-out picture of the warm-up phase at the warm-up stage's own cadence (a whole
+        // image is many renders of the fit's rays)
+        let picture = done <= self.warmup_iters
+            && self.warmup_previews > 0
+            && done.is_multiple_of(self.warmup_previews);
+        let mut evaluation = if picture {
             self.warmup.evaluate(done)?.unwrap_or_default()
         } else {
             Evaluation::default()
