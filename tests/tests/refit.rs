@@ -20,7 +20,7 @@ fn experiment(tmp: &Path, name: &str, overrides: &[&str]) -> Experiment {
 
 fn prepared(e: Experiment) -> (Run, MetricsLog) {
     let run = Run::prepare(e, Start::Resume, &Stage::ALL).unwrap();
-    let log = MetricsLog::open(&run.dir).unwrap();
+    let log = run.open_log().unwrap();
     (run, log)
 }
 
@@ -48,6 +48,8 @@ fn the_refit_renders_the_views_and_leaves_the_dynamics() {
         before.frames, after.frames,
         "d and d′ are the joint stage's"
     );
+    assert!(before.renderer.is_none());
+    assert!(after.nvs_markdown().contains("the refitted PhysNeRF"));
     assert_eq!(before.images.len(), after.images.len());
     assert!(
         before
@@ -121,4 +123,60 @@ fn the_refit_warms_up_as_the_warm_up_stage_and_resumes_exactly() {
         params(&resumed) == params(&straight),
         "the refit differs after resuming"
     );
+}
+
+/// The refit is made from the stages before it: under other settings (another `[refit]`, a
+/// joint stage that went on) it starts over instead of refusing the run, turned off it is left
+/// alone, and the rows a stopped refit logged past its checkpoint are dropped when it resumes.
+#[test]
+fn a_stale_refit_starts_over_and_each_step_is_logged_once() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let on = ["joint.preview_every=2", "refit.enabled=true"];
+    let steps = {
+        let (run, mut log) = prepared(experiment(tmp.path(), "stale", &on));
+        warmup::run(&run, &mut log).unwrap();
+        let dlf = joint::run(&run, &mut log).unwrap().dlf;
+        refit::run_until(&run, &mut log, &dlf, Some(run.exp.warmup.iters + 1)).unwrap();
+        // a row logged after the last checkpoint, as by a refit killed between checkpoints
+        let mut jsonl = std::fs::read_to_string(log.jsonl_path()).unwrap();
+        let last = jsonl
+            .lines()
+            .rev()
+            .find(|l| l.contains("\"refit\""))
+            .unwrap();
+        let row: serde_json::Value = serde_json::from_str(last).unwrap();
+        let mut ghost = row.clone();
+        ghost["step"] = (row["step"].as_u64().unwrap() + 1).into();
+        jsonl.push_str(&format!("{ghost}\n"));
+        std::fs::write(log.jsonl_path(), jsonl).unwrap();
+        run.exp.warmup.iters + run.exp.joint.epochs * 3
+    };
+    let refit_rows = |log: &MetricsLog| {
+        neurofluid_train::metrics_log::read_jsonl(log.jsonl_path())
+            .unwrap()
+            .into_iter()
+            .filter(|r| r.stage == "refit")
+            .count() as u64
+    };
+    {
+        let (run, mut log) = prepared(experiment(tmp.path(), "stale", &on));
+        run_all(&run, &mut log).unwrap();
+        assert_eq!(refit_rows(&log), steps, "one row per step after resuming");
+    }
+    // another `[refit]`: the run is not refused, the refit starts over with the new renderer
+    let world = [&on[..], &["refit.positions=\"world\""]].concat();
+    let (run, mut log) = prepared(experiment(tmp.path(), "stale", &world));
+    run_all(&run, &mut log).unwrap();
+    assert_eq!(refit_rows(&log), steps, "the old refit's rows went with it");
+    let grounded = refit::for_views(&run, joint::load_trained(&run).unwrap()).unwrap();
+    assert_eq!(
+        grounded.physnerf.config.positions,
+        neurofluid_physnerf::Positions::World
+    );
+    drop((run, log));
+    // turned off, the refit's folder does not stop the run
+    let (run, mut log) = prepared(experiment(tmp.path(), "stale", &["joint.preview_every=2"]));
+    let report = run_all(&run, &mut log).unwrap();
+    assert!(report.renderer.is_none());
 }

@@ -270,6 +270,10 @@ pub struct EvalReport {
     /// they are.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub dlf_rules: Vec<String>,
+    /// What rendered NeuroFluid's views (and the renderer on the true particles) when it was not
+    /// the PhysNeRF trained jointly with DLF (`refit.enabled`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub renderer: Option<String>,
     /// `eval.interpolation_sweep`: d and d′ of NeuroFluid's DLF from the pretrained weights to
     /// the grounded ones, by fraction.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
@@ -405,6 +409,7 @@ impl EvalReport {
             scored_seal: None,
             weight_interpolation: None,
             dlf_rules: Vec::new(),
+            renderer: None,
             interpolation: Vec::new(),
             energy: Vec::new(),
             alone: Vec::new(),
@@ -779,6 +784,12 @@ impl EvalReport {
                 fmt_opt(b[0], 2),
                 fmt_opt(b[1], 4),
                 fmt_opt(b[2], 4)
+            );
+        }
+        if let Some(renderer) = &self.renderer {
+            let _ = writeln!(
+                md,
+                "\nNeuroFluid's views and the renderer on the true particles: {renderer}."
             );
         }
         md

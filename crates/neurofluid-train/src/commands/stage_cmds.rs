@@ -39,13 +39,14 @@ pub fn run_joint(args: Args) -> anyhow::Result<()> {
 /// The renderer refit to the grounded rollout (needs a finished joint stage and
 /// `refit.enabled`).
 pub fn run_refit(args: Args) -> anyhow::Result<()> {
-    let run = args.exp.prepare(&[Stage::Refit])?;
+    // before the run folder is touched (`--fresh` would remove `refit/` and `eval/`)
     anyhow::ensure!(
-        run.exp.refit.enabled,
+        args.exp.load()?.refit.enabled,
         "refit.enabled is false in {}: set it (e.g. `--set refit.enabled=true`) to fit a second \
          renderer to the grounded rollout",
         args.exp.experiment.display()
     );
+    let run = args.exp.prepare(&[Stage::Refit])?;
     let mut log = run.open_log()?;
     let grounded = joint::load_trained(&run)?;
     refit::run(&run, &mut log, &grounded.dlf)?;

@@ -103,7 +103,9 @@ pub fn check(run: &Run, stages: &[Stage], start: Start) -> anyhow::Result<()> {
         }
     };
     if start == Start::Resume {
-        for stage in [Stage::Warmup, Stage::Joint, Stage::Refit] {
+        // (the refit is not checked: made from the stages before it, it starts over when its
+        // settings changed; `refit::run_until`)
+        for stage in [Stage::Warmup, Stage::Joint] {
             if stages.contains(&stage)
                 && let Some(ckpt) = checkpoint::latest(&run.stage_dir(stage))
                 && let Err(e) =

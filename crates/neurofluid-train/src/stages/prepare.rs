@@ -12,7 +12,9 @@ impl Run {
     /// generates the built-in scene if its folder holds none (for the training stages; an
     /// evaluation never simulates), checks every input of the stages
     /// ([`preflight`]); for [`Start::Fresh`] then removes what those stages and the ones after
-    /// them left (nothing of a folder the tool did not make); writes the resolved config and
+    /// them left (nothing of a folder the tool did not make); when the refit runs, removes its
+    /// checkpoints if they were made under other settings (it starts over); writes the resolved
+    /// config and
     /// appends any setting that changed since the previous session to `config.history`.
     pub fn prepare(exp: Experiment, start: Start, stages: &[Stage]) -> anyhow::Result<Self> {
         check_ours(&exp.out_dir(), start)?;
@@ -35,6 +37,9 @@ impl Run {
         preflight::check(&run, stages, start)?;
         if start == Start::Fresh {
             run.reset(stages)?;
+        }
+        if run.exp.refit.enabled && stages.contains(&Stage::Refit) {
+            super::refit::start_over_if_stale(&run)?;
         }
         run.record_config()?;
         Ok(run)

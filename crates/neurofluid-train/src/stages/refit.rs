@@ -5,8 +5,12 @@
 //! `joint.foreground_rays`, `joint.precrop_iters`, `joint.physnerf_optim`, `joint.epochs` over the
 //! transitions), with two differences: DLF is frozen, so every frame's particles are the grounded
 //! DLF's rollout from the first training frame's true state, and the renderer is updated after
-//! every transition. The evaluation then renders NeuroFluid's views, and the renderer on the true
-//! particles, with it; d and d′ are the joint stage's.
+//! every transition (`joint.physnerf_optim`'s schedule counts these updates, `bptt_steps` times
+//! as many as the joint stage's renderer takes). The evaluation then renders NeuroFluid's views,
+//! and the renderer on the true particles, with it; d and d′ are the joint stage's. It is fitted
+//! to the grounded DLF as trained: with `eval.weight_interpolation` below 1 the evaluation rolls
+//! out another DLF than the one it was fitted to. Made from the stages before it alone, it starts
+//! over when its settings changed ([`start_over_if_stale`]).
 //!
 //! Why: a renderer that moves with its particles (`positions = "relative"`) carries over from the
 //! warm-up's frame to the others better than the paper's, but trained during grounding it moved
@@ -23,7 +27,7 @@ use neurofluid_physnerf::PhysNerf;
 
 use super::joint::{self, JointData, psnr_on_truth, training_rays};
 use super::run_folder::Run;
-use super::views::points_tensor;
+use super::views::{points_tensor, render_beside_truth};
 use super::warmup::{self, WarmupTrainer, renderer_update};
 use crate::config::{Cadenced, JointSection, WarmupSection};
 use crate::metrics_log::MetricsLog;
@@ -167,21 +171,31 @@ impl Trainer for RefitTrainer {
     }
 
     fn evaluate(&mut self, done: u64) -> anyhow::Result<Option<Evaluation>> {
-        // the held-out picture of the warm-up phase at the warm-up stage's own cadence (a whole
-        // image is many renders of the fit's rays)
-        let picture = done <= self.warmup_iters
-            && self.warmup_previews > 0
-            && done.is_multiple_of(self.warmup_previews);
-        let mut evaluation = if picture {
-            self.warmup.evaluate(done)?.unwrap_or_default()
+        let mut evaluation = if done <= self.warmup_iters {
+            // the warm-up phase: the warm-up's held-out picture of frame 0, at the warm-up
+            // stage's own cadence (a whole image is many renders of the fit's rays)
+            let due = self.warmup_previews > 0 && done.is_multiple_of(self.warmup_previews);
+            match due
+                .then(|| self.warmup.evaluate(done))
+                .transpose()?
+                .flatten()
+            {
+                Some(e) => e,
+                None => return Ok(None),
+            }
         } else {
-            Evaluation::default()
+            // the fit: the training view of the frame fitted last, from the grounded rollout
+            let t = ((done - self.warmup_iters - 1) % self.data.transitions()) as usize + 1;
+            let device = self.physnerf().devices().into_iter().next();
+            let device = device.context("PhysNeRF has a device")?;
+            let particles = points_tensor(&self.rollout[t], &device);
+            render_beside_truth(self.physnerf(), self.data.target(t), &particles)?
         };
         let psnr_true = psnr_on_truth(self.physnerf(), &self.data, self.joint.rays, self.seed)?;
         evaluation
             .scores
             .extend(psnr_true.map(|p| ("psnr_true", p)));
-        Ok(Some(evaluation).filter(|e| e.picture.is_some() || !e.scores.is_empty()))
+        Ok(Some(evaluation))
     }
 
     fn save(&self, dir: &Path) -> anyhow::Result<StageState> {
@@ -240,6 +254,31 @@ fn grounded_rollout(dlf: &DlfNet, data: &JointData) -> Vec<Vec<[f32; 3]>> {
     let first = &data.initial;
     let steps = data.transitions() as usize;
     neurofluid_dlf::rollout::rollout(&dlf, &first.pos, &first.vel, &boundary, steps, |_| {}).pos
+}
+
+/// Removes the refit's checkpoints when they were made under other settings (a joint stage
+/// that went on, another `[refit]`): made from the stages before it alone, the refit starts over
+/// rather than refuse the run ([`Run::prepare`], before the metrics log is opened).
+pub(super) fn start_over_if_stale(run: &Run) -> anyhow::Result<()> {
+    let dir = run.stage_dir(STAGE);
+    let Some(ckpt) = checkpoint::latest(&dir) else {
+        return Ok(());
+    };
+    let state: checkpoint::CheckpointState = checkpoint::load_state(&ckpt)?;
+    let changes = match &state.settings {
+        Some(saved) => run.settings(STAGE).changes_since(saved),
+        None => Vec::new(),
+    };
+    if !changes.is_empty() {
+        let list: Vec<String> = changes.iter().map(ToString::to_string).collect();
+        tracing::warn!(
+            "the refit in {} was made under other settings ({}): it starts over",
+            dir.display(),
+            list.join("; ")
+        );
+        std::fs::remove_dir_all(&dir).with_context(|| format!("removing {}", dir.display()))?;
+    }
+    Ok(())
 }
 
 /// Runs (or resumes) the refit of `run` to the grounded `dlf` and returns its renderer.

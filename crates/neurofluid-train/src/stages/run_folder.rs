@@ -131,8 +131,14 @@ impl Run {
     /// The run's metrics log, without the rows a resumed stage will log again (those after its
     /// latest checkpoint), so an interrupted run leaves no duplicate steps.
     pub fn open_log(&self) -> anyhow::Result<MetricsLog> {
-        let resumed = [Stage::Warmup, Stage::Joint, Stage::Nerf, Stage::NerfT]
-            .map(|s| (s, checkpoint::saved_step(&self.stage_dir(s))));
+        let resumed = [
+            Stage::Warmup,
+            Stage::Joint,
+            Stage::Refit,
+            Stage::Nerf,
+            Stage::NerfT,
+        ]
+        .map(|s| (s, checkpoint::saved_step(&self.stage_dir(s))));
         let log = MetricsLog::open_resumed(&self.dir, |row| {
             let stage = Stage::of_folder(
                 row.stage

@@ -46,6 +46,16 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
     report.scored_seal = scored_seal(run)?;
     report.weight_interpolation = Some(cfg.weight_interpolation).filter(|&f| f != 1.0);
     report.dlf_rules = run.exp.dlf.rules();
+    report.renderer = run.exp.refit.enabled.then(|| {
+        let positions = match run.exp.refit.positions {
+            neurofluid_physnerf::Positions::World => "world",
+            neurofluid_physnerf::Positions::Relative => "relative",
+        };
+        format!(
+            "the refitted PhysNeRF (`refit.enabled`, `refit.positions = \"{positions}\"`), \
+             fitted to the grounded rollout after the joint stage"
+        )
+    });
     report.initial_from_images =
         run.exp.scene.initial == crate::config::InitialParticles::FromImages;
     report.nvs_baselines = super::baseline::read_all(run)?;
@@ -84,23 +94,32 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
     Ok(report)
 }
 
-/// The seal of the joint checkpoint an evaluation of `run` scores (its latest).
+/// The seal of the checkpoints an evaluation of `run` scores (their latest): the joint
+/// stage's, and with `refit.enabled` the refit's after it.
 fn scored_seal(run: &Run) -> anyhow::Result<Option<String>> {
-    let stage_dir = run.stage_dir(super::joint::STAGE);
-    match crate::trainer::checkpoint::latest(&stage_dir) {
+    let seal = |stage| match crate::trainer::checkpoint::latest(&run.stage_dir(stage)) {
         Some(dir) => crate::trainer::checksums::seal_digest(&dir),
         None => Ok(None),
+    };
+    let joint = seal(super::joint::STAGE)?;
+    if !run.exp.refit.enabled {
+        return Ok(joint);
     }
+    Ok(joint
+        .zip(seal(super::refit::STAGE)?)
+        .map(|(j, r)| format!("{j}+{r}")))
 }
 
 /// Checks that `report` (read from `run`'s evaluation folder) scored the joint stage's current
-/// checkpoint: a report made before the stage went on describes another model.
+/// checkpoint (and the refit's, when on): a report made before a stage went on, or with the
+/// other renderer, describes another model.
 pub fn check_current(run: &Run, report: &EvalReport) -> anyhow::Result<()> {
     let now = scored_seal(run)?;
     anyhow::ensure!(
         report.scored_seal.is_some() && report.scored_seal == now,
-        "the report in {} scored {} (seal {}), not the joint stage's current checkpoint \
-         (seal {}, step {}): it is stale; evaluate again",
+        "the report in {} scored {} (seal {}), not the current checkpoint of the joint stage \
+         (or of the refit, with refit.enabled) (seal {}, joint step {}): it is stale; evaluate \
+         again",
         run.stage_dir(STAGE).display(),
         report.checkpoint,
         report.scored_seal.as_deref().unwrap_or("unrecorded"),
