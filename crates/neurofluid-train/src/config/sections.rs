@@ -632,6 +632,17 @@ impl JointSection {
             .or_else(|| scene.views(Role::Train).first().cloned())
     }
 
+    /// The views the joint stage trains on with the split each comes from: the training view
+    /// (split `train`; none when the scene has no training view), then `extra_views` (warm-up
+    /// views). Unchecked: [`crate::stages::views::joint_sources`] checks them.
+    pub fn views_by_role(&self, scene: &Scene) -> Vec<(Role, String)> {
+        self.view(scene)
+            .map(|v| (Role::Train, v))
+            .into_iter()
+            .chain(self.extra_views.iter().map(|v| (Role::Warmup, v.clone())))
+            .collect()
+    }
+
     /// `joint.extra_views (view_2, view_3)`: how errors name the extra views.
     pub fn extra_views_label(&self) -> String {
         format!("joint.extra_views ({})", self.extra_views.join(", "))

@@ -179,15 +179,7 @@ pub fn check(run: &Run, stages: &[Stage], start: Start) -> anyhow::Result<()> {
                 frames.len()
             ));
         }
-        let joint_views = exp.joint.view(scene).map(|v| (Role::Train, v)).into_iter();
-        let joint_views: Vec<(Role, String)> = joint_views
-            .chain(
-                exp.joint
-                    .extra_views
-                    .iter()
-                    .map(|v| (Role::Warmup, v.clone())),
-            )
-            .collect();
+        let joint_views = exp.joint.views_by_role(scene);
         for (i, (role, view)) in joint_views.iter().enumerate() {
             if let Some(size) = image_size(scene, *role, view) {
                 let count = ray_share(exp.joint.rays, joint_views.len(), i);

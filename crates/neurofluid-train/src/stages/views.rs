@@ -65,13 +65,11 @@ pub use neurofluid_core::tensors::{points_tensor, tensor_points};
 /// The views the joint stage trains on, each at every training frame: the training view (split
 /// `train`), then `joint.extra_views` (warm-up views).
 pub fn joint_sources(scene: &Scene, cfg: &JointSection) -> anyhow::Result<Vec<(Role, String)>> {
-    let view = cfg.view(scene).context("the scene has no training view")?;
+    cfg.view(scene).context("the scene has no training view")?;
     if !cfg.extra_views.is_empty() {
         require_warmup_every_frame(scene, &cfg.extra_views_label())?;
     }
-    Ok(std::iter::once((Role::Train, view))
-        .chain(cfg.extra_views.iter().map(|v| (Role::Warmup, v.clone())))
-        .collect())
+    Ok(cfg.views_by_role(scene))
 }
 
 /// Checks that `scene` has its warm-up views at every training frame, which `what` trains on;
