@@ -117,7 +117,10 @@ impl RefitTrainer {
         let i = step - self.warmup_iters;
         let t = (i % self.data.transitions()) as usize + 1;
         let (cfg, data, rollout) = (&self.joint, &self.data, &self.rollout);
-        let fit = self.fit.as_mut().context("the fit phase begins in `step`")?;
+        let fit = self
+            .fit
+            .as_mut()
+            .context("the fit phase begins in `step`")?;
         let device = fit
             .physnerf
             .devices()
