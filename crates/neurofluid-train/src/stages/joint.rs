@@ -416,6 +416,16 @@ pub fn training_rays(
     Ok(batch_of(&parts, device))
 }
 
+/// `dlf`'s rollout from the true state of the first training frame of `data` over its training
+/// frames, without gradients (index 0: that state).
+pub fn training_rollout(dlf: &DlfNet, data: &JointData) -> neurofluid_dlf::rollout::Rollout {
+    let dlf = dlf.valid();
+    let boundary = dlf.boundary(&data.walls.0, &data.walls.1, &dlf.device());
+    let first = &data.initial;
+    let steps = data.transitions() as usize;
+    neurofluid_dlf::rollout::rollout(&dlf, &first.pos, &first.vel, &boundary, steps, |_| {})
+}
+
 /// PSNR of `physnerf` on the *true* particles of every [`PSNR_TRUE_EVERY`]-th training frame at
 /// the training view, at `rays` pixels drawn from `seed`'s diagnostics stream (the same pixels
 /// at every call): renderer error apart from dynamics error. `None` without true particles.
@@ -429,11 +439,7 @@ pub fn psnr_on_truth(
         return Ok(None);
     };
     let physnerf = physnerf.valid();
-    let device = physnerf
-        .devices()
-        .into_iter()
-        .next()
-        .context("PhysNeRF has a device")?;
+    let device = physnerf.device();
     let mut rng = Rng::stream(seed, "joint-diagnostics");
     let (mut mse, mut frames) = (0.0, 0);
     for t in (1..truth.len()).step_by(PSNR_TRUE_EVERY) {
@@ -959,20 +965,10 @@ impl JointTrainer {
             grad_alignment: (n > 0).then(|| sum / n as f64),
             ..Diagnostics::default()
         };
-        // DLF's rollout from the first true frame over the training frames, without gradients
-        let dlf = self.dlf.valid();
-        let boundary = dlf.boundary(&self.data.walls.0, &self.data.walls.1, &dlf.device());
+        let rollout = training_rollout(&self.dlf, &self.data);
         let steps = self.data.transitions() as usize;
-        let first = &self.data.initial;
-        let rollout = neurofluid_dlf::rollout::rollout(
-            &dlf,
-            &first.pos,
-            &first.vel,
-            &boundary,
-            steps,
-            |_| {},
-        );
-        let gains = energy_gains(&rollout.pos, dlf.config.dt, dlf.config.gravity);
+        let config = &self.dlf.config;
+        let gains = energy_gains(&rollout.pos, config.dt, config.gravity);
         d.rollout_energy_gain = Some(gains.fluid.iter().sum());
         d.rollout_particle_energy_gain = Some(gains.particle.iter().sum());
         let Some(truth) = &self.data.truth else {

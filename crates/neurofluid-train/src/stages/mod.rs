@@ -1,7 +1,6 @@
 //! The stages `run` chains: PhysNeRF's warm-up, joint grounding, the optional renderer refit,
-//! evaluation; and supervised
-//! DLF training (`pretrain-dlf`). Each training stage is a [`crate::trainer::Trainer`] that the
-//! [`crate::trainer::Driver`] runs.
+//! evaluation; and supervised DLF training (`pretrain-dlf`). Each training stage is a
+//! [`crate::trainer::Trainer`] that the [`crate::trainer::Driver`] runs.
 
 pub mod baseline;
 mod drive;

@@ -14,8 +14,8 @@ impl Run {
     /// ([`preflight`]); for [`Start::Fresh`] then removes what those stages and the ones after
     /// them left (nothing of a folder the tool did not make); when the refit runs, removes its
     /// checkpoints if they were made under other settings (it starts over); writes the resolved
-    /// config and
-    /// appends any setting that changed since the previous session to `config.history`.
+    /// config and appends any setting that changed since the previous session to
+    /// `config.history`.
     pub fn prepare(exp: Experiment, start: Start, stages: &[Stage]) -> anyhow::Result<Self> {
         check_ours(&exp.out_dir(), start)?;
         let lock = FolderLock::acquire(&exp.out_dir())?;

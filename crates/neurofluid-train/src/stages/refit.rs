@@ -20,7 +20,6 @@
 use std::path::Path;
 
 use anyhow::Context;
-use burn::prelude::*;
 use neurofluid_core::scene::Role;
 use neurofluid_dlf::DlfNet;
 use neurofluid_physnerf::PhysNerf;
@@ -121,12 +120,7 @@ impl RefitTrainer {
             .fit
             .as_mut()
             .context("the fit phase begins in `step`")?;
-        let device = fit
-            .physnerf
-            .devices()
-            .into_iter()
-            .next()
-            .context("PhysNeRF has a device")?;
+        let device = fit.physnerf.device();
         let particles = &rollout[t];
         let (rays, colours) = training_rays(cfg, data, &mut fit.rng, i, t, particles, &device)?;
         let jitter: Option<&mut dyn rand::RngCore> = if fit.physnerf.config.stratified {
@@ -189,9 +183,7 @@ impl Trainer for RefitTrainer {
         } else {
             // the fit: the training view of the frame fitted last, from the grounded rollout
             let t = ((done - self.warmup_iters - 1) % self.data.transitions()) as usize + 1;
-            let device = self.physnerf().devices().into_iter().next();
-            let device = device.context("PhysNeRF has a device")?;
-            let particles = points_tensor(&self.rollout[t], &device);
+            let particles = points_tensor(&self.rollout[t], &self.physnerf().device());
             render_beside_truth(self.physnerf(), self.data.target(t), &particles)?
         };
         let psnr_true = psnr_on_truth(self.physnerf(), &self.data, self.joint.rays, self.seed)?;
@@ -237,26 +229,9 @@ impl Trainer for RefitTrainer {
 /// the experiment's seed.
 fn new_renderer(run: &Run) -> anyhow::Result<PhysNerf> {
     neurofluid_core::device::init_seeded(run.exp.seed, &run.device, |cpu| {
-        PhysNerf::new(refit_config(run), cpu)
+        PhysNerf::new(run.refit_physnerf_config(), cpu)
     })
     .context("building the refitted PhysNeRF from [physnerf] and refit.positions")
-}
-
-/// The second renderer's config in `run`.
-fn refit_config(run: &Run) -> neurofluid_physnerf::PhysNerfConfig {
-    neurofluid_physnerf::PhysNerfConfig {
-        positions: run.exp.refit.positions,
-        ..run.physnerf_config()
-    }
-}
-
-/// The grounded DLF's rollout over the training frames of `data`, from its true first state.
-fn grounded_rollout(dlf: &DlfNet, data: &JointData) -> Vec<Vec<[f32; 3]>> {
-    let dlf = dlf.valid();
-    let boundary = dlf.boundary(&data.walls.0, &data.walls.1, &dlf.device());
-    let first = &data.initial;
-    let steps = data.transitions() as usize;
-    neurofluid_dlf::rollout::rollout(&dlf, &first.pos, &first.vel, &boundary, steps, |_| {}).pos
 }
 
 /// Removes the refit's checkpoints when they were made under other settings (a joint stage
@@ -301,7 +276,7 @@ pub fn run_until(
     let first = run.scene.frames(Role::Train).start;
     data.initial =
         super::initial::starting_particles(run, Role::Train, first, "first training frame")?;
-    let rollout = grounded_rollout(dlf, &data);
+    let rollout = joint::training_rollout(dlf, &data).pos;
     tracing::info!(
         positions = ?exp.refit.positions,
         warmup_iters = exp.warmup.iters,
@@ -329,7 +304,7 @@ pub fn for_views(run: &Run, mut grounded: joint::Grounded) -> anyhow::Result<joi
         return Ok(grounded);
     }
     let ckpt = run.latest_checkpoint(STAGE)?;
-    let model = PhysNerf::new(refit_config(run), &run.device)?;
+    let model = PhysNerf::new(run.refit_physnerf_config(), &run.device)?;
     grounded.physnerf = checkpoint::load_module(model, &files::PHYSNERF.load_path(&ckpt))?;
     Ok(grounded)
 }

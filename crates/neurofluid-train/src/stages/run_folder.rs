@@ -179,6 +179,17 @@ impl Run {
 
     /// PhysNeRF's config: the experiment's `[physnerf]` with the scene's ray segment.
     pub fn physnerf_config(&self) -> PhysNerfConfig {
+        self.on_ray_segment(self.exp.physnerf.clone())
+    }
+
+    /// The refitted renderer's config: [`Experiment::refit_physnerf`] with the scene's ray
+    /// segment.
+    pub fn refit_physnerf_config(&self) -> PhysNerfConfig {
+        self.on_ray_segment(self.exp.refit_physnerf())
+    }
+
+    /// `config` with the scene's ray segment.
+    fn on_ray_segment(&self, config: PhysNerfConfig) -> PhysNerfConfig {
         let (near, far) = {
             let m = self.scene.manifest();
             self.exp.scene.bounds(m.near, m.far)
@@ -186,7 +197,7 @@ impl Run {
         PhysNerfConfig {
             near: near as f64,
             far: far as f64,
-            ..self.exp.physnerf.clone()
+            ..config
         }
     }
 

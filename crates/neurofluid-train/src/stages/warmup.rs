@@ -74,11 +74,7 @@ pub struct WarmupTrainer {
 impl WarmupTrainer {
     /// A warm-up of `physnerf` on `data`; the pixel stream follows `seed`.
     pub fn new(cfg: &WarmupSection, physnerf: PhysNerf, data: WarmupData, seed: u64) -> Self {
-        let device = physnerf
-            .devices()
-            .into_iter()
-            .next()
-            .expect("a module has a device");
+        let device = physnerf.device();
         Self {
             opt: cfg.optim.group(),
             rng: Rng::stream(seed, STAGE.folder()),
@@ -130,7 +126,9 @@ pub fn renderer_update<G: crate::optim::OptimDefaults>(
     parts.push(total);
     parts.extend(sums);
     let values: Vec<f64> = read_vec(Tensor::cat(parts, 0))?;
-    let fine_mse = values[..batches].iter().sum::<f64>() / batches.max(1) as f64;
+    // each term divided first, in the order the warm-up has always logged its PSNR
+    let n = batches.max(1) as f64;
+    let fine_mse = values[..batches].iter().fold(0.0, |sum, v| sum + v / n);
     let loss = values[batches];
     let mut update = RendererUpdate {
         physnerf: None,

@@ -4,8 +4,6 @@
 
 use std::path::Path;
 
-use anyhow::Context;
-use burn::module::Module;
 use neurofluid_core::camera::Camera;
 use neurofluid_core::metrics::{Lpips, RgbImage};
 use neurofluid_core::scene::Role;
@@ -172,11 +170,7 @@ fn render(
     camera: &Camera,
     particles: &[[f32; 3]],
 ) -> anyhow::Result<RgbImage> {
-    let device = physnerf
-        .devices()
-        .into_iter()
-        .next()
-        .context("PhysNeRF has no device")?;
+    let device = physnerf.device();
     let image = render_image(
         physnerf,
         camera,
