@@ -80,9 +80,9 @@ impl Stage {
 
     /// Whether `key` (a dotted setting, not a free one) shapes the stage's state in `exp`:
     /// - a NeRF's (the baselines, the initial particles'): the seed, the scene, `[nerf]` (not
-    ///   where it stops) and the keys its images come from: `warmup.views`; for NeRF-T also
-    ///   `nerf.t_images` and, under `"neurofluid"`, the joint stage's views (`joint.view`,
-    ///   `joint.extra_views`);
+    ///   where it stops) and the keys its images come from: `warmup.views`, `warmup.held_out`;
+    ///   for NeRF-T also `nerf.t_images` and, under `"neurofluid"`, the joint stage's views
+    ///   (`joint.view`, `joint.extra_views`);
     /// - the warm-up's: the seed, the scene, PhysNeRF and the warm-up (not where it stops), and
     ///   with initial particles from images the initial particles' NeRF (where it stops too)
     ///   and `[initial]`;
@@ -99,11 +99,12 @@ impl Stage {
         let nerf_t_images = under("nerf.t_images")
             || (exp.nerf.t_images == NerfTImages::Neurofluid
                 && (under("joint.view") || under("joint.extra_views")));
+        let warmup_views = under("warmup.views") || under("warmup.held_out");
         let nerf = |kind_images: bool| {
-            (common || nerf_model || under("warmup.views") || kind_images) && !under("nerf.iters")
+            (common || nerf_model || warmup_views || kind_images) && !under("nerf.iters")
         };
         let from_images = exp.scene.initial == InitialParticles::FromImages
-            && (nerf_model || under("initial") || under("warmup.views"));
+            && (nerf_model || under("initial") || warmup_views);
         let warmup = common || under("physnerf") || under("warmup") || from_images;
         match self {
             Stage::Nerf | Stage::Initial => nerf(false),

@@ -465,6 +465,11 @@ pub struct WarmupSection {
     /// Warm-up views; unset = the scene manifest's (view_1..view_4).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub views: Option<Vec<String>>,
+    /// A warm-up view held out of the warm-up (and of the NeRFs, which see the warm-up's
+    /// views): the previews render it at the warm-up's frame instead of the first test view,
+    /// so their PSNR scores a novel view from the training images alone. Unset: none.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub held_out: Option<String>,
     /// Log a metrics row every this many iterations.
     pub log_every: u64,
     /// Checkpoint every this many iterations (0 = only at the end).
@@ -482,6 +487,7 @@ impl Default for WarmupSection {
             precrop_iters: 500,
             precrop_frac: 0.5,
             views: None,
+            held_out: None,
             log_every: 100,
             ckpt_every: 500,
             preview_every: 5000,
@@ -490,16 +496,45 @@ impl Default for WarmupSection {
 }
 
 impl WarmupSection {
-    /// The held-out view the previews render (the first test view), when previews are on.
-    pub fn preview_view(&self, scene: &Scene) -> Option<String> {
+    /// The view the previews render at the warm-up's frame, with the role its images are
+    /// read under, when previews are on: the held-out warm-up view (`held_out`), else the first
+    /// test view.
+    pub fn preview_view(&self, scene: &Scene) -> Option<(String, Role)> {
         if self.preview_every == 0 {
             return None;
         }
-        scene.views(Role::Test).first().cloned()
+        match &self.held_out {
+            Some(v) => Some((v.clone(), Role::Warmup)),
+            None => scene
+                .views(Role::Test)
+                .first()
+                .map(|v| (v.clone(), Role::Test)),
+        }
     }
 
-    /// The warm-up views: the configured ones, else the scene's.
+    /// The warm-up views: the configured ones, else the scene's, without the held-out one.
     pub fn views(&self, scene: &Scene) -> Vec<String> {
+        let mut views = self.views_before_holding_out(scene);
+        views.retain(|v| Some(v) != self.held_out.as_ref());
+        views
+    }
+
+    /// What is wrong with `held_out` on `scene`: not one of the warm-up views, or the only one.
+    pub fn held_out_problem(&self, scene: &Scene) -> Option<String> {
+        let held = self.held_out.as_ref()?;
+        let views = self.views_before_holding_out(scene);
+        if !views.contains(held) {
+            return Some(format!(
+                "warmup.held_out: expected one of the warm-up views {views:?}, got {held:?}"
+            ));
+        }
+        (views.len() < 2).then(|| {
+            format!("warmup.held_out: {held:?} is the only warm-up view; the warm-up needs another")
+        })
+    }
+
+    /// The configured warm-up views, else the scene's.
+    fn views_before_holding_out(&self, scene: &Scene) -> Vec<String> {
         self.views
             .clone()
             .unwrap_or_else(|| scene.views(Role::Warmup).to_vec())

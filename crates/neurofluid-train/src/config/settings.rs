@@ -327,19 +327,19 @@ mod tests {
         for stage in [Stage::Nerf, Stage::Initial, Stage::Warmup] {
             assert!(changed(&neurofluid, &views, stage).is_empty(), "{stage}");
         }
-        let warmup_views = ["warmup.views=[\"view_2\", \"view_3\"]"];
-        for stage in [
-            Stage::Nerf,
-            Stage::NerfT,
-            Stage::Initial,
-            Stage::Warmup,
-            Stage::Joint,
+        for (setting, key) in [
+            ("warmup.views=[\"view_2\", \"view_3\"]", "warmup.views"),
+            ("warmup.held_out=\"view_2\"", "warmup.held_out"),
         ] {
-            assert_eq!(
-                changed(&[], &warmup_views, stage),
-                ["warmup.views"],
-                "{stage}"
-            );
+            for stage in [
+                Stage::Nerf,
+                Stage::NerfT,
+                Stage::Initial,
+                Stage::Warmup,
+                Stage::Joint,
+            ] {
+                assert_eq!(changed(&[], &[setting], stage), [key], "{stage}");
+            }
         }
     }
 

@@ -155,8 +155,10 @@ pub fn check(run: &Run, stages: &[Stage], start: Start) -> anyhow::Result<()> {
             let what = format!("warm-up particles (frame {t0})");
             p.error(load_particles(scene, Role::Warmup, t0, &what));
         }
-        if let Some(v) = exp.warmup.preview_view(scene) {
-            images(&mut p, scene, Role::Test, &[v], &[t0]);
+        if let Some(problem) = exp.warmup.held_out_problem(scene) {
+            p.0.push(problem);
+        } else if let Some((v, role)) = exp.warmup.preview_view(scene) {
+            images(&mut p, scene, role, &[v], &[t0]);
         }
         for view in exp.warmup.views(scene) {
             if let Some(size) = image_size(scene, Role::Warmup, &view) {

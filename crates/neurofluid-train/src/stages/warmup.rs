@@ -27,20 +27,24 @@ use crate::trainer::{Evaluation, StageState, StepStats, Trainer, guard};
 pub const STAGE: Stage = Stage::Warmup;
 
 /// What the warm-up trains on: the warm-up views of frame 0, the particles of frame 0 and the
-/// held-out view of the same frame for previews.
+/// view its previews render at the same frame (the held-out warm-up view, else the first test
+/// view).
 #[derive(Debug, Clone)]
 pub struct WarmupData {
     /// The warm-up views.
     pub views: Vec<ViewFrame>,
     /// Particle positions of frame 0.
     pub particles: Vec<[f32; 3]>,
-    /// The first test view at frame 0 (for previews), when previews are on.
+    /// The previews' view at frame 0, when previews are on.
     pub held_out: Option<ViewFrame>,
 }
 
 impl WarmupData {
     /// Loads the data `cfg` asks for from `scene`.
     pub fn load(scene: &Scene, cfg: &WarmupSection) -> anyhow::Result<Self> {
+        if let Some(problem) = cfg.held_out_problem(scene) {
+            anyhow::bail!("{problem}");
+        }
         let t0 = scene.frames(Role::Warmup).start;
         let views = cfg
             .views(scene)
@@ -51,7 +55,7 @@ impl WarmupData {
         let gt = load_particles(scene, Role::Warmup, t0, "warm-up particles")?;
         let held_out = cfg
             .preview_view(scene)
-            .map(|v| ViewFrame::load(scene, Role::Test, &v, t0))
+            .map(|(v, role)| ViewFrame::load(scene, role, &v, t0))
             .transpose()?;
         Ok(Self {
             views,

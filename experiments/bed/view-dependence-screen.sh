@@ -1,0 +1,29 @@
+#!/usr/bin/env bash
+# The screen of experiments/bed/README.md rule 13 (eighteenth session): each scene's shipped
+# config warmed up at seed 10 with one warm-up view held out (`warmup.held_out`), for the paper's
+# view dependence (A) and the raw direction only (B); the held-out view's PSNR at the last
+# warm-up step is the rule's measure (python3 scripts/held-out-table.py runs/r13).
+# Usage: experiments/bed/view-dependence-screen.sh [OUT=runs/r13] [JOBS=2]
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+out=${1:-runs/r13}
+jobs=${2:-2}
+bin=${NEUROFLUID_TRAIN:-target/debug/neurofluid-train}
+declare -A config=(
+  [water-dam-z]=experiments/bed/water-dam-z.toml
+  [honey-drop-z]=experiments/bed/honey-drop-z.toml
+  [watercube]=experiments/quick-watercube.toml
+)
+declare -A variant=(
+  [A]=""
+  [B]="--set physnerf.frequencies.d=0 --set physnerf.encoding.dc=false"
+)
+for scene in water-dam-z honey-drop-z watercube; do
+  for v in A B; do
+    for view in view_2 view_3 view_4; do
+      dir="$out/$scene-$v-$view"
+      [ -f "$dir/warmup/checkpoint/state.json" ] && grep -q '"done": *800' "$dir/warmup/checkpoint/state.json" 2>/dev/null && continue
+      echo "$bin warmup ${config[$scene]} --set out_dir=\"$dir\" --set warmup.held_out=\"$view\" ${variant[$v]}"
+    done
+  done
+done | xargs -P "$jobs" -I{} bash -c '{} > /dev/null 2>&1 || echo "failed: {}"'
