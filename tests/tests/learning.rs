@@ -173,6 +173,21 @@ fn the_ci_experiment_learns() {
         .unwrap()
         .quantised();
     assert_eq!(first.psnr, psnr(&rendered, &target).unwrap());
+    // its error split by the truth's alpha, summed here pixel by pixel
+    let (mut on, mut all) = (0.0f64, 0.0f64);
+    for (p, a) in frame.image.alpha.iter().enumerate() {
+        let e: f64 = (0..3)
+            .map(|c| {
+                let (x, y) = (rendered.data[3 * p + c], target.data[3 * p + c]);
+                (f64::from(x) - f64::from(y)).powi(2)
+            })
+            .sum();
+        all += e;
+        on += if *a >= 0.5 { e } else { 0.0 };
+    }
+    assert!(frame.image.alpha.iter().any(|a| *a >= 0.5) && on > 0.0 && on < all);
+    let share = first.error_on_fluid.expect("the error's split");
+    assert!((share - on / all).abs() < 1e-9, "{share} vs {}", on / all);
     assert!(
         on_truth.images != report.images,
         "the true particles' renders scored as NeuroFluid's at every step"

@@ -169,6 +169,13 @@ fn a_baseline_resumes_exactly_and_is_scored_on_the_test_frames() {
         frames
     );
     assert!(scores.images.iter().all(|s| s.psnr.is_finite()));
+    assert!(
+        scores
+            .images
+            .iter()
+            .all(|s| s.error_on_fluid.is_some_and(|f| (0.0..=1.0).contains(&f))),
+        "each render's error split by the truth's alpha"
+    );
     let read = baseline::read_all(&second).unwrap();
     assert_eq!(read, vec![scores]);
 }

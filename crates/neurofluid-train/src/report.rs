@@ -181,6 +181,10 @@ pub struct ImageScore {
     /// LPIPS (AlexNet, v0.1; absent for images under 31 pixels a side and in older reports).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub lpips: Option<f64>,
+    /// The share of the render's squared error on the pixels where the truth shows fluid (its
+    /// alpha ≥ ½), the rest being around it (absent for a perfect render and in older reports).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub error_on_fluid: Option<f64>,
 }
 
 /// Means over a window, `None` where the window holds no value.
@@ -386,6 +390,24 @@ pub fn image_means(images: &[ImageScore], (a, b): (usize, usize)) -> [Option<f64
         mean(inside().map(|i| i.ssim)),
         mean(inside().filter_map(|i| i.lpips)),
     ]
+}
+
+/// The mean squared error of the renders of `images` in the window `[a, b]` split into its part
+/// on the truth's fluid and its part around it (each a mean over the renders that have the
+/// split; `None` where none has it).
+pub fn error_split(images: &[ImageScore], (a, b): (usize, usize)) -> Option<(f64, f64)> {
+    let parts: Vec<(f64, f64)> = images
+        .iter()
+        .filter(|i| (a..=b).contains(&i.t))
+        .filter_map(|i| {
+            let mse = 10f64.powf(-i.psnr / 10.0);
+            i.error_on_fluid.map(|s| (s * mse, (1.0 - s) * mse))
+        })
+        .collect();
+    Some((
+        mean(parts.iter().map(|p| p.0))?,
+        mean(parts.iter().map(|p| p.1))?,
+    ))
 }
 
 fn mean(values: impl Iterator<Item = f64>) -> Option<f64> {
@@ -773,7 +795,7 @@ impl EvalReport {
                 .iter()
                 .map(|b| (b.model.as_str(), &b.images)),
         );
-        for (model, images) in rows {
+        for (model, images) in &rows {
             let [a, b] = [seen, p].map(|w| image_means(images, w));
             let _ = writeln!(
                 md,
@@ -784,6 +806,32 @@ impl EvalReport {
                 fmt_opt(b[0], 2),
                 fmt_opt(b[1], 4),
                 fmt_opt(b[2], 4)
+            );
+        }
+        let splits: Vec<_> = rows
+            .iter()
+            .map(|(model, images)| (model, [seen, p].map(|w| error_split(images, w))))
+            .filter(|(_, s)| s.iter().any(Option::is_some))
+            .collect();
+        if !splits.is_empty() {
+            let _ = writeln!(
+                md,
+                "\n| model | MSE on the fluid, t = {}–{} | around it | MSE on the fluid, t = {}–{} | around it |\n|---|---:|---:|---:|---:|",
+                seen.0, seen.1, p.0, p.1
+            );
+            for (model, windows) in splits {
+                let cells = windows.map(|w| match w {
+                    Some((on, around)) => format!("{:.2} | {:.2}", 1e3 * on, 1e3 * around),
+                    None => "– | –".into(),
+                });
+                let _ = writeln!(md, "| {model} | {} | {} |", cells[0], cells[1]);
+            }
+            let _ = writeln!(
+                md,
+                "\nWhere the renders' error is (×10⁻³, the mean over the window's renders; the two \
+                 add up to the MSE of the PSNR): on the pixels where the truth shows fluid (its \
+                 alpha ≥ ½: the fluid's colour, or fluid missing) and around it (fluid drawn where \
+                 the truth has none, halos, floaters)."
             );
         }
         if let Some(renderer) = &self.renderer {
@@ -927,6 +975,7 @@ mod tests {
                     psnr: 20.0 + bonus + t as f64 * 0.1,
                     ssim: 0.9,
                     lpips: (view == "view_5").then_some(0.1),
+                    error_on_fluid: Some(if t < 50 { 0.25 } else { 0.75 }),
                 });
             }
         }
@@ -1272,6 +1321,20 @@ mod tests {
         assert!(!md.contains("DLF†"), "{md}");
         assert!(md.contains("d_avg (t = 1–49) | d (t = 49) | d_avg (t = 50–59) | d (t = 59)"));
         assert!(md.contains("| view_6 | 59 |"));
+        // PSNR 20 + 0.1 t dB on view_5 and 1 dB more on view_6: at t = 10 MSEs 10^-2.1, 10^-2.2
+        let split = error_split(&r.images, (10, 10)).unwrap();
+        let mse = [10f64.powf(-2.1), 10f64.powf(-2.2)];
+        assert!((split.0 - 0.25 * (mse[0] + mse[1]) / 2.0).abs() < 1e-12);
+        assert!((split.1 - 0.75 * (mse[0] + mse[1]) / 2.0).abs() < 1e-12);
+        let late = error_split(&r.images, (59, 59)).unwrap();
+        let mse = [10f64.powf(-2.59), 10f64.powf(-2.69)];
+        assert!((late.0 - 0.75 * (mse[0] + mse[1]) / 2.0).abs() < 1e-12);
+        assert!(r.nvs_markdown().contains("| NeuroFluid | "));
+        assert_eq!(error_split(&[], (0, 49)), None);
         assert!(EvalReport::read_json(&dir.path().join("nope.json")).is_err());
+        // a report written before the error's share was scored still loads, without it
+        let old: ImageScore =
+            serde_json::from_str(r#"{"view":"view_5","t":3,"psnr":20.0,"ssim":0.5}"#).unwrap();
+        assert_eq!(old.error_on_fluid, None);
     }
 }

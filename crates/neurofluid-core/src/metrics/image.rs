@@ -93,6 +93,38 @@ pub fn psnr(a: &RgbImage, b: &RgbImage) -> Result<f64, ImageError> {
     Ok(10.0 * (1.0 / mse).log10())
 }
 
+/// The share of the squared error between `a` and `b` that lies on the pixels where `coverage`
+/// (one value per pixel, e.g. the truth's alpha) is at least ½: how much of a render's error is
+/// on the fluid rather than around it. `None` for identical images.
+pub fn error_share_on(
+    a: &RgbImage,
+    b: &RgbImage,
+    coverage: &[f32],
+) -> Result<Option<f64>, ImageError> {
+    same_size(a, b)?;
+    if coverage.len() != a.width * a.height {
+        return Err(ImageError::BadLength {
+            width: a.width,
+            height: a.height,
+            expected: a.width * a.height,
+            found: coverage.len(),
+        });
+    }
+    let (mut on, mut all) = (0.0, 0.0);
+    for ((pa, pb), c) in a.data.chunks(3).zip(b.data.chunks(3)).zip(coverage) {
+        let e: f64 = pa
+            .iter()
+            .zip(pb)
+            .map(|(x, y)| (*x as f64 - *y as f64).powi(2))
+            .sum();
+        all += e;
+        if *c >= 0.5 {
+            on += e;
+        }
+    }
+    Ok((all > 0.0).then(|| on / all))
+}
+
 const WIN: usize = 11;
 const SIGMA: f64 = 1.5;
 
@@ -189,6 +221,25 @@ mod tests {
         let a = pattern(16, 12, 0.0);
         assert!(psnr(&a, &a).unwrap().is_infinite());
         assert!((ssim(&a, &a).unwrap() - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn the_error_share_counts_the_covered_pixels_error() {
+        // 2×2 image, one channel off per pixel: errors 0.01, 0.04, 0.09, 0.16 (sum 0.30)
+        let a = RgbImage::new(2, 2, vec![0.5; 12]).unwrap();
+        let mut b = a.clone();
+        for (i, d) in [0.1f32, 0.2, 0.3, 0.4].iter().enumerate() {
+            b.data[3 * i + i % 3] += d;
+        }
+        let share = error_share_on(&a, &b, &[1.0, 0.0, 0.5, 0.49])
+            .unwrap()
+            .unwrap();
+        assert!((share - 0.10 / 0.30).abs() < 1e-6, "{share}");
+        assert_eq!(error_share_on(&a, &a, &[1.0; 4]).unwrap(), None);
+        assert!(matches!(
+            error_share_on(&a, &b, &[1.0; 3]),
+            Err(ImageError::BadLength { found: 3, .. })
+        ));
     }
 
     #[test]

@@ -5,7 +5,7 @@ mod image;
 mod lpips;
 mod particles;
 
-pub use image::{ImageError, RgbImage, psnr, ssim};
+pub use image::{ImageError, RgbImage, error_share_on, psnr, ssim};
 pub use lpips::{Lpips, LpipsError};
 pub use particles::{
     FarSplit, ParticleDistance, alone_share, far_split, gt_to_pred_distance,

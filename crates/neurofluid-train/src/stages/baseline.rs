@@ -12,7 +12,7 @@ use neurofluid_physnerf::{Nerf, save_png};
 
 use super::nerf::{NerfKind, time_of};
 use super::run_folder::Run;
-use super::scoring::{as_image, rendered_steps, scaled_view, score};
+use super::scoring::{as_image, rendered_steps, scaled_truth, score};
 use super::views::{ViewFrame, side_by_side};
 use crate::config::NerfTImages;
 use crate::report::BaselineScores;
@@ -46,12 +46,12 @@ pub fn evaluate(run: &Run, nerf: &Nerf, kind: NerfKind) -> anyhow::Result<Baseli
         for &t in &frames {
             let frame = test.start + t;
             let vf = ViewFrame::load(scene, Role::Test, &view, frame)?;
-            let (cam, gt_rgb) = scaled_view(&vf, cfg.image_scale);
-            let truth = as_image(cam.width, cam.height, &gt_rgb)?;
+            let truth = scaled_truth(&vf, cfg.image_scale)?;
+            let cam = truth.camera;
             let time = (kind == NerfKind::NerfT).then(|| time_of(frame, &train));
             let rendered = nerf.render_image(&cam, time)?;
             let pred = as_image(cam.width, cam.height, rendered.best())?;
-            let side = side_by_side(&pred, &truth);
+            let side = side_by_side(&pred, &truth.image);
             save_png(
                 dir.join(format!("renders/{view}/t{t:04}.png")),
                 side.width,

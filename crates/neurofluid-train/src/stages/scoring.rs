@@ -2,9 +2,10 @@
 //! novel-view baselines and the initial particles: images as the metrics see them, views at the
 //! evaluated scale, the frames scored, and the particle pictures that show d.
 
+use anyhow::Context;
 use neurofluid_core::camera::Camera;
 use neurofluid_core::metrics::{
-    Lpips, RgbImage, gt_to_pred_distance, nearest_distances, psnr, ssim,
+    Lpips, RgbImage, error_share_on, gt_to_pred_distance, nearest_distances, psnr, ssim,
 };
 
 use super::views::ViewFrame;
@@ -17,37 +18,70 @@ pub(crate) fn as_image(width: u32, height: u32, rgb: &[f32]) -> anyhow::Result<R
     Ok(RgbImage::new(width as usize, height as usize, rgb.to_vec())?.quantised())
 }
 
-/// The camera and ground-truth colours of a view at `scale` × its resolution (the ground truth
-/// resampled with a triangle filter; unchanged at scale 1).
-pub(crate) fn scaled_view(view: &ViewFrame, scale: f64) -> (Camera, Vec<f32>) {
+/// A view's truth at the evaluated scale: the camera, the image as the metrics see it and its
+/// coverage (the alpha, one value per pixel).
+pub(crate) struct ScaledTruth {
+    /// The camera at the evaluated size.
+    pub camera: Camera,
+    /// The ground truth composited on white, 8-bit quantised.
+    pub image: RgbImage,
+    /// Where the truth shows fluid: its alpha.
+    pub coverage: Vec<f32>,
+}
+
+/// The truth of a view at `scale` × its resolution (the image and its alpha resampled with a
+/// triangle filter; unchanged at scale 1).
+pub(crate) fn scaled_truth(view: &ViewFrame, scale: f64) -> anyhow::Result<ScaledTruth> {
     let cam = view.camera;
-    if (scale - 1.0).abs() < 1e-12 {
-        return (cam, view.image.rgb.clone());
-    }
-    let w = ((cam.width as f64 * scale).round() as u32).max(1);
-    let h = ((cam.height as f64 * scale).round() as u32).max(1);
-    let scaled = cam.resized(w, h);
-    let full = image::Rgb32FImage::from_raw(cam.width, cam.height, view.image.rgb.clone())
-        .expect("image size matches its camera");
-    let small = image::imageops::resize(&full, w, h, image::imageops::FilterType::Triangle);
-    (scaled, small.into_raw())
+    let (camera, rgb, coverage) = if (scale - 1.0).abs() < 1e-12 {
+        (cam, view.image.rgb.clone(), view.image.alpha.clone())
+    } else {
+        let w = ((cam.width as f64 * scale).round() as u32).max(1);
+        let h = ((cam.height as f64 * scale).round() as u32).max(1);
+        let resize = |data: Vec<f32>, channels: usize| -> anyhow::Result<Vec<f32>> {
+            let luma = |d| {
+                image::ImageBuffer::<image::Luma<f32>, Vec<f32>>::from_raw(cam.width, cam.height, d)
+            };
+            let filter = image::imageops::FilterType::Triangle;
+            Ok(if channels == 3 {
+                let full = image::Rgb32FImage::from_raw(cam.width, cam.height, data)
+                    .context("an image of its camera's size")?;
+                image::imageops::resize(&full, w, h, filter).into_raw()
+            } else {
+                let full = luma(data).context("an alpha of its camera's size")?;
+                image::imageops::resize(&full, w, h, filter).into_raw()
+            })
+        };
+        (
+            cam.resized(w, h),
+            resize(view.image.rgb.clone(), 3)?,
+            resize(view.image.alpha.clone(), 1)?,
+        )
+    };
+    Ok(ScaledTruth {
+        image: as_image(camera.width, camera.height, &rgb)?,
+        camera,
+        coverage,
+    })
 }
 
 /// PSNR, SSIM and LPIPS of a render against the truth (LPIPS absent for images too small for
-/// AlexNet).
+/// AlexNet) and the share of its error on the truth's fluid.
 pub(crate) fn score(
     view: &str,
     t: usize,
     pred: &RgbImage,
-    truth: &RgbImage,
+    truth: &ScaledTruth,
     lpips: &Lpips,
 ) -> anyhow::Result<ImageScore> {
+    let image = &truth.image;
     Ok(ImageScore {
         view: view.into(),
         t,
-        psnr: psnr(pred, truth)?,
-        ssim: ssim(pred, truth).unwrap_or(f64::NAN),
-        lpips: lpips.distance(pred, truth).ok(),
+        psnr: psnr(pred, image)?,
+        ssim: ssim(pred, image).unwrap_or(f64::NAN),
+        lpips: lpips.distance(pred, image).ok(),
+        error_on_fluid: error_share_on(pred, image, &truth.coverage)?,
     })
 }
 

@@ -217,6 +217,7 @@ mod tests {
                 psnr,
                 ssim: 0.5,
                 lpips: Some(0.25),
+                error_on_fluid: None,
             });
         }
         r.summary()

@@ -18,7 +18,7 @@ use crate::pictures::{column_of, row_of, write_apng};
 use crate::report::{EvalReport, ImageScore, Rollout};
 use crate::stages::run_folder::Run;
 use crate::stages::scoring::{
-    as_image, at_least_wide, particle_row, rendered_steps, scaled_view, score,
+    as_image, at_least_wide, particle_row, rendered_steps, scaled_truth, score,
 };
 use crate::stages::views::{ViewFrame, points_tensor, side_by_side};
 use crate::stages::{joint, warmup};
@@ -101,10 +101,10 @@ pub fn render_views(
         let mut animation = Vec::new();
         for &t in &frames {
             let vf = ViewFrame::load(scene, Role::Test, view, test.start + t)?;
-            let (cam, gt_rgb) = scaled_view(&vf, cfg.image_scale);
-            let truth = as_image(cam.width, cam.height, &gt_rgb)?;
+            let truth = scaled_truth(&vf, cfg.image_scale)?;
+            let cam = truth.camera;
             let pred = render(physnerf, &cam, &rollouts.grounded[t])?;
-            let side = side_by_side(&pred, &truth);
+            let side = side_by_side(&pred, &truth.image);
             let png = dir.join(format!("renders/{view}/t{t:04}.png"));
             save_png(&png, side.width, side.height, &side.rgb)?;
             scores.push(score(view, t, &pred, &truth, &lpips)?);
@@ -113,7 +113,7 @@ pub fn render_views(
                 on_truth.push(score(view, t, &ceiling, &truth, &lpips)?);
             }
             if cfg.animate {
-                let mut panels = vec![("truth", picture(&truth))];
+                let mut panels = vec![("truth", picture(&truth.image))];
                 if let Some(b) = &rollouts.baseline {
                     panels.push(("DLF", picture(&render(physnerf, &cam, &b[t])?)));
                 }
