@@ -49,7 +49,11 @@ fn the_refit_renders_the_views_and_leaves_the_dynamics() {
         "d and d′ are the joint stage's"
     );
     assert!(before.renderer.is_none());
-    assert!(after.nvs_markdown().contains("the refitted PhysNeRF"));
+    assert!(
+        after
+            .nvs_markdown()
+            .contains("the refitted PhysNeRF (`refit.enabled`, `refit.positions = \"relative\"`)")
+    );
     assert_eq!(before.images.len(), after.images.len());
     assert!(
         before

@@ -47,13 +47,11 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
     report.weight_interpolation = Some(cfg.weight_interpolation).filter(|&f| f != 1.0);
     report.dlf_rules = run.exp.dlf.rules();
     report.renderer = run.exp.refit.enabled.then(|| {
-        let positions = match run.exp.refit.positions {
-            neurofluid_physnerf::Positions::World => "world",
-            neurofluid_physnerf::Positions::Relative => "relative",
-        };
+        // the value as the experiment file writes it
+        let positions = serde_json::to_value(run.exp.refit.positions).unwrap_or_default();
         format!(
-            "the refitted PhysNeRF (`refit.enabled`, `refit.positions = \"{positions}\"`), \
-             fitted to the grounded rollout after the joint stage"
+            "the refitted PhysNeRF (`refit.enabled`, `refit.positions = {positions}`), fitted to \
+             the grounded rollout after the joint stage"
         )
     });
     report.initial_from_images =
