@@ -6,7 +6,8 @@ rule 13): warm-ups with one warm-up view held out (`warmup.held_out`), scored on
 
 Reads `<root>/<scene>-<variant>-<view>/metrics.jsonl` (as `experiments/bed/view-dependence-screen.sh`
 names them) and takes the held-out view's PSNR from the last `warmup-preview` row (the warm-up's
-last step). Prints markdown: PSNR per fold, the mean over folds per scene and variant, and for
+last step; a mean is shown only where every fold has reached the last step of any run). Prints
+markdown: PSNR per fold, the mean over folds per scene and variant, and for
 each variant other than A whether its mean is above A's on every scene (the rule's test).
 """
 
@@ -41,6 +42,7 @@ def main():
     if not found:
         sys.exit(f"no warm-up previews under {root}")
     views = sorted({v for s in found.values() for r in s.values() for v in r})
+    last = max(step for s in found.values() for r in s.values() for step, _ in r.values())
     variants = sorted({v for s in found.values() for v in s})
     print("| scene | variant | " + " | ".join(f"{v} held out" for v in views) + " | mean |")
     print("|---|---|" + "---:|" * (len(views) + 1))
@@ -49,7 +51,7 @@ def main():
         for variant in variants:
             folds = by_variant.get(variant, {})
             cells = [f"{folds[v][1]:.2f} (step {folds[v][0]})" if v in folds else "–" for v in views]
-            complete = len(folds) == len(views)
+            complete = len(folds) == len(views) and all(st == last for st, _ in folds.values())
             mean = statistics.mean(p for _, p in folds.values()) if complete else None
             means[(scene, variant)] = mean
             shown = f"{mean:.2f}" if mean is not None else "–"

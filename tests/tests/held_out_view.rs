@@ -12,7 +12,7 @@ use neurofluid_train::config::Experiment;
 use neurofluid_train::metrics_log::read_jsonl;
 use neurofluid_train::stage::Stage;
 use neurofluid_train::stages::views::ViewFrame;
-use neurofluid_train::stages::{Run, Start, warmup};
+use neurofluid_train::stages::{Run, Start, joint, warmup};
 
 fn experiment(tmp: &Path, name: &str, overrides: &[&str]) -> Experiment {
     let mut e = tiny_experiment(tmp, name);
@@ -100,6 +100,44 @@ fn a_held_out_view_leaves_the_warmup_and_is_what_its_previews_score() {
         (scored - on_test).abs() > 1e-3,
         "another view, another score"
     );
+}
+
+#[test]
+fn the_joint_stage_scores_the_held_out_view_after_grounding() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let e = experiment(
+        tmp.path(),
+        "joint",
+        &["warmup.held_out=\"view_3\"", "joint.preview_every=3"],
+    );
+    let run = Run::prepare(e, Start::Fresh, &[Stage::Warmup, Stage::Joint]).unwrap();
+    let mut log = run.open_log().unwrap();
+    warmup::run(&run, &mut log).unwrap();
+    let grounded = joint::run(&run, &mut log).unwrap();
+    let rows = read_jsonl(log.jsonl_path()).unwrap();
+    let scored: Vec<(u64, f64)> = rows
+        .iter()
+        .filter(|r| r.stage == "joint-preview")
+        .filter_map(|r| {
+            let v = r.scalars.iter().find(|(k, _)| k == "psnr_held_out")?;
+            Some((r.step, v.1))
+        })
+        .collect();
+    assert_eq!(
+        scored.len(),
+        1,
+        "one evaluation, at the epoch's end: {scored:?}"
+    );
+    // the last evaluation follows the last update: the grounded renderer on view_3 at frame 0
+    let expected = psnr_of(&run, &grounded.physnerf, Role::Warmup, "view_3");
+    assert!(
+        (scored[0].1 - expected).abs() < 1e-3,
+        "{scored:?} vs {expected}"
+    );
+    // and not the warm-up's renderer: grounding moved it
+    let warmed = warmup::load_trained(&run).unwrap();
+    assert!((psnr_of(&run, &warmed, Role::Warmup, "view_3") - expected).abs() > 1e-4);
 }
 
 #[test]

@@ -140,6 +140,9 @@ pub struct JointData {
     /// `joint.replay_rays` > 0: the warm-up's views and particles, which PhysNeRF keeps
     /// rendering while it is grounded.
     pub replay: Option<WarmupData>,
+    /// `warmup.held_out`: that view at the warm-up's frame and the frame's particles, which the
+    /// evaluations render (`psnr_held_out`).
+    pub held_out: Option<(ViewFrame, Vec<[f32; 3]>)>,
 }
 
 impl JointData {
@@ -185,6 +188,7 @@ impl JointData {
             foreground,
             radius: scene.manifest().particle_radius,
             replay: None,
+            held_out: None,
         })
     }
 
@@ -204,7 +208,7 @@ type State = (Tensor<2>, Tensor<2>);
 
 /// What the joint stage measures besides its loss, at every evaluation (metrics columns
 /// `rollout_d`, `rollout_d_prime`, `rollout_energy_gain`, `rollout_particle_energy_gain`,
-/// `grad_alignment`, `psnr_true`).
+/// `grad_alignment`, `psnr_true`, `psnr_held_out`).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Diagnostics {
     /// d (× 1000) of DLF's rollout from the first true frame over the training frames
@@ -227,6 +231,10 @@ pub struct Diagnostics {
     /// PSNR of the renderer on the *true* particles of every 7th training frame (the same
     /// pixels at every evaluation): renderer error apart from dynamics error.
     pub psnr_true: Option<f64>,
+    /// With `warmup.held_out`, PSNR of the renderer on that warm-up view at the warm-up's frame,
+    /// from the frame's particles: how grounding on the training view carries the renderer to a
+    /// view no stage trained on. Needs no true particles past the first frame.
+    pub psnr_held_out: Option<f64>,
 }
 
 impl Diagnostics {
@@ -237,6 +245,7 @@ impl Diagnostics {
             ("rollout_d_prime", self.rollout_d_prime),
             ("grad_alignment", self.grad_alignment),
             ("psnr_true", self.psnr_true),
+            ("psnr_held_out", self.psnr_held_out),
             ("rollout_energy_gain", self.rollout_energy_gain),
             (
                 "rollout_particle_energy_gain",
@@ -971,6 +980,10 @@ impl JointTrainer {
         let gains = energy_gains(&rollout.pos, config.dt, config.gravity);
         d.rollout_energy_gain = Some(gains.fluid.iter().sum());
         d.rollout_particle_energy_gain = Some(gains.particle.iter().sum());
+        if let Some((view, particles)) = &self.data.held_out {
+            let particles = points_tensor(particles, &self.physnerf.device());
+            d.psnr_held_out = render_beside_truth(&self.physnerf, view, &particles)?.psnr;
+        }
         let Some(truth) = &self.data.truth else {
             return Ok(d);
         };
@@ -1009,6 +1022,13 @@ pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::
     );
     if cfg.replay_rays > 0 {
         data.replay = Some(warmup::warmup_data(run)?);
+    }
+    if let Some(view) = &run.exp.warmup.held_out {
+        let t0 = run.scene.frames(Role::Warmup).start;
+        let frame = ViewFrame::load(&run.scene, Role::Warmup, view, t0)?;
+        let what = "warm-up particles";
+        let particles = super::initial::starting_particles(run, Role::Warmup, t0, what)?.pos;
+        data.held_out = Some((frame, particles));
     }
     let physnerf = warmup::load_trained(run)?;
     let dlf = run.load_dlf(&run.exp.dlf.weights)?;
