@@ -188,6 +188,20 @@ fn the_ci_experiment_learns() {
     assert!(frame.image.alpha.iter().any(|a| *a >= 0.5) && on > 0.0 && on < all);
     let share = first.error_on_fluid.expect("the error's split");
     assert!((share - on / all).abs() < 1e-9, "{share} vs {}", on / all);
+    // and saved beside the truth: the left half is that render
+    let png = again.stage_dir(Stage::Eval).join(format!(
+        "renders/{}/true_particles_t{:04}.png",
+        first.view, first.t
+    ));
+    let saved = image::open(&png).unwrap().to_rgb8();
+    assert_eq!(saved.dimensions(), (2 * w as u32, h as u32));
+    for (p, px) in (0..h).flat_map(|y| (0..w).map(move |x| (y * w + x, (x, y)))) {
+        let got = saved.get_pixel(px.0 as u32, px.1 as u32).0;
+        for c in 0..3 {
+            let want = (rendered.data[3 * p + c] * 255.0).round() as u8;
+            assert_eq!(got[c], want, "pixel {px:?}");
+        }
+    }
     assert!(
         on_truth.images != report.images,
         "the true particles' renders scored as NeuroFluid's at every step"

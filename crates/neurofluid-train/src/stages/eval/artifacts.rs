@@ -110,6 +110,9 @@ pub fn render_views(
             scores.push(score(view, t, &pred, &truth, &lpips)?);
             if cfg.render_truth {
                 let ceiling = render(physnerf, &cam, &rollouts.truth[t].pos)?;
+                let side = side_by_side(&ceiling, &truth.image);
+                let png = dir.join(format!("renders/{view}/true_particles_t{t:04}.png"));
+                save_png(&png, side.width, side.height, &side.rgb)?;
                 on_truth.push(score(view, t, &ceiling, &truth, &lpips)?);
             }
             if cfg.animate {
