@@ -155,9 +155,9 @@ fn a_held_out_view_must_be_a_warmup_view_and_leave_one() {
         ),
     ] {
         let e = experiment(tmp.path(), "bad", &overrides);
-        let err = Run::prepare(e, Start::Fresh, &[Stage::Warmup])
-            .err()
-            .expect("refused");
+        let Err(err) = Run::prepare(e, Start::Fresh, &[Stage::Warmup]) else {
+            panic!("{overrides:?} was not refused");
+        };
         let message = format!("{err:#}");
         assert!(message.contains("warmup.held_out"), "{message}");
         assert!(message.contains(expected), "{message}");

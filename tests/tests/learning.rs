@@ -197,10 +197,10 @@ fn the_ci_experiment_learns() {
     assert_eq!(saved.dimensions(), (2 * w as u32, h as u32));
     for (p, px) in (0..h).flat_map(|y| (0..w).map(move |x| (y * w + x, (x, y)))) {
         let got = saved.get_pixel(px.0 as u32, px.1 as u32).0;
-        for c in 0..3 {
-            let want = (rendered.data[3 * p + c] * 255.0).round() as u8;
-            assert_eq!(got[c], want, "pixel {px:?}");
-        }
+        let want = rendered.data[3 * p..3 * p + 3]
+            .iter()
+            .map(|v| (v * 255.0).round() as u8);
+        assert!(got.iter().copied().eq(want), "pixel {px:?}");
     }
     assert!(
         on_truth.images != report.images,
