@@ -144,6 +144,12 @@ fn the_joint_stage_scores_the_held_out_view_after_grounding() {
 fn a_held_out_view_must_be_a_warmup_view_and_leave_one() {
     let _turn = seeded_turn();
     let tmp = tempfile::tempdir().unwrap();
+    let training_view = {
+        let e = experiment(tmp.path(), "probe", &[]);
+        let run = Run::prepare(e, Start::Fresh, &[Stage::Warmup]).unwrap();
+        run.exp.joint.view(&run.scene).unwrap()
+    };
+    let trained_on = format!("warmup.held_out=\"{training_view}\"");
     for (overrides, expected) in [
         (
             vec!["warmup.held_out=\"view_9\""],
@@ -153,13 +159,27 @@ fn a_held_out_view_must_be_a_warmup_view_and_leave_one() {
             vec!["warmup.views=[\"view_2\"]", "warmup.held_out=\"view_2\""],
             "the only warm-up view",
         ),
+        (
+            vec![
+                "warmup.views=[\"view_2\", \"view_2\"]",
+                "warmup.held_out=\"view_2\"",
+            ],
+            "the only warm-up view",
+        ),
+        (
+            vec![trained_on.as_str()],
+            "a view the joint stage trains on",
+        ),
     ] {
-        let e = experiment(tmp.path(), "bad", &overrides);
-        let Err(err) = Run::prepare(e, Start::Fresh, &[Stage::Warmup]) else {
-            panic!("{overrides:?} was not refused");
-        };
-        let message = format!("{err:#}");
-        assert!(message.contains("warmup.held_out"), "{message}");
-        assert!(message.contains(expected), "{message}");
+        // refused whichever stage is asked for: the NeRFs see the warm-up's views too
+        for stages in [&[Stage::Warmup][..], &[Stage::Nerf]] {
+            let e = experiment(tmp.path(), "bad", &overrides);
+            let Err(err) = Run::prepare(e, Start::Fresh, stages) else {
+                panic!("{overrides:?} was not refused for {stages:?}");
+            };
+            let message = format!("{err:#}");
+            assert!(message.contains("warmup.held_out"), "{message}");
+            assert!(message.contains(expected), "{message}");
+        }
     }
 }

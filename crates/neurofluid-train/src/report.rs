@@ -394,12 +394,15 @@ pub fn image_means(images: &[ImageScore], (a, b): (usize, usize)) -> [Option<f64
 
 /// The mean squared error of the renders of `images` in the window `[a, b]` split into its part
 /// on the truth's fluid and its part around it (each a mean over the renders that have the
-/// split; `None` where none has it).
+/// split, a perfect render counting 0 in both; `None` where none has it).
 pub fn error_split(images: &[ImageScore], (a, b): (usize, usize)) -> Option<(f64, f64)> {
     let parts: Vec<(f64, f64)> = images
         .iter()
         .filter(|i| (a..=b).contains(&i.t))
         .filter_map(|i| {
+            if i.psnr == f64::INFINITY {
+                return Some((0.0, 0.0));
+            }
             let mse = 10f64.powf(-i.psnr / 10.0);
             i.error_on_fluid.map(|s| (s * mse, (1.0 - s) * mse))
         })
@@ -828,10 +831,10 @@ impl EvalReport {
             }
             let _ = writeln!(
                 md,
-                "\nWhere the renders' error is (×10⁻³, the mean over the window's renders; the two \
-                 add up to the MSE of the PSNR): on the pixels where the truth shows fluid (its \
-                 alpha ≥ ½: the fluid's colour, or fluid missing) and around it (fluid drawn where \
-                 the truth has none, halos, floaters)."
+                "\nWhere the renders' error is (MSE ×10⁻³; the two add up to the mean MSE of the \
+                 window's renders, not to the mean PSNR's): on the pixels where the truth shows \
+                 fluid (its alpha ≥ ½: the fluid's colour, or fluid missing) and around it (fluid \
+                 drawn where the truth has none, halos, floaters)."
             );
         }
         if let Some(renderer) = &self.renderer {
@@ -1329,8 +1332,27 @@ mod tests {
         let late = error_split(&r.images, (59, 59)).unwrap();
         let mse = [10f64.powf(-2.59), 10f64.powf(-2.69)];
         assert!((late.0 - 0.75 * (mse[0] + mse[1]) / 2.0).abs() < 1e-12);
-        assert!(r.nvs_markdown().contains("| NeuroFluid | "));
+        let nvs = r.nvs_markdown();
+        let (early, late) = (
+            error_split(&r.images, (0, 49)).unwrap(),
+            error_split(&r.images, (50, 59)).unwrap(),
+        );
+        let row = format!(
+            "| NeuroFluid | {:.2} | {:.2} | {:.2} | {:.2} |",
+            1e3 * early.0,
+            1e3 * early.1,
+            1e3 * late.0,
+            1e3 * late.1
+        );
+        assert!(nvs.contains("MSE on the fluid, t = 0–49"), "{nvs}");
+        assert!(nvs.contains(&row), "{row} in {nvs}");
         assert_eq!(error_split(&[], (0, 49)), None);
+        let perfect = ImageScore {
+            psnr: f64::INFINITY,
+            error_on_fluid: None,
+            ..r.images[0].clone()
+        };
+        assert_eq!(error_split(&[perfect], (0, 59)), Some((0.0, 0.0)));
         assert!(EvalReport::read_json(&dir.path().join("nope.json")).is_err());
         // a report written before the error's share was scored still loads, without it
         let old: ImageScore =

@@ -118,6 +118,26 @@ fn migrate_legacy(table: &mut toml::Table, origin: &Path) -> bool {
 }
 
 impl Experiment {
+    /// What is wrong with `warmup.held_out` on `scene`: not a warm-up view, the only one, or a
+    /// view the joint stage trains on (`joint.view`, `joint.extra_views`), which would not be
+    /// held out.
+    pub fn held_out_problem(&self, scene: &neurofluid_core::scene::Scene) -> Option<String> {
+        if let Some(problem) = self.warmup.held_out_problem(scene) {
+            return Some(problem);
+        }
+        let held = self.warmup.held_out.as_ref()?;
+        self.joint
+            .views_by_role(scene)
+            .iter()
+            .any(|(_, v)| v == held)
+            .then(|| {
+                format!(
+                    "warmup.held_out: {held:?} is a view the joint stage trains on \
+                     (joint.view, joint.extra_views); hold out another"
+                )
+            })
+    }
+
     /// Reads and validates an experiment file.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
         let text = read_text(path)?;

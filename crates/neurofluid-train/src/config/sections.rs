@@ -519,7 +519,8 @@ impl WarmupSection {
         views
     }
 
-    /// What is wrong with `held_out` on `scene`: not one of the warm-up views, or the only one.
+    /// What is wrong with `held_out` on `scene` for the warm-up: not one of the warm-up views,
+    /// or the only one ([`crate::config::Experiment::held_out_problem`] checks the other stages).
     pub fn held_out_problem(&self, scene: &Scene) -> Option<String> {
         let held = self.held_out.as_ref()?;
         let views = self.views_before_holding_out(scene);
@@ -528,7 +529,7 @@ impl WarmupSection {
                 "warmup.held_out: expected one of the warm-up views {views:?}, got {held:?}"
             ));
         }
-        (views.len() < 2).then(|| {
+        self.views(scene).is_empty().then(|| {
             format!("warmup.held_out: {held:?} is the only warm-up view; the warm-up needs another")
         })
     }

@@ -501,6 +501,8 @@ pub struct JointTrainer {
     horizon_start: Option<State>,
     /// `joint.replay_rays` > 0: the warm-up's particles on the device (uploaded once).
     replay_particles: Option<Tensor<2>>,
+    /// `warmup.held_out`: the warm-up frame's particles on the device (uploaded once).
+    held_out_particles: Option<Tensor<2>>,
 }
 
 impl JointTrainer {
@@ -537,6 +539,10 @@ impl JointTrainer {
             .replay
             .as_ref()
             .map(|r| points_tensor(&r.particles, &device));
+        let held_out_particles = data
+            .held_out
+            .as_ref()
+            .map(|(_, p)| points_tensor(p, &device));
         Ok(Self {
             opt_physnerf: cfg.physnerf_optim.group(),
             opt_dlf: cfg.dlf_optim.group(),
@@ -558,6 +564,7 @@ impl JointTrainer {
             anchor,
             horizon_start,
             replay_particles,
+            held_out_particles,
         })
     }
 
@@ -980,9 +987,9 @@ impl JointTrainer {
         let gains = energy_gains(&rollout.pos, config.dt, config.gravity);
         d.rollout_energy_gain = Some(gains.fluid.iter().sum());
         d.rollout_particle_energy_gain = Some(gains.particle.iter().sum());
-        if let Some((view, particles)) = &self.data.held_out {
-            let particles = points_tensor(particles, &self.physnerf.device());
-            d.psnr_held_out = render_beside_truth(&self.physnerf, view, &particles)?.psnr;
+        if let (Some((view, _)), Some(particles)) = (&self.data.held_out, &self.held_out_particles)
+        {
+            d.psnr_held_out = render_beside_truth(&self.physnerf, view, particles)?.psnr;
         }
         let Some(truth) = &self.data.truth else {
             return Ok(d);
@@ -1024,6 +1031,9 @@ pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::
         data.replay = Some(warmup::warmup_data(run)?);
     }
     if let Some(view) = &run.exp.warmup.held_out {
+        if let Some(problem) = run.exp.held_out_problem(&run.scene) {
+            anyhow::bail!("{problem}");
+        }
         let t0 = run.scene.frames(Role::Warmup).start;
         let frame = ViewFrame::load(&run.scene, Role::Warmup, view, t0)?;
         let what = "warm-up particles";

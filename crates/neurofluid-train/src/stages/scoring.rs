@@ -38,24 +38,11 @@ pub(crate) fn scaled_truth(view: &ViewFrame, scale: f64) -> anyhow::Result<Scale
     } else {
         let w = ((cam.width as f64 * scale).round() as u32).max(1);
         let h = ((cam.height as f64 * scale).round() as u32).max(1);
-        let resize = |data: Vec<f32>, channels: usize| -> anyhow::Result<Vec<f32>> {
-            let luma = |d| {
-                image::ImageBuffer::<image::Luma<f32>, Vec<f32>>::from_raw(cam.width, cam.height, d)
-            };
-            let filter = image::imageops::FilterType::Triangle;
-            Ok(if channels == 3 {
-                let full = image::Rgb32FImage::from_raw(cam.width, cam.height, data)
-                    .context("an image of its camera's size")?;
-                image::imageops::resize(&full, w, h, filter).into_raw()
-            } else {
-                let full = luma(data).context("an alpha of its camera's size")?;
-                image::imageops::resize(&full, w, h, filter).into_raw()
-            })
-        };
+        let (from, to) = ((cam.width, cam.height), (w, h));
         (
             cam.resized(w, h),
-            resize(view.image.rgb.clone(), 3)?,
-            resize(view.image.alpha.clone(), 1)?,
+            resized::<image::Rgb<f32>>(view.image.rgb.clone(), from, to)?,
+            resized::<image::Luma<f32>>(view.image.alpha.clone(), from, to)?,
         )
     };
     Ok(ScaledTruth {
@@ -65,8 +52,20 @@ pub(crate) fn scaled_truth(view: &ViewFrame, scale: f64) -> anyhow::Result<Scale
     })
 }
 
+/// `data`, an image of `from` pixels of `P`, resampled to `to` with a triangle filter.
+fn resized<P>(data: Vec<f32>, from: (u32, u32), to: (u32, u32)) -> anyhow::Result<Vec<f32>>
+where
+    P: image::Pixel<Subpixel = f32> + 'static,
+{
+    let full = image::ImageBuffer::<P, Vec<f32>>::from_raw(from.0, from.1, data)
+        .context("an image of its camera's size")?;
+    let filter = image::imageops::FilterType::Triangle;
+    Ok(image::imageops::resize(&full, to.0, to.1, filter).into_raw())
+}
+
 /// PSNR, SSIM and LPIPS of a render against the truth (LPIPS absent for images too small for
-/// AlexNet) and the share of its error on the truth's fluid.
+/// AlexNet) and the share of its error on the truth's fluid (absent where the truth's alpha
+/// covers every pixel, as for images without alpha: there is no "around it").
 pub(crate) fn score(
     view: &str,
     t: usize,
@@ -81,7 +80,10 @@ pub(crate) fn score(
         psnr: psnr(pred, image)?,
         ssim: ssim(pred, image).unwrap_or(f64::NAN),
         lpips: lpips.distance(pred, image).ok(),
-        error_on_fluid: error_share_on(pred, image, &truth.coverage)?,
+        error_on_fluid: match truth.coverage.iter().all(|a| *a >= 0.5) {
+            true => None,
+            false => error_share_on(pred, image, &truth.coverage)?,
+        },
     })
 }
 
@@ -130,4 +132,46 @@ pub(crate) fn at_least_wide(camera: &Camera, width: u32) -> Camera {
         (camera.width as f32 * k).round() as u32,
         (camera.height as f32 * k).round() as u32,
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use neurofluid_core::scene::Image;
+
+    /// At half the resolution the alpha is resampled as the image is: a covered square stays
+    /// where the image's coloured square is.
+    #[test]
+    fn the_truth_and_its_alpha_are_scaled_together() {
+        let (w, h) = (8u32, 6u32);
+        let inside = |x: u32, y: u32| (2..6).contains(&x) && (2..4).contains(&y);
+        let mut rgb = Vec::new();
+        let mut alpha = Vec::new();
+        for y in 0..h {
+            for x in 0..w {
+                let a = if inside(x, y) { 1.0 } else { 0.0 };
+                rgb.extend([1.0 - 0.5 * a, 1.0 - 0.5 * a, 1.0]);
+                alpha.push(a);
+            }
+        }
+        let camera = Camera::look_at(w, h, 0.8, [0.0, 0.0, 3.0], [0.0; 3], [0.0, 1.0, 0.0]);
+        let view = ViewFrame {
+            camera,
+            image: Image {
+                width: w,
+                height: h,
+                rgb,
+                alpha,
+            },
+        };
+        let truth = scaled_truth(&view, 0.5).unwrap();
+        assert_eq!((truth.camera.width, truth.camera.height), (4, 3));
+        assert_eq!(truth.coverage.len(), 12);
+        for (p, a) in truth.coverage.iter().enumerate() {
+            let red = truth.image.data[3 * p];
+            assert_eq!(*a >= 0.5, red < 0.75, "pixel {p}: alpha {a}, red {red}");
+        }
+        assert!(truth.coverage.iter().any(|a| *a >= 0.5));
+        assert!(truth.coverage.iter().any(|a| *a < 0.5));
+    }
 }
