@@ -65,7 +65,7 @@ impl EventSink for ProgressBars {
             } => {
                 let mut line = format!("{stage} step {done}:");
                 if let Some(p) = evaluation.psnr {
-                    line.push_str(&format!(" held-out PSNR {p:.2} dB"));
+                    line.push_str(&format!(" preview PSNR {p:.2} dB"));
                 }
                 for (name, v) in &evaluation.scores {
                     line.push_str(&format!(" {name} {v:.6}"));
