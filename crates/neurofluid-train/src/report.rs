@@ -608,7 +608,10 @@ impl EvalReport {
                 counts.join(", ")
             );
         }
-        if !self.nvs_baselines.is_empty() {
+        // by window, and where the error is, whenever there is more than NeuroFluid's row of
+        // Table 2 to say
+        if !self.nvs_baselines.is_empty() || self.images.iter().any(|i| i.error_on_fluid.is_some())
+        {
             md.push_str(&self.nvs_markdown());
         }
         if !self.interpolation.is_empty() {
@@ -1332,6 +1335,10 @@ mod tests {
         let late = error_split(&r.images, (59, 59)).unwrap();
         let mse = [10f64.powf(-2.59), 10f64.powf(-2.69)];
         assert!((late.0 - 0.75 * (mse[0] + mse[1]) / 2.0).abs() < 1e-12);
+        assert!(
+            md.contains("### Novel views"),
+            "the split is reported without baselines"
+        );
         let nvs = r.nvs_markdown();
         let (early, late) = (
             error_split(&r.images, (0, 49)).unwrap(),
