@@ -677,3 +677,47 @@ fn replay_keeps_the_renderer_rendering_the_warmup_views() {
         "warm-up views: {with:.2} dB with the replay, {without:.2} without"
     );
 }
+
+#[test]
+fn a_frozen_colour_head_keeps_the_warmups_colour_heads_and_trains_the_rest() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let runs = ground_each(
+        tmp.path(),
+        "colour",
+        &["trained", "frozen"].map(|c| vec![format!("joint.colour_head=\"{c}\"")]),
+    );
+    let warmed = warmup::load_trained(&runs[0].run).unwrap();
+    let values = |l: &burn::nn::Linear| -> Vec<Vec<f32>> {
+        let mut v = vec![l.weight.val().try_into_vec_as::<f32>().unwrap()];
+        v.extend(
+            l.bias
+                .iter()
+                .map(|b| b.val().try_into_vec_as::<f32>().unwrap()),
+        );
+        v
+    };
+    let heads = |p: &PhysNerf| -> Vec<Vec<f32>> {
+        [&p.coarse, &p.fine]
+            .into_iter()
+            .flat_map(|n| [values(&n.dir_encoding), values(&n.rgb)])
+            .flatten()
+            .collect()
+    };
+    let trunk = |p: &PhysNerf| -> Vec<Vec<f32>> {
+        [&p.coarse, &p.fine]
+            .into_iter()
+            .flat_map(|n| n.xyz_encoding.iter().map(values).chain([values(&n.sigma)]))
+            .flatten()
+            .collect()
+    };
+    let (trained, frozen) = (&runs[0].grounded.physnerf, &runs[1].grounded.physnerf);
+    assert!(heads(frozen) == heads(&warmed), "the frozen heads moved");
+    assert!(
+        heads(trained) != heads(&warmed),
+        "grounding trains the heads otherwise"
+    );
+    assert!(trunk(frozen) != trunk(&warmed), "the trunk still trains");
+    // the same warm-up under both (the option shapes the joint stage only)
+    assert!(params(&warmup::load_trained(&runs[1].run).unwrap()) == params(&warmed));
+}

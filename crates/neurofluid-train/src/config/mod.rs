@@ -39,9 +39,9 @@ pub use errors::{ConfigError, from_toml_str, line_col};
 pub(crate) use errors::{from_table, read_text};
 pub use preset::Preset;
 pub use sections::{
-    AnchorAlong, BuiltinScene, Containment, DlfSection, EnergyCap, EnergyPer, EvalSection,
-    InitialParticles, InitialSection, JointSection, NerfSection, NerfTImages, PlyEncoding,
-    RefitSection, SceneScale, SceneSection, SurfaceThreshold, WarmupSection,
+    AnchorAlong, BuiltinScene, ColourHead, Containment, DlfSection, EnergyCap, EnergyPer,
+    EvalSection, InitialParticles, InitialSection, JointSection, NerfSection, NerfTImages,
+    PlyEncoding, RefitSection, SceneScale, SceneSection, SurfaceThreshold, WarmupSection,
 };
 pub use settings::Settings;
 
@@ -478,6 +478,7 @@ mod tests {
             (1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         );
         assert!(j.extra_views.is_empty());
+        assert_eq!(j.colour_head, r.colour_head);
         // the budgets are the file's
         assert_eq!(
             (paper.warmup.iters, paper.joint.epochs, paper.joint.rays),

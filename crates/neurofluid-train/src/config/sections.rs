@@ -232,6 +232,20 @@ pub enum AnchorAlong {
     Depth,
 }
 
+/// What the joint stage trains of the renderer's colour heads (`dir_encoding` and `rgb` of both
+/// networks: the colour as a function of the trunk's feature and the view direction).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ColourHead {
+    /// Trained with the rest of the renderer (the reference).
+    #[default]
+    Trained,
+    /// Kept as the warm-up left them: grounding on one view cannot change how the colour
+    /// depends on the view direction, which it otherwise moves at directions off the training
+    /// cameras (the trunk, and so the colour of each place, still trains).
+    Frozen,
+}
+
 /// What the energy prior (`joint.energy_weight`) holds non-increasing from step to step.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -613,6 +627,8 @@ pub struct JointSection {
     /// particles: PhysNeRF's gradients only), so that the renderer grounded on the training view
     /// keeps rendering the others. 0 = the reference's training view alone.
     pub replay_rays: usize,
+    /// Whether the renderer's colour heads train in the joint stage (`trained`).
+    pub colour_head: ColourHead,
     /// Training view; unset = the scene manifest's (view_1).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub view: Option<String>,
@@ -650,6 +666,7 @@ impl Default for JointSection {
             anchor_along: AnchorAlong::All,
             anchor_horizon: 0,
             replay_rays: 0,
+            colour_head: ColourHead::Trained,
             view: None,
             extra_views: Vec::new(),
             log_every: 49,

@@ -40,7 +40,7 @@ use super::views::{
 };
 use super::warmup::{self, WarmupData};
 use crate::config::Cadenced;
-use crate::config::{AnchorAlong, JointSection};
+use crate::config::{AnchorAlong, ColourHead, JointSection};
 use crate::density_prior::DensityPrior;
 use crate::energy_prior::{energy_gain, energy_gains};
 use crate::focus::{image_foreground, mark_particles, sample_focused};
@@ -763,6 +763,10 @@ impl Trainer for JointTrainer {
             .as_ref()
             .map(|_| guard::norm_of(&values[4 + n_physnerf..4 + n_physnerf + n_dlf]));
         if norm_p.is_finite() && norm_d.is_none_or(f64::is_finite) {
+            let g_physnerf = match self.cfg.colour_head {
+                ColourHead::Trained => g_physnerf,
+                ColourHead::Frozen => without_colour_heads(g_physnerf, &self.physnerf),
+            };
             self.physnerf = self.opt_physnerf.step(self.physnerf.clone(), g_physnerf);
             if let Some(g) = g_dlf {
                 self.dlf = self.opt_dlf.step(self.dlf.clone(), g);
@@ -1006,6 +1010,20 @@ impl JointTrainer {
         d.psnr_true = psnr_on_truth(&self.physnerf, &self.data, self.cfg.rays, self.seed)?;
         Ok(d)
     }
+}
+
+/// `grads` without the gradients of both networks' colour heads (`dir_encoding`, `rgb`), which
+/// the step then leaves as they are (`joint.colour_head = "frozen"`).
+fn without_colour_heads(mut grads: GradientsParams, physnerf: &PhysNerf) -> GradientsParams {
+    for net in [&physnerf.coarse, &physnerf.fine] {
+        for layer in [&net.dir_encoding, &net.rgb] {
+            let _ = grads.remove::<2>(layer.weight.id);
+            if let Some(bias) = &layer.bias {
+                let _ = grads.remove::<1>(bias.id);
+            }
+        }
+    }
+    grads
 }
 
 /// Runs (or resumes) the joint stage of `run` with the CLI's sinks and returns the models.
