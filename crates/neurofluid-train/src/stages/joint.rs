@@ -1049,14 +1049,9 @@ pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::
         data.replay = Some(warmup::warmup_data(run)?);
     }
     if let Some(view) = &run.exp.warmup.held_out {
-        if let Some(problem) = run.exp.held_out_problem(&run.scene) {
-            anyhow::bail!("{problem}");
-        }
         let t0 = run.scene.frames(Role::Warmup).start;
         let frame = ViewFrame::load(&run.scene, Role::Warmup, view, t0)?;
-        let what = "warm-up particles";
-        let particles = super::initial::starting_particles(run, Role::Warmup, t0, what)?.pos;
-        data.held_out = Some((frame, particles));
+        data.held_out = Some((frame, warmup::warmup_particles(run)?));
     }
     let physnerf = warmup::load_trained(run)?;
     let dlf = run.load_dlf(&run.exp.dlf.weights)?;

@@ -83,9 +83,6 @@ impl NerfData {
         exp: &Experiment,
         preview: bool,
     ) -> anyhow::Result<Self> {
-        if let Some(problem) = exp.held_out_problem(scene) {
-            anyhow::bail!("{problem}");
-        }
         let views = exp.warmup.views(scene);
         anyhow::ensure!(
             !views.is_empty(),

@@ -96,7 +96,6 @@ pub fn check(run: &Run, stages: &[Stage], start: Start) -> anyhow::Result<()> {
     let scene = &run.scene;
     let exp = &run.exp;
     let mut p = Problems::default();
-    p.0.extend(exp.held_out_problem(scene));
     let mut dlf_checked = false;
     let mut check_dlf = |p: &mut Problems| {
         if !std::mem::replace(&mut dlf_checked, true) {
@@ -156,9 +155,7 @@ pub fn check(run: &Run, stages: &[Stage], start: Start) -> anyhow::Result<()> {
             let what = format!("warm-up particles (frame {t0})");
             p.error(load_particles(scene, Role::Warmup, t0, &what));
         }
-        if exp.warmup.held_out_problem(scene).is_none()
-            && let Some((v, role)) = exp.warmup.preview_view(scene)
-        {
+        if let Some((v, role)) = exp.warmup.preview_view(scene) {
             images(&mut p, scene, role, &[v], &[t0]);
         }
         for view in exp.warmup.views(scene) {

@@ -81,6 +81,9 @@ impl Run {
         );
         let scene = Scene::open(&scene_dir)
             .with_context(|| format!("opening the scene {}", scene_dir.display()))?;
+        if let Some(problem) = exp.held_out_problem(&scene) {
+            anyhow::bail!("{problem}");
+        }
         let m = scene.manifest();
         let (near, far) = exp.scene.bounds(m.near, m.far);
         exp.scene.near = Some(near);

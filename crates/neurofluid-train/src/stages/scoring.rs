@@ -80,9 +80,10 @@ pub(crate) fn score(
         psnr: psnr(pred, image)?,
         ssim: ssim(pred, image).unwrap_or(f64::NAN),
         lpips: lpips.distance(pred, image).ok(),
-        error_on_fluid: match truth.coverage.iter().all(|a| *a >= 0.5) {
-            true => None,
-            false => error_share_on(pred, image, &truth.coverage)?,
+        error_on_fluid: if truth.coverage.iter().all(|a| *a >= 0.5) {
+            None
+        } else {
+            error_share_on(pred, image, &truth.coverage)?
         },
     })
 }

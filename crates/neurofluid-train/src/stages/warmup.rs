@@ -42,9 +42,6 @@ pub struct WarmupData {
 impl WarmupData {
     /// Loads the data `cfg` asks for from `scene`.
     pub fn load(scene: &Scene, cfg: &WarmupSection) -> anyhow::Result<Self> {
-        if let Some(problem) = cfg.held_out_problem(scene) {
-            anyhow::bail!("{problem}");
-        }
         let t0 = scene.frames(Role::Warmup).start;
         let views = cfg
             .views(scene)
@@ -272,10 +269,14 @@ pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::
 /// The warm-up's views and particles in `run` (the starting particles of its first frame).
 pub fn warmup_data(run: &Run) -> anyhow::Result<WarmupData> {
     let mut data = WarmupData::load(&run.scene, &run.exp.warmup)?;
-    let t0 = run.scene.frames(Role::Warmup).start;
-    data.particles =
-        super::initial::starting_particles(run, Role::Warmup, t0, "warm-up particles")?.pos;
+    data.particles = warmup_particles(run)?;
     Ok(data)
+}
+
+/// The particles the warm-up renders in `run`: the starting particles of its frame.
+pub fn warmup_particles(run: &Run) -> anyhow::Result<Vec<[f32; 3]>> {
+    let t0 = run.scene.frames(Role::Warmup).start;
+    Ok(super::initial::starting_particles(run, Role::Warmup, t0, "warm-up particles")?.pos)
 }
 
 /// PhysNeRF of a finished warm-up (its last checkpoint).

@@ -103,16 +103,18 @@ pub fn render_views(
             let vf = ViewFrame::load(scene, Role::Test, view, test.start + t)?;
             let truth = scaled_truth(&vf, cfg.image_scale)?;
             let cam = truth.camera;
+            // a render saved beside the truth as `renders/<view>/<prefix>t<step>.png`
+            let save_beside_truth = |render: &RgbImage, prefix: &str| {
+                let side = side_by_side(render, &truth.image);
+                let png = dir.join(format!("renders/{view}/{prefix}t{t:04}.png"));
+                save_png(&png, side.width, side.height, &side.rgb)
+            };
             let pred = render(physnerf, &cam, &rollouts.grounded[t])?;
-            let side = side_by_side(&pred, &truth.image);
-            let png = dir.join(format!("renders/{view}/t{t:04}.png"));
-            save_png(&png, side.width, side.height, &side.rgb)?;
+            save_beside_truth(&pred, "")?;
             scores.push(score(view, t, &pred, &truth, &lpips)?);
             if cfg.render_truth {
                 let ceiling = render(physnerf, &cam, &rollouts.truth[t].pos)?;
-                let side = side_by_side(&ceiling, &truth.image);
-                let png = dir.join(format!("renders/{view}/true_particles_t{t:04}.png"));
-                save_png(&png, side.width, side.height, &side.rgb)?;
+                save_beside_truth(&ceiling, "true_particles_")?;
                 on_truth.push(score(view, t, &ceiling, &truth, &lpips)?);
             }
             if cfg.animate {
