@@ -207,6 +207,70 @@ fn the_ci_experiment_learns() {
         "the true particles' renders scored as NeuroFluid's at every step"
     );
     assert!(report.markdown().contains(eval::RENDERER_ON_TRUTH));
+    drop(again);
+
+    // the renderer on the pretrained DLF's and DLF†'s rollouts (`eval.render_dlf`): a row each,
+    // every score the grounded renderer's image of that rollout's particles at that step (DLF†
+    // here the pretrained weights themselves, so its row is DLF's to the last digit)
+    let mut e = tiny_experiment(tmp.path(), "learns");
+    e.apply_override("eval.render_dlf=true").unwrap();
+    let weights = e.dlf.weights.display().to_string();
+    e.apply_override(&format!("eval.supervised_dlf={weights:?}"))
+        .unwrap();
+    let again = Run::prepare(e, Start::Resume, &[Stage::Eval]).unwrap();
+    let with_dlf = eval::run(&again, &grounded).unwrap();
+    let row = |model: &str| {
+        with_dlf
+            .nvs_baselines
+            .iter()
+            .find(|b| b.model == model)
+            .unwrap_or_else(|| panic!("a row of {model}"))
+            .images
+            .clone()
+    };
+    let (on_dlf, on_supervised) = (
+        row(eval::RENDERER_ON_DLF),
+        row(eval::RENDERER_ON_SUPERVISED_DLF),
+    );
+    assert!(
+        with_dlf
+            .nvs_baselines
+            .iter()
+            .all(|b| b.model != eval::RENDERER_ON_TRUTH)
+    );
+    assert_eq!(steps(&on_dlf), steps(&with_dlf.images));
+    assert_eq!(on_dlf, on_supervised);
+    assert!(
+        on_dlf != with_dlf.images,
+        "DLF's renders scored as NeuroFluid's"
+    );
+    let rollouts = eval::rollouts::Rollouts::of(&again, &grounded).unwrap();
+    let last = on_dlf.last().unwrap();
+    let at = again.scene.frames(Role::Test).start + last.t;
+    let frame = ViewFrame::load(&again.scene, Role::Test, &last.view, at).unwrap();
+    let dlf_particles = &rollouts.baseline.as_ref().unwrap()[last.t];
+    let image = physnerf
+        .render_image(
+            &frame.camera,
+            &points_tensor(dlf_particles, &again.device),
+            physnerf.config.chunk,
+        )
+        .unwrap();
+    let rendered = RgbImage::new(w, h, image.best().to_vec())
+        .unwrap()
+        .quantised();
+    let target = RgbImage::new(w, h, frame.image.rgb.clone())
+        .unwrap()
+        .quantised();
+    assert_eq!(last.psnr, psnr(&rendered, &target).unwrap());
+    let dir = again
+        .stage_dir(Stage::Eval)
+        .join("renders")
+        .join(&last.view);
+    for prefix in ["dlf_particles_", "dlf_supervised_particles_"] {
+        assert!(dir.join(format!("{prefix}t{:04}.png", last.t)).is_file());
+    }
+    assert!(with_dlf.markdown().contains(eval::RENDERER_ON_DLF));
 
     drop(again);
     // `eval.weight_interpolation`: at 0 NeuroFluid's DLF is the pretrained one, so its rollout

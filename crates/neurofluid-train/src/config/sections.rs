@@ -753,6 +753,12 @@ pub struct EvalSection {
     /// score with perfect dynamics, which splits a novel-view gap into the renderer's part and
     /// the dynamics' part. One more render per rendered step.
     pub render_truth: bool,
+    /// Also render the rollouts of the pretrained DLF (`eval.baseline`) and of DLF†
+    /// (`eval.supervised_dlf`), where evaluated, with the grounded renderer and score them beside
+    /// NeuroFluid's (rows of the novel-view table): the novel views the same renderer gives on
+    /// dynamics not grounded, and on dynamics supervised with the true particles. One more
+    /// render per rendered step and rollout.
+    pub render_dlf: bool,
     /// NeuroFluid's DLF as evaluated: the pretrained weights (`dlf.weights`) plus this fraction
     /// of what grounding changed, parameter by parameter (a weight-space interpolation, as
     /// WiSE-FT does for fine-tuned networks). 1 = the grounded DLF as trained (the paper), 0 =
@@ -789,6 +795,7 @@ impl Default for EvalSection {
             viewer: true,
             views: None,
             render_truth: false,
+            render_dlf: false,
             weight_interpolation: 1.0,
             interpolation_sweep: Vec::new(),
         }

@@ -15,7 +15,7 @@ use crate::formats::ply::{PlyFormat, write_ply};
 use crate::metrics_log::{MetricsLog, MetricsRow};
 use crate::pictures::viewer::{Recording, TrackInput};
 use crate::pictures::{column_of, row_of, write_apng};
-use crate::report::{EvalReport, ImageScore, Rollout};
+use crate::report::{BaselineScores, EvalReport, ImageScore, Rollout};
 use crate::stages::run_folder::Run;
 use crate::stages::scoring::{
     as_image, at_least_wide, particle_row, rendered_steps, scaled_truth, score,
@@ -76,16 +76,61 @@ pub fn write_particles(
 /// The model name of the renders of the true particles (`eval.render_truth`) in the tables.
 pub const RENDERER_ON_TRUTH: &str = "PhysNeRF on the true particles";
 
+/// The model name of the renders of the pretrained DLF's rollout (`eval.render_dlf`).
+pub const RENDERER_ON_DLF: &str = "PhysNeRF on DLF's particles";
+
+/// The model name of the renders of DLF†'s rollout (`eval.render_dlf`).
+pub const RENDERER_ON_SUPERVISED_DLF: &str = "PhysNeRF on DLF†'s particles";
+
+/// A particle set the renderer draws beside NeuroFluid's: its name in the tables, the prefix of
+/// its saved renders and its particles at every rollout step.
+struct OtherParticles<'a> {
+    model: &'static str,
+    prefix: &'static str,
+    at: Vec<&'a [[f32; 3]]>,
+}
+
+/// The particle sets `eval` asks the renderer to draw beside NeuroFluid's: the truth
+/// (`eval.render_truth`), then the rollouts of DLF and DLF† where evaluated (`eval.render_dlf`).
+fn other_particles<'a>(run: &Run, rollouts: &'a Rollouts) -> Vec<OtherParticles<'a>> {
+    let cfg = &run.exp.eval;
+    let mut others = Vec::new();
+    if cfg.render_truth {
+        others.push(OtherParticles {
+            model: RENDERER_ON_TRUTH,
+            prefix: "true_particles_",
+            at: rollouts.truth.iter().map(|p| p.pos.as_slice()).collect(),
+        });
+    }
+    if cfg.render_dlf {
+        let sets = [
+            (RENDERER_ON_DLF, "dlf_particles_", &rollouts.baseline),
+            (
+                RENDERER_ON_SUPERVISED_DLF,
+                "dlf_supervised_particles_",
+                &rollouts.supervised,
+            ),
+        ];
+        for (model, prefix, positions) in sets {
+            if let Some(positions) = positions {
+                let at = positions.iter().map(Vec::as_slice).collect();
+                others.push(OtherParticles { model, prefix, at });
+            }
+        }
+    }
+    others
+}
+
 /// Renders NeuroFluid's particles from every evaluated view at the rendered steps, writes each
 /// beside the truth (and, with `eval.animate`, the animation and the particle pictures of the
-/// view) and returns the renders' scores; with `eval.render_truth`, also the scores of the
-/// renderer on the true particles of the same steps (else an empty list).
+/// view) and returns the renders' scores, with the scores of the renderer on the other particle
+/// sets asked for (`eval.render_truth`, `eval.render_dlf`), each saved beside the truth too.
 pub fn render_views(
     run: &Run,
     physnerf: &PhysNerf,
     rollouts: &Rollouts,
     dir: &Path,
-) -> anyhow::Result<(Vec<ImageScore>, Vec<ImageScore>)> {
+) -> anyhow::Result<(Vec<ImageScore>, Vec<BaselineScores>)> {
     let scene = &run.scene;
     let cfg = &run.exp.eval;
     let test = scene.frames(Role::Test);
@@ -93,8 +138,15 @@ pub fn render_views(
     let radius = scene.manifest().particle_radius;
     let frames = rendered_steps(test.len(), cfg.render_every);
     let lpips = Lpips::new(&neurofluid_core::device::cpu())?;
+    let others = other_particles(run, rollouts);
     let mut scores = Vec::new();
-    let mut on_truth = Vec::new();
+    let mut others_scores: Vec<BaselineScores> = others
+        .iter()
+        .map(|o| BaselineScores {
+            model: o.model.into(),
+            images: Vec::new(),
+        })
+        .collect();
     for view in &cfg.views(scene) {
         let bar =
             indicatif::ProgressBar::new(frames.len() as u64).with_prefix(format!("render {view}"));
@@ -112,15 +164,25 @@ pub fn render_views(
             let pred = render(physnerf, &cam, &rollouts.grounded[t])?;
             save_beside_truth(&pred, "")?;
             scores.push(score(view, t, &pred, &truth, &lpips)?);
-            if cfg.render_truth {
-                let ceiling = render(physnerf, &cam, &rollouts.truth[t].pos)?;
-                save_beside_truth(&ceiling, "true_particles_")?;
-                on_truth.push(score(view, t, &ceiling, &truth, &lpips)?);
+            let mut dlf_render = None;
+            for (other, other_scores) in others.iter().zip(&mut others_scores) {
+                let image = render(physnerf, &cam, other.at[t])?;
+                save_beside_truth(&image, other.prefix)?;
+                other_scores
+                    .images
+                    .push(score(view, t, &image, &truth, &lpips)?);
+                if other.model == RENDERER_ON_DLF {
+                    dlf_render = Some(image);
+                }
             }
             if cfg.animate {
                 let mut panels = vec![("truth", picture(&truth.image))];
                 if let Some(b) = &rollouts.baseline {
-                    panels.push(("DLF", picture(&render(physnerf, &cam, &b[t])?)));
+                    let image = match dlf_render {
+                        Some(image) => image,
+                        None => render(physnerf, &cam, &b[t])?,
+                    };
+                    panels.push(("DLF", picture(&image)));
                 }
                 panels.push(("NeuroFluid", picture(&pred)));
                 let labelled: Vec<(&str, &Picture)> = panels.iter().map(|(l, p)| (*l, p)).collect();
@@ -166,7 +228,7 @@ pub fn render_views(
             )?;
         }
     }
-    Ok((scores, on_truth))
+    Ok((scores, others_scores))
 }
 
 /// Renders `particles` with PhysNeRF from `camera` (8-bit quantised, as saved PNGs are).

@@ -18,7 +18,8 @@ use neurofluid_core::scene::Role;
 
 pub use super::scoring::rendered_steps;
 pub use artifacts::{
-    ANIMATIONS, DISTANCE_PLOT, INTERPOLATION_PLOT, RENDERER_ON_TRUTH, VIEWER_FILE, picture_frames,
+    ANIMATIONS, DISTANCE_PLOT, INTERPOLATION_PLOT, RENDERER_ON_DLF, RENDERER_ON_SUPERVISED_DLF,
+    RENDERER_ON_TRUTH, VIEWER_FILE, picture_frames,
 };
 use rollouts::Rollouts;
 
@@ -76,14 +77,9 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
     }
     if cfg.render {
         let physnerf = models.physnerf.valid();
-        let (images, on_truth) = artifacts::render_views(run, &physnerf, &rollouts, &dir)?;
+        let (images, others) = artifacts::render_views(run, &physnerf, &rollouts, &dir)?;
         report.images = images;
-        if !on_truth.is_empty() {
-            report.nvs_baselines.push(crate::report::BaselineScores {
-                model: artifacts::RENDERER_ON_TRUTH.into(),
-                images: on_truth,
-            });
-        }
+        report.nvs_baselines.extend(others);
     }
     if cfg.viewer {
         artifacts::write_viewer(run, &rollouts, &report, &dir)?;
