@@ -20,7 +20,8 @@ use neurofluid_train::sampler::Rng;
 use neurofluid_train::silhouette::{projected_radius, silhouette_loss};
 use neurofluid_train::stage::Stage;
 use neurofluid_train::stages::joint::{self, JointData, dlf_surrogate, split_image_loss};
-use neurofluid_train::stages::{Run, Start, warmup};
+use neurofluid_train::stages::views::ViewFrame;
+use neurofluid_train::stages::{Run, Start, orbit, warmup};
 
 /// Every parameter's gradient in `grads`, in the module's order (empty where it has none).
 fn gradients<M: Module>(module: &M, grads: &GradientsParams) -> Vec<Vec<f32>> {
@@ -637,16 +638,20 @@ fn energy_prior_adds_each_steps_energy_gain_to_the_loss() {
 
 #[test]
 fn replay_keeps_the_renderer_rendering_the_warmup_views() {
-    // two runs that differ only in the replayed warm-up rays: the renderer grounded with the
-    // replay renders the warm-up's views of the first frame closer to their images
+    // three runs that differ only in what is replayed: nothing, the warm-up's images, or the
+    // warm-up renderer's own renders from all round the fluid (`joint.replay_of = "renders"`).
+    // The renderer grounded with the images renders the warm-up's views of the first frame
+    // closer to their images; the one grounded with the renders draws the orbit closer to what
+    // the warm-up's renderer drew there
     let _turn = seeded_turn();
     let tmp = tempfile::tempdir().unwrap();
     let runs = ground_each(
         tmp.path(),
         "replay",
-        &[0, 256].map(|r| {
+        &[(0, "images"), (256, "images"), (256, "renders")].map(|(r, of)| {
             vec![
                 format!("joint.replay_rays={r}"),
+                format!("joint.replay_of=\"{of}\""),
                 "joint.epochs=10".into(),
                 "joint.physnerf_optim.lr=1e-3".into(),
             ]
@@ -655,8 +660,8 @@ fn replay_keeps_the_renderer_rendering_the_warmup_views() {
     let run = &runs[0].run;
     let data = warmup::warmup_data(run).unwrap();
     let particles = points_tensor(&data.particles, &run.device);
-    let psnr = |g: &Grounding| {
-        data.views
+    let psnr = |g: &Grounding, views: &[ViewFrame]| {
+        views
             .iter()
             .map(|v| {
                 neurofluid_train::stages::views::render_beside_truth(
@@ -669,12 +674,23 @@ fn replay_keeps_the_renderer_rendering_the_warmup_views() {
                 .unwrap()
             })
             .sum::<f64>()
-            / data.views.len() as f64
+            / views.len() as f64
     };
-    let (without, with) = (psnr(&runs[0]), psnr(&runs[1]));
+    let (without, with) = (psnr(&runs[0], &data.views), psnr(&runs[1], &data.views));
     assert!(
         with > without + 0.1,
         "warm-up views: {with:.2} dB with the replay, {without:.2} without"
+    );
+    let cameras: Vec<_> = data.views.iter().map(|v| v.camera).collect();
+    let up = run.scene.up_axis().index();
+    let warmed = warmup::load_trained(run).unwrap();
+    let orbit = orbit::orbit_renders(&warmed, &cameras, &data.particles, up).unwrap();
+    assert_eq!(orbit.len(), orbit::ORBIT_CAMERAS);
+    let (without, with) = (psnr(&runs[0], &orbit), psnr(&runs[2], &orbit));
+    assert!(
+        with > without + 0.1,
+        "the orbit against the warm-up's renders: {with:.2} dB with their replay, {without:.2} \
+         without"
     );
 }
 

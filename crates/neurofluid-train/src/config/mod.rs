@@ -41,7 +41,7 @@ pub use preset::Preset;
 pub use sections::{
     AnchorAlong, BuiltinScene, ColourHead, Containment, DlfSection, EnergyCap, EnergyPer,
     EvalSection, InitialParticles, InitialSection, JointSection, NerfSection, NerfTImages,
-    PlyEncoding, RefitSection, SceneScale, SceneSection, SurfaceThreshold, WarmupSection,
+    PlyEncoding, RefitSection, ReplayOf, SceneScale, SceneSection, SurfaceThreshold, WarmupSection,
 };
 pub use settings::Settings;
 
@@ -478,7 +478,7 @@ mod tests {
             (1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         );
         assert!(j.extra_views.is_empty());
-        assert_eq!(j.colour_head, r.colour_head);
+        assert_eq!((j.colour_head, j.replay_of), (r.colour_head, r.replay_of));
         // the budgets are the file's
         assert_eq!(
             (paper.warmup.iters, paper.joint.epochs, paper.joint.rays),

@@ -71,6 +71,7 @@ pub fn apply(exp: &mut Experiment) -> Vec<Change> {
     j.anchor_along = paper.anchor_along;
     j.anchor_horizon = paper.anchor_horizon;
     j.replay_rays = paper.replay_rays;
+    j.replay_of = paper.replay_of;
     j.colour_head = paper.colour_head;
     j.extra_views = paper.extra_views;
     exp.eval.weight_interpolation = EvalSection::default().weight_interpolation;

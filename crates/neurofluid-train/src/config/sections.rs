@@ -246,6 +246,21 @@ pub enum ColourHead {
     Frozen,
 }
 
+/// What the joint stage replays beside the training view (`joint.replay_rays` > 0).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ReplayOf {
+    /// The warm-up views' images at the warm-up frame: the renderer keeps rendering the views
+    /// it was warmed up on.
+    #[default]
+    Images,
+    /// The warm-up renderer's own renders of the warm-up frame from cameras all round the fluid
+    /// above its floor ([`crate::stages::orbit`]): the renderer keeps drawing what it drew after
+    /// the warm-up from every direction, also those no camera of the rig looks from, where
+    /// grounding on one view otherwise moves the colour (a distillation).
+    Renders,
+}
+
 /// What the energy prior (`joint.energy_weight`) holds non-increasing from step to step.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -627,6 +642,8 @@ pub struct JointSection {
     /// particles: PhysNeRF's gradients only), so that the renderer grounded on the training view
     /// keeps rendering the others. 0 = the reference's training view alone.
     pub replay_rays: usize,
+    /// What is replayed (`images`).
+    pub replay_of: ReplayOf,
     /// Whether the renderer's colour heads train in the joint stage (`trained`).
     pub colour_head: ColourHead,
     /// Training view; unset = the scene manifest's (view_1).
@@ -666,6 +683,7 @@ impl Default for JointSection {
             anchor_along: AnchorAlong::All,
             anchor_horizon: 0,
             replay_rays: 0,
+            replay_of: ReplayOf::Images,
             colour_head: ColourHead::Trained,
             view: None,
             extra_views: Vec::new(),

@@ -40,7 +40,7 @@ use super::views::{
 };
 use super::warmup::{self, WarmupData};
 use crate::config::Cadenced;
-use crate::config::{AnchorAlong, ColourHead, JointSection};
+use crate::config::{AnchorAlong, ColourHead, JointSection, ReplayOf};
 use crate::density_prior::DensityPrior;
 use crate::energy_prior::{energy_gain, energy_gains};
 use crate::focus::{image_foreground, mark_particles, sample_focused};
@@ -1045,15 +1045,22 @@ pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::
         bptt_steps = cfg.bptt_steps,
         "joint grounding"
     );
+    let physnerf = warmup::load_trained(run)?;
     if cfg.replay_rays > 0 {
-        data.replay = Some(warmup::warmup_data(run)?);
+        let mut replay = warmup::warmup_data(run)?;
+        if cfg.replay_of == ReplayOf::Renders {
+            let cameras: Vec<_> = replay.views.iter().map(|v| v.camera).collect();
+            let up = run.scene.up_axis().index();
+            replay.views = super::orbit::orbit_renders(&physnerf, &cameras, &replay.particles, up)
+                .context("the warm-up renderer's orbit (joint.replay_of = \"renders\")")?;
+        }
+        data.replay = Some(replay);
     }
     if let Some(view) = &run.exp.warmup.held_out {
         let t0 = run.scene.frames(Role::Warmup).start;
         let frame = ViewFrame::load(&run.scene, Role::Warmup, view, t0)?;
         data.held_out = Some((frame, warmup::warmup_particles(run)?));
     }
-    let physnerf = warmup::load_trained(run)?;
     let dlf = run.load_dlf(&run.exp.dlf.weights)?;
     let mut trainer = JointTrainer::new(cfg, physnerf, dlf, data, run.exp.seed)?;
     super::drive::drive(run, log, &mut trainer, STAGE, cfg.cadence(), stop)?;

@@ -8,6 +8,7 @@ pub mod eval;
 pub mod initial;
 pub mod joint;
 pub mod nerf;
+pub mod orbit;
 pub mod preflight;
 mod prepare;
 pub mod refit;
