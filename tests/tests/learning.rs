@@ -24,6 +24,29 @@ fn warmup_view_psnr(run: &Run, physnerf: &neurofluid_physnerf::PhysNerf) -> f64 
         .unwrap()
 }
 
+/// PhysNeRF's render of `particles` from `frame`'s camera and the frame's truth, both as the
+/// evaluation scores them (8-bit quantised).
+fn scored_render(
+    run: &Run,
+    physnerf: &neurofluid_physnerf::PhysNerf,
+    frame: &ViewFrame,
+    particles: &[[f32; 3]],
+) -> (RgbImage, RgbImage) {
+    let image = physnerf
+        .render_image(
+            &frame.camera,
+            &points_tensor(particles, &run.device),
+            physnerf.config.chunk,
+        )
+        .unwrap();
+    let (w, h) = (frame.camera.width as usize, frame.camera.height as usize);
+    let quantised = |rgb: Vec<f32>| RgbImage::new(w, h, rgb).unwrap().quantised();
+    (
+        quantised(image.best().to_vec()),
+        quantised(frame.image.rgb.clone()),
+    )
+}
+
 #[test]
 fn the_ci_experiment_learns() {
     let _turn = seeded_turn();
@@ -158,20 +181,8 @@ fn the_ci_experiment_learns() {
     let frame = ViewFrame::load(&again.scene, Role::Test, &first.view, at).unwrap();
     let truth = again.scene.particles(Role::Test, at).unwrap();
     let physnerf = grounded.physnerf.valid();
-    let image = physnerf
-        .render_image(
-            &frame.camera,
-            &points_tensor(&truth.pos, &again.device),
-            physnerf.config.chunk,
-        )
-        .unwrap();
+    let (rendered, target) = scored_render(&again, &physnerf, &frame, &truth.pos);
     let (w, h) = (frame.camera.width as usize, frame.camera.height as usize);
-    let rendered = RgbImage::new(w, h, image.best().to_vec())
-        .unwrap()
-        .quantised();
-    let target = RgbImage::new(w, h, frame.image.rgb.clone())
-        .unwrap()
-        .quantised();
     assert_eq!(first.psnr, psnr(&rendered, &target).unwrap());
     // its error split by the truth's alpha, summed here pixel by pixel
     let (mut on, mut all) = (0.0f64, 0.0f64);
@@ -249,19 +260,7 @@ fn the_ci_experiment_learns() {
     let at = again.scene.frames(Role::Test).start + last.t;
     let frame = ViewFrame::load(&again.scene, Role::Test, &last.view, at).unwrap();
     let dlf_particles = &rollouts.baseline.as_ref().unwrap()[last.t];
-    let image = physnerf
-        .render_image(
-            &frame.camera,
-            &points_tensor(dlf_particles, &again.device),
-            physnerf.config.chunk,
-        )
-        .unwrap();
-    let rendered = RgbImage::new(w, h, image.best().to_vec())
-        .unwrap()
-        .quantised();
-    let target = RgbImage::new(w, h, frame.image.rgb.clone())
-        .unwrap()
-        .quantised();
+    let (rendered, target) = scored_render(&again, &physnerf, &frame, dlf_particles);
     assert_eq!(last.psnr, psnr(&rendered, &target).unwrap());
     let dir = again
         .stage_dir(Stage::Eval)
