@@ -12,7 +12,7 @@ use neurofluid_train::config::Experiment;
 use neurofluid_train::metrics_log::read_jsonl;
 use neurofluid_train::stage::Stage;
 use neurofluid_train::stages::views::ViewFrame;
-use neurofluid_train::stages::{Run, Start, joint, warmup};
+use neurofluid_train::stages::{Run, Start, joint, refit, warmup};
 
 fn experiment(tmp: &Path, name: &str, overrides: &[&str]) -> Experiment {
     let mut e = tiny_experiment(tmp, name);
@@ -182,4 +182,44 @@ fn a_held_out_view_must_be_a_warmup_view_and_leave_one() {
             assert!(message.contains(expected), "{message}");
         }
     }
+}
+
+#[test]
+fn the_refit_scores_the_held_out_view_after_its_fit() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let e = experiment(
+        tmp.path(),
+        "refit",
+        &[
+            "warmup.held_out=\"view_3\"",
+            "joint.preview_every=1",
+            "refit.enabled=true",
+            "refit.positions=\"world\"",
+        ],
+    );
+    let run = Run::prepare(e, Start::Fresh, &Stage::ALL).unwrap();
+    let mut log = run.open_log().unwrap();
+    warmup::run(&run, &mut log).unwrap();
+    let dlf = joint::run(&run, &mut log).unwrap().dlf;
+    let refitted = refit::run(&run, &mut log, &dlf).unwrap();
+    let rows = read_jsonl(log.jsonl_path()).unwrap();
+    let last = rows
+        .iter()
+        .filter(|r| r.stage.starts_with("refit"))
+        .filter_map(|r| {
+            let v = r.scalars.iter().find(|(k, _)| k == "psnr_held_out")?;
+            Some((r.step, v.1))
+        })
+        .max_by_key(|(step, _)| *step)
+        .expect("the refit scores the held-out view");
+    let steps = run.exp.warmup.iters + run.exp.joint.epochs * 3;
+    assert_eq!(
+        last.0, steps,
+        "the last evaluation is the refit's last step"
+    );
+    let expected = psnr_of(&run, &refitted, Role::Warmup, "view_3");
+    assert!((last.1 - expected).abs() < 1e-3, "{last:?} vs {expected}");
+    let warmed = warmup::load_trained(&run).unwrap();
+    assert!((psnr_of(&run, &warmed, Role::Warmup, "view_3") - expected).abs() > 1e-4);
 }

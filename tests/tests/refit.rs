@@ -8,7 +8,8 @@ use neurofluid_tests::{params, seeded_turn, tiny_experiment};
 use neurofluid_train::config::Experiment;
 use neurofluid_train::metrics_log::MetricsLog;
 use neurofluid_train::stage::Stage;
-use neurofluid_train::stages::{Run, Start, eval, joint, refit, run_all, warmup};
+use neurofluid_train::stages::views::{points_tensor, render_beside_truth};
+use neurofluid_train::stages::{Run, Start, eval, joint, orbit, refit, run_all, warmup};
 
 fn experiment(tmp: &Path, name: &str, overrides: &[&str]) -> Experiment {
     let mut e = tiny_experiment(tmp, name);
@@ -183,4 +184,53 @@ fn a_stale_refit_starts_over_and_each_step_is_logged_once() {
     let (run, mut log) = prepared(experiment(tmp.path(), "stale", &["joint.preview_every=2"]));
     let report = run_all(&run, &mut log).unwrap();
     assert!(report.renderer.is_none());
+}
+
+/// With `refit.replay_rays` the refitted renderer, fitted to the grounded rollout, draws the
+/// warm-up frame from all round the fluid closer to what the warm-up's renderer drew there than
+/// the same refit without it; the dynamics stay the joint stage's either way.
+#[test]
+fn the_refit_replay_holds_the_warm_ups_renders_all_round() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let fit = |name: &str, rays: usize| {
+        let overrides = [
+            "refit.enabled=true",
+            "refit.positions=\"world\"",
+            "joint.epochs=10",
+            "joint.physnerf_optim.lr=1e-3",
+            &format!("refit.replay_rays={rays}"),
+        ];
+        let (run, mut log) = prepared(experiment(tmp.path(), name, &overrides));
+        warmup::run(&run, &mut log).unwrap();
+        let dlf = joint::run(&run, &mut log).unwrap().dlf;
+        let renderer = refit::run(&run, &mut log, &dlf).unwrap();
+        (run, renderer, dlf)
+    };
+    let (run, without, dlf_without) = fit("without", 0);
+    let (_, with, dlf_with) = fit("with", 256);
+    assert_eq!(params(&dlf_with), params(&dlf_without));
+    let data = warmup::warmup_data(&run).unwrap();
+    let cameras: Vec<_> = data.views.iter().map(|v| v.camera).collect();
+    let teacher = warmup::load_trained(&run).unwrap();
+    let up = run.scene.up_axis().index();
+    let orbit = orbit::orbit_renders(&teacher, &cameras, &data.particles, up).unwrap();
+    let particles = points_tensor(&data.particles, &run.device);
+    let psnr = |renderer: &neurofluid_physnerf::PhysNerf| {
+        orbit
+            .iter()
+            .map(|v| {
+                render_beside_truth(renderer, v, &particles)
+                    .unwrap()
+                    .psnr
+                    .unwrap()
+            })
+            .sum::<f64>()
+            / orbit.len() as f64
+    };
+    let (a, b) = (psnr(&without), psnr(&with));
+    assert!(
+        b > a + 0.1,
+        "the orbit against the warm-up's renders: {b:.2} dB with the replay, {a:.2} without"
+    );
 }

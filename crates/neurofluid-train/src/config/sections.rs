@@ -345,6 +345,12 @@ pub struct RefitSection {
     /// less; BENCHMARKS.md, "a renderer that moves with its particles"); the rest of
     /// `[physnerf]` is the first renderer's.
     pub positions: Positions,
+    /// Rays per fit step replayed from the warm-up renderer's renders of the warm-up frame from
+    /// all round the fluid ([`crate::stages::orbit`]; the warm-up stage's renderer, the teacher
+    /// whatever `positions`), so that the refitted renderer keeps the colour the warm-up drew
+    /// from every direction while it fits the grounded rollout on one view. The dynamics are
+    /// the joint stage's whatever it does. 0 = none.
+    pub replay_rays: usize,
 }
 
 impl Default for RefitSection {
@@ -352,6 +358,7 @@ impl Default for RefitSection {
         Self {
             enabled: false,
             positions: Positions::Relative,
+            replay_rays: 0,
         }
     }
 }

@@ -42,6 +42,7 @@ const ADDED_KEYS: &[(&str, &str)] = &[
     ("joint.anchor_horizon", "0"),
     ("joint.replay_rays", "0"),
     ("joint.replay_of", "\"images\""),
+    ("refit.replay_rays", "0"),
     ("joint.colour_head", "\"trained\""),
     ("joint.energy_weight", "0.0"),
     ("joint.energy_per", "\"fluid\""),

@@ -896,33 +896,22 @@ impl JointTrainer {
         total
     }
 
-    /// The replayed warm-up loss of iteration `step` (`joint.replay_rays` rays from one warm-up
-    /// view in turn, rendered from the warm-up's particles; detached, to be read with the step's
-    /// other values) and PhysNeRF's gradients of it.
+    /// The replayed warm-up loss of iteration `step` ([`replay_loss`]; detached, to be read
+    /// with the step's other values) and PhysNeRF's gradients of it.
     fn replay_step(&mut self, step: u64) -> anyhow::Result<(Tensor<1>, Option<GradientsParams>)> {
-        let device = self.dlf.device();
         let replay = self.data.replay.as_ref().context("no warm-up to replay")?;
-        let view = &replay.views[(step % replay.views.len() as u64) as usize];
-        let pixels = self.rng.sample_pixels(
-            self.cfg.replay_rays,
-            view.camera.width,
-            view.camera.height,
-            None,
-        )?;
-        let (rays, colours) = view.batch(&pixels, &device);
         let particles = self
             .replay_particles
             .as_ref()
             .context("no warm-up particles to replay")?;
-        let jitter: Option<&mut dyn rand::RngCore> = if self.physnerf.config.stratified {
-            Some(&mut self.rng)
-        } else {
-            None
-        };
-        let out =
-            self.physnerf
-                .render_rays_with_host(particles, &replay.particles, &rays, jitter)?;
-        let loss = self.physnerf.loss(&out, colours).total;
+        let loss = replay_loss(
+            &self.physnerf,
+            replay,
+            particles,
+            self.cfg.replay_rays,
+            &mut self.rng,
+            step,
+        )?;
         let value = loss.clone().detach();
         let grads = guard::backward(loss).map(|g| GradientsParams::from_grads(g, &self.physnerf));
         Ok((value, grads))
@@ -1026,6 +1015,42 @@ fn without_colour_heads(mut grads: GradientsParams, physnerf: &PhysNerf) -> Grad
     grads
 }
 
+/// The replayed loss of iteration `step`: `rays` pixels of one of `replay`'s views in turn,
+/// rendered by `physnerf` from `replay`'s particles (`particles`, on the device), against the
+/// view's image: the warm-up's images (`joint.replay_of = "images"`) or the warm-up renderer's
+/// own renders from all round ([`super::orbit`]).
+pub(super) fn replay_loss(
+    physnerf: &PhysNerf,
+    replay: &WarmupData,
+    particles: &Tensor<2>,
+    rays: usize,
+    rng: &mut Rng,
+    step: u64,
+) -> anyhow::Result<Tensor<1>> {
+    let device = physnerf.device();
+    let view = &replay.views[(step % replay.views.len() as u64) as usize];
+    let pixels = rng.sample_pixels(rays, view.camera.width, view.camera.height, None)?;
+    let (rays, colours) = view.batch(&pixels, &device);
+    let jitter: Option<&mut dyn rand::RngCore> = if physnerf.config.stratified {
+        Some(rng as &mut dyn rand::RngCore)
+    } else {
+        None
+    };
+    let out = physnerf.render_rays_with_host(particles, &replay.particles, &rays, jitter)?;
+    Ok(physnerf.loss(&out, colours).total)
+}
+
+/// With `warmup.held_out`, that view at the warm-up's frame and the frame's particles (what
+/// `psnr_held_out` renders).
+pub(super) fn held_out_view(run: &Run) -> anyhow::Result<Option<(ViewFrame, Vec<[f32; 3]>)>> {
+    let Some(view) = &run.exp.warmup.held_out else {
+        return Ok(None);
+    };
+    let t0 = run.scene.frames(Role::Warmup).start;
+    let frame = ViewFrame::load(&run.scene, Role::Warmup, view, t0)?;
+    Ok(Some((frame, warmup::warmup_particles(run)?)))
+}
+
 /// Runs (or resumes) the joint stage of `run` with the CLI's sinks and returns the models.
 pub fn run(run: &Run, log: &mut MetricsLog) -> anyhow::Result<Grounded> {
     run_until(run, log, None)
@@ -1056,11 +1081,7 @@ pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::
         }
         data.replay = Some(replay);
     }
-    if let Some(view) = &run.exp.warmup.held_out {
-        let t0 = run.scene.frames(Role::Warmup).start;
-        let frame = ViewFrame::load(&run.scene, Role::Warmup, view, t0)?;
-        data.held_out = Some((frame, warmup::warmup_particles(run)?));
-    }
+    data.held_out = held_out_view(run)?;
     let dlf = run.load_dlf(&run.exp.dlf.weights)?;
     let mut trainer = JointTrainer::new(cfg, physnerf, dlf, data, run.exp.seed)?;
     super::drive::drive(run, log, &mut trainer, STAGE, cfg.cadence(), stop)?;

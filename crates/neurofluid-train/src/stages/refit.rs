@@ -12,6 +12,11 @@
 //! out another DLF than the one it was fitted to. Made from the stages before it alone, it starts
 //! over when its settings changed ([`start_over_if_stale`]).
 //!
+//! With `refit.replay_rays` each fit step also replays the warm-up stage's renderer's renders of
+//! the warm-up frame from all round the fluid ([`super::orbit`]), so that fitting one view does
+//! not move the colour drawn from the others; with `warmup.held_out` the refit logs
+//! `psnr_held_out` as the joint stage does.
+//!
 //! Why: a renderer that moves with its particles (`positions = "relative"`) carries over from the
 //! warm-up's frame to the others better than the paper's, but trained during grounding it moved
 //! DLF less (BENCHMARKS.md, "a renderer that moves with its particles"). Fitted afterwards, it
@@ -20,14 +25,15 @@
 use std::path::Path;
 
 use anyhow::Context;
+use burn::tensor::Tensor;
 use neurofluid_core::scene::Role;
 use neurofluid_dlf::DlfNet;
 use neurofluid_physnerf::PhysNerf;
 
-use super::joint::{self, JointData, psnr_on_truth, training_rays};
+use super::joint::{self, JointData, psnr_on_truth, replay_loss, training_rays};
 use super::run_folder::Run;
 use super::views::{points_tensor, render_beside_truth};
-use super::warmup::{self, WarmupTrainer, renderer_update};
+use super::warmup::{self, WarmupData, WarmupTrainer, renderer_update};
 use crate::config::{Cadenced, JointSection, WarmupSection};
 use crate::metrics_log::MetricsLog;
 use crate::optim::{Group, JointPhysNerfGroup};
@@ -61,19 +67,26 @@ pub struct RefitTrainer {
     data: JointData,
     /// The grounded DLF's rollout over the training frames (index 0: the true first state).
     rollout: Vec<Vec<[f32; 3]>>,
+    /// `refit.replay_rays` > 0: the warm-up renderer's orbit and its particles on the device.
+    replay: Option<(WarmupData, Tensor<2>)>,
+    replay_rays: usize,
     seed: u64,
 }
 
 impl RefitTrainer {
     /// A refit of the fresh renderer `physnerf`: its warm-up as `warmup` says on `warmup_data`,
-    /// then the joint stage's images `data` with the particles of `rollout`.
+    /// then the joint stage's images `data` with the particles of `rollout`, with `replay_rays`
+    /// rays of `replay`'s views replayed at every fit step (none without it).
+    #[allow(clippy::too_many_arguments)]
     pub fn new(
         warmup: &WarmupSection,
         joint: &JointSection,
         physnerf: PhysNerf,
-        warmup_data: warmup::WarmupData,
+        warmup_data: WarmupData,
         data: JointData,
         rollout: Vec<Vec<[f32; 3]>>,
+        replay: Option<WarmupData>,
+        replay_rays: usize,
         seed: u64,
     ) -> anyhow::Result<Self> {
         anyhow::ensure!(
@@ -82,6 +95,11 @@ impl RefitTrainer {
             rollout.len(),
             data.views[0].len()
         );
+        let device = physnerf.device();
+        let replay = replay.map(|r| {
+            let particles = points_tensor(&r.particles, &device);
+            (r, particles)
+        });
         Ok(Self {
             warmup_iters: warmup.iters,
             warmup_previews: warmup.preview_every,
@@ -90,6 +108,8 @@ impl RefitTrainer {
             fit: None,
             data,
             rollout,
+            replay,
+            replay_rays,
             seed,
         })
     }
@@ -133,8 +153,13 @@ impl RefitTrainer {
             .physnerf
             .render_rays_with_host(&positions, particles, &rays, jitter)?;
         let loss = fit.physnerf.loss(&out, colours);
+        let mut total = loss.total;
+        if let Some((replay, positions)) = &self.replay {
+            let rays = self.replay_rays;
+            total = total + replay_loss(&fit.physnerf, replay, positions, rays, &mut fit.rng, i)?;
+        }
         let lr = fit.opt.lr();
-        let update = renderer_update(&fit.physnerf, &mut fit.opt, vec![loss.fine], loss.total)?;
+        let update = renderer_update(&fit.physnerf, &mut fit.opt, vec![loss.fine], total)?;
         if let Some(updated) = update.physnerf {
             fit.physnerf = updated;
         }
@@ -190,6 +215,11 @@ impl Trainer for RefitTrainer {
         evaluation
             .scores
             .extend(psnr_true.map(|p| ("psnr_true", p)));
+        if let Some((view, particles)) = &self.data.held_out {
+            let particles = points_tensor(particles, &self.physnerf().device());
+            let psnr = render_beside_truth(self.physnerf(), view, &particles)?.psnr;
+            evaluation.scores.extend(psnr.map(|p| ("psnr_held_out", p)));
+        }
         Ok(Some(evaluation))
     }
 
@@ -276,6 +306,7 @@ pub fn run_until(
     let first = run.scene.frames(Role::Train).start;
     data.initial =
         super::initial::starting_particles(run, Role::Train, first, "first training frame")?;
+    data.held_out = joint::held_out_view(run)?;
     let rollout = joint::training_rollout(dlf, &data).pos;
     tracing::info!(
         positions = ?exp.refit.positions,
@@ -283,13 +314,30 @@ pub fn run_until(
         fit_steps = exp.joint.epochs * data.transitions(),
         "renderer refit to the grounded rollout"
     );
+    let warmup_data = warmup::warmup_data(run)?;
+    let replay = if exp.refit.replay_rays > 0 {
+        let teacher = warmup::load_trained(run)?;
+        let cameras: Vec<_> = warmup_data.views.iter().map(|v| v.camera).collect();
+        let up = run.scene.up_axis().index();
+        let views = super::orbit::orbit_renders(&teacher, &cameras, &warmup_data.particles, up)
+            .context("the warm-up renderer's orbit (refit.replay_rays)")?;
+        Some(WarmupData {
+            views,
+            particles: warmup_data.particles.clone(),
+            held_out: None,
+        })
+    } else {
+        None
+    };
     let mut trainer = RefitTrainer::new(
         &exp.warmup,
         &exp.joint,
         new_renderer(run)?,
-        warmup::warmup_data(run)?,
+        warmup_data,
         data,
         rollout,
+        replay,
+        exp.refit.replay_rays,
         exp.seed,
     )?;
     // the joint stage's cadence, through both phases
