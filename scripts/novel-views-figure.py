@@ -3,7 +3,7 @@
 NeuroFluid's, DLF's, DLF†'s and the true particles, by the warm-up's renderer on the true
 particles, and NeRF-T's render, beside the truth (BENCHMARKS.md, nineteenth session).
 
-    /work/bedenv/bin/python scripts/novel-views-figure.py   # needs Pillow
+    python3 scripts/novel-views-figure.py   # needs Pillow (the test bed's venv has it)
 
 Reads the renders the evaluation saves (`eval.render_truth`, `eval.render_dlf`) in
 `runs/r17/<scene>-ship-dlf` (the shipped seed-10 run evaluated with DLF†) and

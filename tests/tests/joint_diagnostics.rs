@@ -681,10 +681,9 @@ fn replay_keeps_the_renderer_rendering_the_warmup_views() {
         with > without + 0.1,
         "warm-up views: {with:.2} dB with the replay, {without:.2} without"
     );
-    let cameras: Vec<_> = data.views.iter().map(|v| v.camera).collect();
     let up = run.scene.up_axis().index();
     let warmed = warmup::load_trained(run).unwrap();
-    let orbit = orbit::orbit_renders(&warmed, &cameras, &data.particles, up).unwrap();
+    let orbit = orbit::orbit_replay(&warmed, &data, up).unwrap().views;
     assert_eq!(orbit.len(), orbit::ORBIT_CAMERAS);
     let (without, with) = (psnr(&runs[0], &orbit), psnr(&runs[2], &orbit));
     assert!(

@@ -211,10 +211,9 @@ fn the_refit_replay_holds_the_warm_ups_renders_all_round() {
     let (_, with, dlf_with) = fit("with", 256);
     assert_eq!(params(&dlf_with), params(&dlf_without));
     let data = warmup::warmup_data(&run).unwrap();
-    let cameras: Vec<_> = data.views.iter().map(|v| v.camera).collect();
     let teacher = warmup::load_trained(&run).unwrap();
     let up = run.scene.up_axis().index();
-    let orbit = orbit::orbit_renders(&teacher, &cameras, &data.particles, up).unwrap();
+    let orbit = orbit::orbit_replay(&teacher, &data, up).unwrap().views;
     let particles = points_tensor(&data.particles, &run.device);
     let psnr = |renderer: &neurofluid_physnerf::PhysNerf| {
         orbit

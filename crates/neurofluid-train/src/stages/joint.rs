@@ -1072,14 +1072,15 @@ pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::
     );
     let physnerf = warmup::load_trained(run)?;
     if cfg.replay_rays > 0 {
-        let mut replay = warmup::warmup_data(run)?;
-        if cfg.replay_of == ReplayOf::Renders {
-            let cameras: Vec<_> = replay.views.iter().map(|v| v.camera).collect();
-            let up = run.scene.up_axis().index();
-            replay.views = super::orbit::orbit_renders(&physnerf, &cameras, &replay.particles, up)
-                .context("the warm-up renderer's orbit (joint.replay_of = \"renders\")")?;
-        }
-        data.replay = Some(replay);
+        let warmup = warmup::warmup_data(run)?;
+        data.replay = Some(match cfg.replay_of {
+            ReplayOf::Images => warmup,
+            ReplayOf::Renders => {
+                let up = run.scene.up_axis().index();
+                super::orbit::orbit_replay(&physnerf, &warmup, up)
+                    .context("the warm-up renderer's orbit (joint.replay_of = \"renders\")")?
+            }
+        });
     }
     data.held_out = held_out_view(run)?;
     let dlf = run.load_dlf(&run.exp.dlf.weights)?;

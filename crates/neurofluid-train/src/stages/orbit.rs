@@ -9,6 +9,7 @@ use neurofluid_core::scene::Image;
 use neurofluid_physnerf::{PhysNerf, render_image};
 
 use super::views::{ViewFrame, points_tensor};
+use super::warmup::WarmupData;
 
 /// Cameras of the orbit.
 pub const ORBIT_CAMERAS: usize = 16;
@@ -54,10 +55,26 @@ pub fn orbit_cameras(
         .collect()
 }
 
+/// What the replay of `joint.replay_of = "renders"` and `refit.replay_rays` holds a renderer
+/// to: the warm-up frame of `warmup` (its particles) seen by [`orbit_renders`] with `teacher`'s
+/// renders as the images, in place of the warm-up's own views (`up_axis`: the scene's).
+pub fn orbit_replay(
+    teacher: &PhysNerf,
+    warmup: &WarmupData,
+    up_axis: usize,
+) -> anyhow::Result<WarmupData> {
+    let cameras: Vec<Camera> = warmup.views.iter().map(|v| v.camera).collect();
+    Ok(WarmupData {
+        views: orbit_renders(teacher, &cameras, &warmup.particles, up_axis)?,
+        particles: warmup.particles.clone(),
+        held_out: None,
+    })
+}
+
 /// The orbit of the warm-up frame: [`ORBIT_CAMERAS`] cameras round the particles' centroid at
 /// the mean distance of the rig's `cameras` from it, with the first camera's intrinsics, each
 /// with `physnerf`'s render of `particles` as its image.
-pub fn orbit_renders(
+fn orbit_renders(
     physnerf: &PhysNerf,
     cameras: &[Camera],
     particles: &[[f32; 3]],

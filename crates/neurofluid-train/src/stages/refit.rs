@@ -69,6 +69,8 @@ pub struct RefitTrainer {
     rollout: Vec<Vec<[f32; 3]>>,
     /// `refit.replay_rays` > 0: the warm-up renderer's orbit and its particles on the device.
     replay: Option<(WarmupData, Tensor<2>)>,
+    /// `warmup.held_out`: the warm-up frame's particles on the device (uploaded once).
+    held_out_particles: Option<Tensor<2>>,
     replay_rays: usize,
     seed: u64,
 }
@@ -100,6 +102,10 @@ impl RefitTrainer {
             let particles = points_tensor(&r.particles, &device);
             (r, particles)
         });
+        let held_out_particles = data
+            .held_out
+            .as_ref()
+            .map(|(_, particles)| points_tensor(particles, &device));
         Ok(Self {
             warmup_iters: warmup.iters,
             warmup_previews: warmup.preview_every,
@@ -109,6 +115,7 @@ impl RefitTrainer {
             data,
             rollout,
             replay,
+            held_out_particles,
             replay_rays,
             seed,
         })
@@ -215,9 +222,9 @@ impl Trainer for RefitTrainer {
         evaluation
             .scores
             .extend(psnr_true.map(|p| ("psnr_true", p)));
-        if let Some((view, particles)) = &self.data.held_out {
-            let particles = points_tensor(particles, &self.physnerf().device());
-            let psnr = render_beside_truth(self.physnerf(), view, &particles)?.psnr;
+        if let (Some((view, _)), Some(particles)) = (&self.data.held_out, &self.held_out_particles)
+        {
+            let psnr = render_beside_truth(self.physnerf(), view, particles)?.psnr;
             evaluation.scores.extend(psnr.map(|p| ("psnr_held_out", p)));
         }
         Ok(Some(evaluation))
@@ -317,15 +324,10 @@ pub fn run_until(
     let warmup_data = warmup::warmup_data(run)?;
     let replay = if exp.refit.replay_rays > 0 {
         let teacher = warmup::load_trained(run)?;
-        let cameras: Vec<_> = warmup_data.views.iter().map(|v| v.camera).collect();
         let up = run.scene.up_axis().index();
-        let views = super::orbit::orbit_renders(&teacher, &cameras, &warmup_data.particles, up)
+        let replay = super::orbit::orbit_replay(&teacher, &warmup_data, up)
             .context("the warm-up renderer's orbit (refit.replay_rays)")?;
-        Some(WarmupData {
-            views,
-            particles: warmup_data.particles.clone(),
-            held_out: None,
-        })
+        Some(replay)
     } else {
         None
     };
