@@ -72,3 +72,31 @@ pub fn files_under(root: &Path) -> Vec<PathBuf> {
     out.sort();
     out
 }
+
+/// Copies the folder `from` to `to` (files and subfolders).
+pub fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let p = e.unwrap().path();
+        let q = to.join(p.file_name().unwrap());
+        if p.is_dir() {
+            copy_dir(&p, &q);
+        } else {
+            std::fs::copy(&p, &q).unwrap();
+        }
+    }
+}
+
+/// Declares `view`, a copy of the scene's first test view under that name, as the validation
+/// view of the scene in `scene_dir` (the same camera and images: it must score as the test view).
+pub fn add_validation_copy(scene_dir: &Path, view: &str) {
+    use neurofluid_core::scene::{MANIFEST_FILE, SceneManifest, ViewSet};
+    let path = scene_dir.join(MANIFEST_FILE);
+    let mut m = SceneManifest::read(&path).unwrap();
+    copy_dir(&scene_dir.join(&m.test.views[0]), &scene_dir.join(view));
+    m.validation = Some(ViewSet {
+        views: vec![view.into()],
+        ..m.test.clone()
+    });
+    m.write(&path).unwrap();
+}

@@ -177,7 +177,42 @@ fn a_baseline_resumes_exactly_and_is_scored_on_the_test_frames() {
         "each render's error split by the truth's alpha"
     );
     let read = baseline::read_all(&second).unwrap();
-    assert_eq!(read, vec![scores]);
+    assert_eq!(read, vec![scores.clone()]);
+
+    // on validation views (here the test view copied under another name) it scores them into
+    // a file of their own, the same per frame; the test views' scores stay as they were
+    let test_view = second.scene.views(Role::Test)[0].clone();
+    let scene_dir = second.scene.root().to_path_buf();
+    drop((log, second));
+    neurofluid_tests::add_validation_copy(&scene_dir, "view_9");
+    let mut e = experiment(tmp.path(), "pieces", true, 6);
+    e.apply_overrides(&["eval.novel_views=\"validation\""])
+        .unwrap();
+    let on_val = Run::prepare(e, Start::Resume, &[Stage::NerfT]).unwrap();
+    let mut log = on_val.open_log().unwrap();
+    let c = nerf::train(&on_val, &mut log, NerfKind::NerfT).unwrap();
+    assert_eq!(params(&c), params(&b), "eval.novel_views shapes no NeRF");
+    let val = baseline::evaluate(&on_val, &c, NerfKind::NerfT).unwrap();
+    assert_eq!(val.images.len(), scores.images.len());
+    for (v, t) in val.images.iter().zip(&scores.images) {
+        assert_eq!(
+            (v.view.as_str(), t.view.as_str()),
+            ("view_9", test_view.as_str())
+        );
+        assert_eq!(
+            (v.t, v.psnr, v.ssim, v.lpips),
+            (t.t, t.psnr, t.ssim, t.lpips)
+        );
+    }
+    assert_eq!(baseline::read_all(&on_val).unwrap(), vec![val]);
+    drop((log, on_val));
+    let on_test = Run::prepare(
+        experiment(tmp.path(), "pieces", true, 6),
+        Start::Resume,
+        &[Stage::NerfT],
+    )
+    .unwrap();
+    assert_eq!(baseline::read_all(&on_test).unwrap(), vec![scores]);
 }
 
 #[test]

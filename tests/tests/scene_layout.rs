@@ -4,8 +4,8 @@
 use std::path::{Path, PathBuf};
 
 use neurofluid_core::scene::{
-    BoxParticles, FrameEntry, Particles, Role, Scene, SceneError, SceneManifest, TransformsFile,
-    UpAxis, transforms_path, write_png_rgba,
+    BoxParticles, FrameEntry, MANIFEST_FILE, Particles, Role, Scene, SceneError, SceneManifest,
+    TransformsFile, UpAxis, ViewSet, transforms_path, write_png_rgba,
 };
 
 fn tmp(name: &str) -> PathBuf {
@@ -221,6 +221,74 @@ fn missing_files_and_fields_name_the_path_and_field() {
         err.contains("scene.json") && err.contains("up_axis"),
         "{err}"
     );
+    let _ = std::fs::remove_dir_all(root);
+}
+
+#[test]
+fn validation_views_load_apart_from_the_other_roles() {
+    let root = tmp("validation");
+    write_released(&root);
+    let manifest = root.join(MANIFEST_FILE);
+    let mut m = SceneManifest::released("watercube");
+    m.box_file = "box.npz".into();
+    BoxParticles {
+        points: vec![[0.0; 3]],
+        normals: vec![[0.0, 0.0, 1.0]],
+    }
+    .write(&root.join("box.npz"))
+    .unwrap();
+    m.write(&manifest).unwrap();
+    // none declared: the role has no views
+    let scene = Scene::open(&root).unwrap();
+    assert!(scene.views(Role::Validation).is_empty());
+    assert!(scene.frames(Role::Validation).is_empty());
+
+    // view_6, a copy of the test view under another name, declared as the validation view
+    neurofluid_tests::copy_dir(&root.join("view_5"), &root.join("view_6"));
+    m.validation = Some(ViewSet {
+        views: vec!["view_6".into()],
+        ..m.test.clone()
+    });
+    m.write(&manifest).unwrap();
+    let scene = Scene::open(&root).unwrap();
+    assert_eq!(scene.views(Role::Validation), ["view_6"]);
+    assert_eq!(scene.views(Role::Test), ["view_5"]);
+    assert_eq!(scene.frames(Role::Validation), scene.frames(Role::Test));
+    assert_eq!(
+        scene.camera(Role::Validation, "view_6", 3).unwrap(),
+        scene.camera(Role::Test, "view_5", 3).unwrap()
+    );
+    assert_eq!(
+        scene.image(Role::Validation, "view_6", 59).unwrap().rgb,
+        scene.image(Role::Test, "view_5", 59).unwrap().rgb
+    );
+
+    // validation views on other frames than the test's, or shared with another role, or
+    // missing, are refused naming the field or the view
+    let refused = |validation: ViewSet| {
+        let mut bad = m.clone();
+        bad.validation = Some(validation);
+        bad.write(&manifest).unwrap();
+        Scene::open(&root).unwrap_err().to_string()
+    };
+    let mut frames = m.validation.clone().unwrap();
+    frames.frames.end = 50;
+    let err = refused(frames);
+    assert!(
+        err.contains("scene.json") && err.contains("validation.frames"),
+        "{err}"
+    );
+    let mut shared = m.validation.clone().unwrap();
+    shared.views.push("view_2".into());
+    let err = refused(shared);
+    assert!(
+        err.contains("validation.views") && err.contains("view_2"),
+        "{err}"
+    );
+    let mut missing = m.validation.clone().unwrap();
+    missing.views = vec!["view_7".into()];
+    let err = refused(missing);
+    assert!(err.contains("view_7"), "{err}");
     let _ = std::fs::remove_dir_all(root);
 }
 

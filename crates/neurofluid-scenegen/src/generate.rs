@@ -341,6 +341,7 @@ pub fn scene_manifest(p: &Preset) -> SceneManifest {
                 end: p.test_frames,
             },
         },
+        validation: None,
         box_file: "box.npz".into(),
         box_interior: Aabb {
             min: p.box_lo.map(|v| v as f32 + r),

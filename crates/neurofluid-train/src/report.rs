@@ -278,6 +278,10 @@ pub struct EvalReport {
     /// the PhysNeRF trained jointly with DLF (`refit.enabled`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub renderer: Option<String>,
+    /// The novel views scored are the scene's validation views (`eval.novel_views =
+    /// "validation"`), not its test views.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub validation_views: bool,
     /// `eval.interpolation_sweep`: d and d′ of NeuroFluid's DLF from the pretrained weights to
     /// the grounded ones, by fraction.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
@@ -435,6 +439,7 @@ impl EvalReport {
             weight_interpolation: None,
             dlf_rules: Vec::new(),
             renderer: None,
+            validation_views: false,
             interpolation: Vec::new(),
             energy: Vec::new(),
             alone: Vec::new(),
@@ -792,8 +797,16 @@ impl EvalReport {
         let mut md = String::new();
         let _ = writeln!(
             md,
-            "\n### Novel views\n\n| model | PSNR t = {}–{} | SSIM | LPIPS | PSNR t = {}–{} | SSIM | LPIPS |\n|---|---:|---:|---:|---:|---:|---:|",
-            seen.0, seen.1, p.0, p.1
+            "\n### Novel views{}\n\n| model | PSNR t = {}–{} | SSIM | LPIPS | PSNR t = {}–{} | SSIM | LPIPS |\n|---|---:|---:|---:|---:|---:|---:|",
+            if self.validation_views {
+                ": the validation views (kept aside to choose settings with; not the test views)"
+            } else {
+                ""
+            },
+            seen.0,
+            seen.1,
+            p.0,
+            p.1
         );
         let mut rows = vec![("NeuroFluid", &self.images)];
         rows.extend(

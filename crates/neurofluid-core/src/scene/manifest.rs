@@ -1,5 +1,5 @@
-//! The scene manifest (`scene.json`): which views and frames serve warm-up, training and
-//! testing, the up axis, the particle radius, the box interior and the ray bounds.
+//! The scene manifest (`scene.json`): which views and frames serve warm-up, training,
+//! validation and testing, the up axis, the particle radius, the box interior and the ray bounds.
 //!
 //! NeuroFluid's released scenes have no manifest; [`SceneManifest::released`] gives the
 //! defaults of their layout (spec §5.1): views 1–4 warm-up at frame 0, `view_1` trains on
@@ -120,7 +120,18 @@ pub enum Role {
     Train,
     /// Held-out evaluation.
     Test,
+    /// Views kept aside to choose settings with (optional): no stage trains on them, and
+    /// `eval.novel_views = "validation"` scores them in place of the test views. They hold the
+    /// test frames, so their scores fall in the same windows.
+    Validation,
 }
+
+/// The validation set of a manifest that has none: no views.
+static NO_VIEWS: ViewSet = ViewSet {
+    views: Vec::new(),
+    split: String::new(),
+    frames: FrameRange { start: 0, end: 0 },
+};
 
 /// Contents of `scene.json`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -139,6 +150,9 @@ pub struct SceneManifest {
     pub train: ViewSet,
     /// Test views and frames.
     pub test: ViewSet,
+    /// Validation views (kept aside to choose settings with; [`Role::Validation`]), if any.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub validation: Option<ViewSet>,
     /// Box particle file relative to the scene root (`box.npz`, or the released `box.pt`).
     pub box_file: String,
     /// The box interior the fluid must stay in (for the boundary loss and clipped metrics).
@@ -188,6 +202,7 @@ impl SceneManifest {
                 split: "test".into(),
                 frames: FrameRange { start: 0, end: 60 },
             },
+            validation: None,
             box_file: "box.pt".into(),
             box_interior: Aabb {
                 min: [-0.975, -0.975, -0.975],
@@ -199,12 +214,13 @@ impl SceneManifest {
         }
     }
 
-    /// The view set of a role.
+    /// The view set of a role (no views for [`Role::Validation`] when the scene has none).
     pub fn role(&self, role: Role) -> &ViewSet {
         match role {
             Role::Warmup => &self.warmup,
             Role::Train => &self.train,
             Role::Test => &self.test,
+            Role::Validation => self.validation.as_ref().unwrap_or(&NO_VIEWS),
         }
     }
 
@@ -221,13 +237,18 @@ impl SceneManifest {
 
     /// Checks the values a parser cannot: non-empty view lists of plain names (they become
     /// folder and file names), a box file inside the scene, positive radius and fps, ordered
-    /// frame ranges and bounds.
+    /// frame ranges and bounds, validation views (if any) on the test frames and apart from
+    /// every other role's views.
     pub fn validate(&self, path: &Path) -> Result<()> {
-        for (name, set) in [
+        let sets = [
             ("warmup", &self.warmup),
             ("train", &self.train),
             ("test", &self.test),
-        ] {
+        ];
+        for (name, set) in sets
+            .into_iter()
+            .chain(self.validation.iter().map(|v| ("validation", v)))
+        {
             for (field, value) in set
                 .views
                 .iter()
@@ -249,6 +270,33 @@ impl SceneManifest {
                     path,
                     format!("{name}.frames"),
                     format!("start < end, got {}..{}", set.frames.start, set.frames.end),
+                ));
+            }
+        }
+        if let Some(val) = &self.validation {
+            if val.frames != self.test.frames {
+                return Err(SceneError::field(
+                    path,
+                    "validation.frames",
+                    format!(
+                        "the test frames {}..{} (validation scores share the test windows), got \
+                         {}..{}",
+                        self.test.frames.start,
+                        self.test.frames.end,
+                        val.frames.start,
+                        val.frames.end
+                    ),
+                ));
+            }
+            if let Some(v) = val
+                .views
+                .iter()
+                .find(|v| sets.iter().any(|(_, set)| set.views.contains(v)))
+            {
+                return Err(SceneError::field(
+                    path,
+                    "validation.views",
+                    format!("views no other role lists, got {v:?}, which another role lists"),
                 ));
             }
         }

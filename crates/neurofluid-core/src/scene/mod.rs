@@ -243,7 +243,7 @@ impl Scene {
             SceneManifest::released(&name)
         };
         let mut splits = BTreeMap::new();
-        for role in [Role::Warmup, Role::Train, Role::Test] {
+        for role in [Role::Warmup, Role::Train, Role::Test, Role::Validation] {
             let set = manifest.role(role).clone();
             for view in &set.views {
                 let key = (view.clone(), set.split.clone());

@@ -38,11 +38,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Ok(p) => println!("particles    {} (train frame {t0})", p.len()),
         Err(e) => println!("particles    unavailable: {e}"),
     }
-    for (label, role) in [
+    let roles = [
         ("warm-up", Role::Warmup),
         ("train", Role::Train),
         ("test", Role::Test),
-    ] {
+        ("validation", Role::Validation),
+    ];
+    for (label, role) in roles
+        .into_iter()
+        .filter(|&(_, r)| !scene.views(r).is_empty())
+    {
         let r = scene.frames(role);
         let views = scene.views(role);
         let sizes: Vec<String> = views

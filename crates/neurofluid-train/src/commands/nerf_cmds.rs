@@ -46,17 +46,21 @@ pub fn run_baseline(args: BaselineArgs) -> anyhow::Result<()> {
     let model = nerf::train(&run, &mut log, args.kind)?;
     let scores = baseline::evaluate(&run, &model, args.kind)?;
     let report_path = run.stage_dir(eval::STAGE).join(crate::report::JSON_FILE);
+    let validation = run.exp.eval.novel_views == crate::config::NovelViews::Validation;
+    // NeuroFluid's report, where it scored the same set of views (test or validation)
     let mut report = match EvalReport::read_json(&report_path) {
-        Ok(r) => r,
-        Err(_) => {
+        Ok(r) if r.validation_views == validation => r,
+        _ => {
             let test = run.scene.frames(neurofluid_core::scene::Role::Test);
             let train = run.scene.frames(neurofluid_core::scene::Role::Train);
-            EvalReport::new(
+            let mut r = EvalReport::new(
                 &run.exp.name,
                 &run.scene.manifest().name,
                 "no NeuroFluid evaluation yet",
                 crate::report::Windows::from_lengths(train.len(), test.len()),
-            )
+            );
+            r.validation_views = validation;
+            r
         }
     };
     report.nvs_baselines.retain(|b| b.model != scores.model);

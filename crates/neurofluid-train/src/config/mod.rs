@@ -41,7 +41,8 @@ pub use preset::Preset;
 pub use sections::{
     AnchorAlong, BuiltinScene, ColourHead, Containment, DlfSection, EnergyCap, EnergyPer,
     EvalSection, InitialParticles, InitialSection, JointSection, NerfSection, NerfTImages,
-    PlyEncoding, RefitSection, ReplayOf, SceneScale, SceneSection, SurfaceThreshold, WarmupSection,
+    NovelViews, PlyEncoding, RefitSection, ReplayOf, SceneScale, SceneSection, SurfaceThreshold,
+    WarmupSection,
 };
 pub use settings::Settings;
 
@@ -118,11 +119,16 @@ fn migrate_legacy(table: &mut toml::Table, origin: &Path) -> bool {
 }
 
 impl Experiment {
-    /// What is wrong with `warmup.held_out` on `scene`: not a warm-up view, the only one, or a
-    /// view the joint stage trains on (`joint.view`, `joint.extra_views`), which would not be
-    /// held out.
-    pub fn held_out_problem(&self, scene: &neurofluid_core::scene::Scene) -> Option<String> {
-        if let Some(problem) = self.warmup.held_out_problem(scene) {
+    /// What is wrong with the views the experiment names on `scene`: `warmup.held_out` not a
+    /// warm-up view, the only one, or a view the joint stage trains on (`joint.view`,
+    /// `joint.extra_views`), which would not be held out; `eval.novel_views = "validation"` on a
+    /// scene without validation views.
+    pub fn scene_problem(&self, scene: &neurofluid_core::scene::Scene) -> Option<String> {
+        if let Some(problem) = self
+            .warmup
+            .held_out_problem(scene)
+            .or_else(|| self.eval.novel_views_problem(scene))
+        {
             return Some(problem);
         }
         let held = self.warmup.held_out.as_ref()?;

@@ -261,6 +261,28 @@ pub enum ReplayOf {
     Renders,
 }
 
+/// Which of the scene's views the evaluation scores as novel views (`eval.novel_views`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum NovelViews {
+    /// The test views: the evaluation's.
+    #[default]
+    Test,
+    /// The validation views (`validation` in `scene.json`): views no stage trains on, kept
+    /// aside to choose settings with, so that the test views are never read to choose.
+    Validation,
+}
+
+impl NovelViews {
+    /// The scene role whose views and images are scored.
+    pub fn role(self) -> Role {
+        match self {
+            NovelViews::Test => Role::Test,
+            NovelViews::Validation => Role::Validation,
+        }
+    }
+}
+
 /// What the energy prior (`joint.energy_weight`) holds non-increasing from step to step.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -556,7 +578,7 @@ impl WarmupSection {
     }
 
     /// What is wrong with `held_out` on `scene` for the warm-up: not one of the warm-up views,
-    /// or the only one ([`crate::config::Experiment::held_out_problem`] checks the other stages).
+    /// or the only one ([`crate::config::Experiment::scene_problem`] checks the other stages).
     pub fn held_out_problem(&self, scene: &Scene) -> Option<String> {
         let held = self.held_out.as_ref()?;
         let views = self.views_before_holding_out(scene);
@@ -795,14 +817,35 @@ pub struct EvalSection {
     /// change fits the truth and where it starts to throw spray. Empty = none.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub interpolation_sweep: Vec<f64>,
+    /// Which views are scored as novel views: the test views, or the scene's validation views
+    /// (to choose settings with; the report says which).
+    pub novel_views: NovelViews,
 }
 
 impl EvalSection {
-    /// The test views rendered: the configured ones, else the scene's.
+    /// The views rendered and scored: the configured ones, else the scene's views of
+    /// `novel_views`' role.
     pub fn views(&self, scene: &Scene) -> Vec<String> {
         self.views
             .clone()
-            .unwrap_or_else(|| scene.views(Role::Test).to_vec())
+            .unwrap_or_else(|| scene.views(self.novel_views.role()).to_vec())
+    }
+
+    /// What is wrong with `novel_views` on `scene`: validation views asked of a scene that has
+    /// none.
+    pub fn novel_views_problem(&self, scene: &Scene) -> Option<String> {
+        (self.novel_views == NovelViews::Validation && scene.views(Role::Validation).is_empty())
+            .then(|| {
+                format!(
+                    "eval.novel_views = \"validation\": {} lists no validation views (a \
+                     `validation` view set beside `test`; scripts/testbed/validation_views.py \
+                     adds two to a test-bed scene)",
+                    scene
+                        .root()
+                        .join(neurofluid_core::scene::MANIFEST_FILE)
+                        .display()
+                )
+            })
     }
 }
 
@@ -823,6 +866,7 @@ impl Default for EvalSection {
             render_dlf: false,
             weight_interpolation: 1.0,
             interpolation_sweep: Vec::new(),
+            novel_views: NovelViews::Test,
         }
     }
 }

@@ -14,19 +14,25 @@ use super::nerf::{NerfKind, time_of};
 use super::run_folder::Run;
 use super::scoring::{as_image, rendered_steps, scaled_truth, score};
 use super::views::{ViewFrame, side_by_side};
-use crate::config::NerfTImages;
+use crate::config::{NerfTImages, NovelViews};
 use crate::report::BaselineScores;
 
-/// A baseline's scores inside its stage folder.
+/// A baseline's scores on the test views inside its stage folder.
 pub const SCORES_FILE: &str = "scores.json";
+/// A baseline's scores on the validation views (`eval.novel_views = "validation"`).
+pub const VALIDATION_SCORES_FILE: &str = "scores-validation.json";
 
-/// Where `kind`'s scores are.
+/// Where `kind`'s scores on the views of `eval.novel_views` are.
 pub fn scores_path(run: &Run, kind: NerfKind) -> PathBuf {
-    run.stage_dir(kind.stage()).join(SCORES_FILE)
+    let file = match run.exp.eval.novel_views {
+        NovelViews::Test => SCORES_FILE,
+        NovelViews::Validation => VALIDATION_SCORES_FILE,
+    };
+    run.stage_dir(kind.stage()).join(file)
 }
 
-/// Renders the test views at NeuroFluid's evaluated frames with `nerf` and scores them
-/// against the truth; writes the renders beside the truth and the scores.
+/// Renders the novel views (`eval.novel_views`) at NeuroFluid's evaluated frames with `nerf`
+/// and scores them against the truth; writes the renders beside the truth and the scores.
 pub fn evaluate(run: &Run, nerf: &Nerf, kind: NerfKind) -> anyhow::Result<BaselineScores> {
     let scene = &run.scene;
     let cfg = &run.exp.eval;
@@ -45,7 +51,7 @@ pub fn evaluate(run: &Run, nerf: &Nerf, kind: NerfKind) -> anyhow::Result<Baseli
             indicatif::ProgressBar::new(frames.len() as u64).with_prefix(format!("{model} {view}"));
         for &t in &frames {
             let frame = test.start + t;
-            let vf = ViewFrame::load(scene, Role::Test, &view, frame)?;
+            let vf = ViewFrame::load(scene, cfg.novel_views.role(), &view, frame)?;
             let truth = scaled_truth(&vf, cfg.image_scale)?;
             let cam = truth.camera;
             let time = (kind == NerfKind::NerfT).then(|| time_of(frame, &train));
@@ -73,7 +79,8 @@ pub fn evaluate(run: &Run, nerf: &Nerf, kind: NerfKind) -> anyhow::Result<Baseli
     Ok(scores)
 }
 
-/// The scores of every baseline that has been evaluated in `run`.
+/// The scores of every baseline that has been evaluated in `run` on the views of
+/// `eval.novel_views`.
 pub fn read_all(run: &Run) -> anyhow::Result<Vec<BaselineScores>> {
     let mut out = Vec::new();
     for kind in [NerfKind::Nerf, NerfKind::NerfT] {

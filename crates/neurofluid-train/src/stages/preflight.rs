@@ -248,7 +248,8 @@ pub fn check(run: &Run, stages: &[Stage], start: Start) -> anyhow::Result<()> {
                     .into_iter()
                     .map(|t| test.start + t)
                     .collect();
-            images(&mut p, scene, Role::Test, &exp.eval.views(scene), &frames);
+            let role = exp.eval.novel_views.role();
+            images(&mut p, scene, role, &exp.eval.views(scene), &frames);
         }
         if !stages.contains(&Stage::Joint) {
             finished(&mut p, run, Stage::Joint, joint_steps);

@@ -81,7 +81,7 @@ impl Run {
         );
         let scene = Scene::open(&scene_dir)
             .with_context(|| format!("opening the scene {}", scene_dir.display()))?;
-        if let Some(problem) = exp.held_out_problem(&scene) {
+        if let Some(problem) = exp.scene_problem(&scene) {
             anyhow::bail!("{problem}");
         }
         let m = scene.manifest();

@@ -152,7 +152,7 @@ pub fn render_views(
             indicatif::ProgressBar::new(frames.len() as u64).with_prefix(format!("render {view}"));
         let mut animation = Vec::new();
         for &t in &frames {
-            let vf = ViewFrame::load(scene, Role::Test, view, test.start + t)?;
+            let vf = ViewFrame::load(scene, cfg.novel_views.role(), view, test.start + t)?;
             let truth = scaled_truth(&vf, cfg.image_scale)?;
             let cam = truth.camera;
             // a render saved beside the truth as `renders/<view>/<prefix>t<step>.png`
@@ -203,7 +203,7 @@ pub fn render_views(
             let rows: Vec<Picture> = picture_frames(train_len, rollouts.steps())
                 .into_iter()
                 .map(|t| -> anyhow::Result<Picture> {
-                    let cam = scene.camera(Role::Test, view, test.start + t)?;
+                    let cam = scene.camera(cfg.novel_views.role(), view, test.start + t)?;
                     let cam = at_least_wide(&cam, PARTICLE_PICTURE_WIDTH);
                     let mut predictions: Vec<(&str, &[[f32; 3]])> = Vec::new();
                     if let Some(b) = &rollouts.baseline {
@@ -282,7 +282,7 @@ pub fn write_viewer(
     };
     let views = cfg.views(scene);
     for view in &views {
-        let cam = scene.camera(Role::Test, view, test.start)?;
+        let cam = scene.camera(cfg.novel_views.role(), view, test.start)?;
         let renders = rendered
             .iter()
             .map(|&t| (t, format!("renders/{view}/t{t:04}.png")))

@@ -55,6 +55,7 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
              the grounded rollout after the joint stage"
         )
     });
+    report.validation_views = cfg.novel_views == crate::config::NovelViews::Validation;
     report.initial_from_images =
         run.exp.scene.initial == crate::config::InitialParticles::FromImages;
     report.nvs_baselines = super::baseline::read_all(run)?;
