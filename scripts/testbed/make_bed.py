@@ -9,7 +9,8 @@ DFSPH (bed_sim.py, pysplishsplash), render with Blender Cycles (bed_render.py, b
     <out>/<scene>/scene.json, box.npz, view_k/transforms_<split>.json,
     view_k/<split>/NNNN.png, view_k/<split>/particles/NNNN.npz
 
-into <out>/.tmp-<scene>/ first, renamed to <out>/<scene> when complete. The simulation is kept in
+into <out>/.tmp-<scene>/ first, renamed to <out>/<scene> when complete; a ring rig's scene then
+gets its two validation views (validation_views.py). The simulation is kept in
 <out>/.work/<scene>/sim.npz and reused while the scene's "sim" spec is unchanged (--resim forces
 it). Timings are appended to <out>/timings.jsonl. Options: --frames-only N (render only the
 first N frames: a smoke test), --samples S, --keep-going, --no-render (no images: a scene for
@@ -359,6 +360,13 @@ def build(name, spec, out_root, args):
         shutil.rmtree(old)
     else:
         os.rename(tmp, final)
+    if not args.no_render and spec["cameras"]["kind"] == "ring":
+        # the validation views (rule 18), which a remade scene would otherwise lack
+        import validation_views  # imports this module: here, not at the top
+
+        t0 = time.time()
+        validation_views.build(name, out_root, args.samples)
+        timings["validation_s"] = time.time() - t0
     timings["total_s"] = time.time() - t_all
     timings["finished"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
     log_line(os.path.join(out_root, "timings.jsonl"), timings)

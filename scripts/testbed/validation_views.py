@@ -9,8 +9,8 @@ simulation (`<out>/.work/<scene>/sim.npz`, made by make_bed.py) and with the sam
 settings, two more views over the test frames and adds them to the scene as its `validation`
 views (`scene.json`), which no stage trains on; `--set eval.novel_views="validation"` scores a
 run on them (`eval`, `baseline`). The scene is rewritten atomically (a copy of hard links, then
-renamed); images already there for the same placements are kept. make_bed.py remakes a scene
-without them: run this again after it.
+renamed); images already there for the same placements are kept. make_bed.py runs it after
+making a ring rig's scene.
 
 Where they sit is fixed from the rig alone (experiments/bed/README.md rule 18): the ring's target,
 distance and field of view; view_6 15° below the warm-up ring (at least 5° above the horizon),
