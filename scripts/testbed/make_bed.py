@@ -66,29 +66,33 @@ def corners(lo, hi):
     return np.array([[(lo, hi)[(c >> a) & 1][a] for a in range(3)] for c in range(8)])
 
 
-def make_cameras(spec):
-    """[(name, c2w 4x4, angle_x)] for view_1.. (warm-up views first, then test views)."""
+def ring_camera(spec, elevation_deg, azimuth_deg):
+    """The camera-to-world matrix of a ring rig's camera at that elevation and azimuth: it looks
+    at the ring's target from the distance at which the box fills `fill` of the field of view."""
     sim, cams = spec["sim"], spec["cameras"]
     axis = sim["up"]
     up = up_vector(axis)
     lo, hi = np.array(sim["walls_lo"]), np.array(sim["walls_hi"])
+    ui = "xyz".index(axis)
+    target = 0.5 * (lo + hi)
+    target[ui] = lo[ui] + cams["target_height"] * (hi[ui] - lo[ui])
+    r_t = np.max(np.linalg.norm(corners(lo, hi) - target, axis=1))
+    dist = r_t / (cams["fill"] * np.tan(0.5 * cams["angle_x"]))
+    e1, e2 = horizontal_axes(axis)
+    el, az = np.radians(elevation_deg), np.radians(azimuth_deg)
+    eye = target + dist * (np.cos(el) * np.cos(az) * e1 + np.cos(el) * np.sin(az) * e2 + np.sin(el) * up)
+    return look_at(eye, target, up)
+
+
+def make_cameras(spec):
+    """[(name, c2w 4x4, angle_x)] for view_1.. (warm-up views first, then test views)."""
+    sim, cams = spec["sim"], spec["cameras"]
+    up = up_vector(sim["up"])
     views = []
     if cams["kind"] == "ring":
-        ui = "xyz".index(axis)
-        target = 0.5 * (lo + hi)
-        target[ui] = lo[ui] + cams["target_height"] * (hi[ui] - lo[ui])
-        r_t = np.max(np.linalg.norm(corners(lo, hi) - target, axis=1))
-        dist = r_t / (cams["fill"] * np.tan(0.5 * cams["angle_x"]))
-        e1, e2 = horizontal_axes(axis)
-
-        def ring_eye(el, az):
-            el, az = np.radians(el), np.radians(az)
-            return target + dist * (np.cos(el) * np.cos(az) * e1 + np.cos(el) * np.sin(az) * e2 + np.sin(el) * up)
-
         w = cams["warmup"]
-        eyes = [ring_eye(w["elevation_deg"], a) for a in w["azimuths_deg"]]
-        eyes += [ring_eye(t["elevation_deg"], t["azimuth_deg"]) for t in cams["test"]]
-        mats = [look_at(e, target, up) for e in eyes]
+        mats = [ring_camera(spec, w["elevation_deg"], a) for a in w["azimuths_deg"]]
+        mats += [ring_camera(spec, t["elevation_deg"], t["azimuth_deg"]) for t in cams["test"]]
     else:
         mats = [look_at(c["eye"], c["target"], up) for c in cams["warmup"] + cams["test"]]
     for k, m in enumerate(mats):

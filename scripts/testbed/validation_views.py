@@ -31,7 +31,7 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
-from make_bed import frame_stem, horizontal_axes, look_at, up_vector, corners  # noqa: E402
+from make_bed import corners, frame_stem, ring_camera  # noqa: E402
 from specs import SCENES  # noqa: E402
 
 BELOW_DEG, ABOVE_DEG, LOWEST_DEG = 15.0, 20.0, 5.0
@@ -54,26 +54,6 @@ def placements(cams):
     return [(max(ring - BELOW_DEG, LOWEST_DEG), far[0]), (ring + ABOVE_DEG, far[1])]
 
 
-def ring_cameras(spec, places):
-    """4x4 camera-to-world matrices on the rig's ring geometry (make_bed.make_cameras' rule)."""
-    sim, cams = spec["sim"], spec["cameras"]
-    axis = sim["up"]
-    up = up_vector(axis)
-    lo, hi = np.array(sim["walls_lo"]), np.array(sim["walls_hi"])
-    ui = "xyz".index(axis)
-    target = 0.5 * (lo + hi)
-    target[ui] = lo[ui] + cams["target_height"] * (hi[ui] - lo[ui])
-    r_t = np.max(np.linalg.norm(corners(lo, hi) - target, axis=1))
-    dist = r_t / (cams["fill"] * np.tan(0.5 * cams["angle_x"]))
-    e1, e2 = horizontal_axes(axis)
-    mats = []
-    for el, az in places:
-        el, az = np.radians(el), np.radians(az)
-        eye = target + dist * (np.cos(el) * np.cos(az) * e1 + np.cos(el) * np.sin(az) * e2 + np.sin(el) * up)
-        mats.append(look_at(eye, target, up))
-    return mats
-
-
 def build(name, out_root, samples):
     spec = SCENES[name]
     if spec["cameras"]["kind"] != "ring":
@@ -93,7 +73,7 @@ def build(name, out_root, samples):
     rnd = spec["render"]
     size = rnd["size"]
     places = placements(spec["cameras"])
-    mats = ring_cameras(spec, places)
+    mats = [ring_camera(spec, el, az) for el, az in places]
     angle_x = spec["cameras"]["angle_x"]
     others = manifest["warmup"]["views"] + manifest["train"]["views"] + manifest["test"]["views"]
     first = 1 + max(int(v.split("_")[-1]) for v in others if v.split("_")[-1].isdigit())
