@@ -198,6 +198,49 @@ def frame_stem(t):
     return f"{t:04d}"
 
 
+def transforms_intrinsics(rnd, angle_x, size):
+    """The intrinsics of a view's transforms file as the spec's `render.intrinsics` asks."""
+    tf = {}
+    if rnd["intrinsics"] in ("angle", "both"):
+        tf["camera_angle_x"] = angle_x
+    if rnd["intrinsics"] in ("pixels", "both"):
+        f = 0.5 * size / np.tan(0.5 * angle_x)
+        # nerfstudio's principal point: pixel i's ray through i + 0.5, as Blender renders it
+        tf.update({"fl_x": f, "fl_y": f, "cx": size / 2.0, "cy": size / 2.0, "w": size, "h": size})
+    return tf
+
+
+def render_job(spec, sim_path, samples, views, renders):
+    """bed_render.py's job: `renders` ([frame, camera index, path]) of `views` (name, c2w,
+    angle_x) with the spec's material and surface settings at `samples` Cycles samples."""
+    rnd = spec["render"]
+    return {
+        "particles": sim_path,
+        "up_index": "xyz".index(spec["sim"]["up"]),
+        "size": rnd["size"],
+        "samples": samples,
+        "material": rnd["material"],
+        "surface_radius": rnd.get("surface_radius", 0.042),
+        "voxel": rnd.get("voxel", 0.018),
+        "denoise": rnd.get("denoise", False),
+        "cameras": [{"name": v["name"], "c2w": np.asarray(v["c2w"]).tolist(), "angle_x": v["angle_x"]}
+                    for v in views],
+        "renders": renders,
+    }
+
+
+def replace_dir(tmp, final):
+    """Puts the complete folder `tmp` at `final`, the old one (if any) removed only after."""
+    if os.path.exists(final):
+        old = os.path.join(os.path.dirname(final), ".old-" + os.path.basename(final))
+        shutil.rmtree(old, ignore_errors=True)
+        os.rename(final, old)
+        os.rename(tmp, final)
+        shutil.rmtree(old)
+    else:
+        os.rename(tmp, final)
+
+
 def build(name, spec, out_root, args):
     work = os.path.join(out_root, ".work", name)
     timings = {"scene": name, "started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
@@ -269,13 +312,7 @@ def build(name, spec, out_root, args):
                 "time": t / FPS,
             }
             entries.append(entry)
-        tf = {}
-        if rnd["intrinsics"] in ("angle", "both"):
-            tf["camera_angle_x"] = v["angle_x"]
-        if rnd["intrinsics"] in ("pixels", "both"):
-            f = 0.5 * size / np.tan(0.5 * v["angle_x"])
-            # nerfstudio's principal point: pixel i's ray through i + 0.5, as Blender renders it
-            tf.update({"fl_x": f, "fl_y": f, "cx": size / 2.0, "cy": size / 2.0, "w": size, "h": size})
+        tf = transforms_intrinsics(rnd, v["angle_x"], size)
         if args.no_render:
             # no images to read the size from: the transforms give it (nerfstudio's w, h)
             tf.setdefault("w", size)
@@ -290,18 +327,7 @@ def build(name, spec, out_root, args):
     timings["write_s"] = time.time() - t0
 
     # render
-    job = {
-        "particles": sim_path,
-        "up_index": up_index,
-        "size": size,
-        "samples": args.samples or rnd["samples"],
-        "material": rnd["material"],
-        "surface_radius": rnd.get("surface_radius", 0.042),
-        "voxel": rnd.get("voxel", 0.018),
-        "denoise": rnd.get("denoise", False),
-        "cameras": [{"name": v["name"], "c2w": v["c2w"].tolist(), "angle_x": v["angle_x"]} for v in views],
-        "renders": renders,
-    }
+    job = render_job(spec, sim_path, args.samples or rnd["samples"], views, renders)
     if args.no_render:
         timings["images"] = 0
     else:
@@ -355,15 +381,7 @@ def build(name, spec, out_root, args):
     with open(os.path.join(tmp, "scene.json"), "w") as f:
         json.dump(manifest, f, indent=1)
 
-    final = os.path.join(out_root, name)
-    if os.path.exists(final):
-        old = os.path.join(out_root, f".old-{name}")
-        shutil.rmtree(old, ignore_errors=True)
-        os.rename(final, old)
-        os.rename(tmp, final)
-        shutil.rmtree(old)
-    else:
-        os.rename(tmp, final)
+    replace_dir(tmp, os.path.join(out_root, name))
     if not args.no_render and spec["cameras"]["kind"] == "ring":
         # the validation views (rule 18), which a remade scene would otherwise lack
         import validation_views  # imports this module: here, not at the top

@@ -31,7 +31,8 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
-from make_bed import corners, frame_stem, ring_camera  # noqa: E402
+from make_bed import (  # noqa: E402
+    corners, frame_stem, render_job, replace_dir, ring_camera, transforms_intrinsics)
 from specs import SCENES  # noqa: E402
 
 BELOW_DEG, ABOVE_DEG, LOWEST_DEG = 15.0, 20.0, 5.0
@@ -107,19 +108,17 @@ def build(name, out_root, samples):
             npz = os.path.join(vdir, SPLIT, "particles", stem + ".npz")
             if os.path.exists(npz):
                 os.remove(npz)  # a link to the scene's: written anew, never through the link
-            np.savez(npz, pos=pos[t].astype(np.float32), vel=vel[t].astype(np.float32))
+            if k == 0:
+                np.savez(npz, pos=pos[t].astype(np.float32), vel=vel[t].astype(np.float32))
+            else:  # the frame's particles are the first view's: one file, linked
+                os.link(os.path.join(tmp, names[0], SPLIT, "particles", stem + ".npz"), npz)
             png = os.path.join(vdir, SPLIT, stem + ".png")
             if not os.path.isfile(png):
                 renders.append([t, k, png])
             entries.append({"file_path": rnd["file_path"].format(split=SPLIT, stem=stem),
                             "transform_matrix": m.tolist(), "particle_path": f"particles/{stem}.npz",
                             "time": t / manifest["fps"]})
-        tf = {}
-        if rnd["intrinsics"] in ("angle", "both"):
-            tf["camera_angle_x"] = angle_x
-        if rnd["intrinsics"] in ("pixels", "both"):
-            fl = 0.5 * size / np.tan(0.5 * angle_x)
-            tf.update({"fl_x": fl, "fl_y": fl, "cx": size / 2.0, "cy": size / 2.0, "w": size, "h": size})
+        tf = transforms_intrinsics(rnd, angle_x, size)
         tf["frames"] = entries
         tf_path = os.path.join(vdir, f"transforms_{SPLIT}.json")
         if os.path.exists(tf_path):
@@ -127,19 +126,9 @@ def build(name, out_root, samples):
         with open(tf_path, "w") as fh:
             json.dump(tf, fh, indent=1)
 
-    render = gen.get("render", {})
-    job = {
-        "particles": sim_path,
-        "up_index": "xyz".index(spec["sim"]["up"]),
-        "size": size,
-        "samples": samples or render.get("samples", rnd["samples"]),
-        "material": rnd["material"],
-        "surface_radius": rnd.get("surface_radius", 0.042),
-        "voxel": rnd.get("voxel", 0.018),
-        "denoise": rnd.get("denoise", False),
-        "cameras": [{"name": n, "c2w": m.tolist(), "angle_x": angle_x} for n, m in zip(names, mats)],
-        "renders": renders,
-    }
+    views = [{"name": n, "c2w": m, "angle_x": angle_x} for n, m in zip(names, mats)]
+    job = render_job(spec, sim_path, samples or gen.get("render", {}).get("samples", rnd["samples"]), views,
+                     renders)
     work = os.path.join(out_root, ".work", name)
     job_path = os.path.join(work, "validation_job.json")
     with open(job_path, "w") as f:
@@ -162,11 +151,7 @@ def build(name, out_root, samples):
     os.remove(os.path.join(tmp, "scene.json"))  # a hard link to the original's
     with open(os.path.join(tmp, "scene.json"), "w") as f:
         json.dump(val, f, indent=1)
-    old = os.path.join(out_root, f".old-{name}")
-    shutil.rmtree(old, ignore_errors=True)
-    os.rename(src, old)
-    os.rename(tmp, src)
-    shutil.rmtree(old)
+    replace_dir(tmp, src)
     print(f"[{name}] {src}: validation {', '.join(f'{n} at {el:.0f}° / {az:.1f}°' for n, (el, az) in zip(names, places))}; "
           f"{len(renders)} images rendered in {time.time() - t0:.0f} s", flush=True)
 
