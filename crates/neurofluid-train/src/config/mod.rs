@@ -124,13 +124,14 @@ impl Experiment {
     /// `joint.extra_views`), which would not be held out; `eval.novel_views = "validation"` on a
     /// scene without validation views.
     pub fn scene_problem(&self, scene: &neurofluid_core::scene::Scene) -> Option<String> {
-        if let Some(problem) = self
-            .warmup
+        self.warmup
             .held_out_problem(scene)
+            .or_else(|| self.held_out_trained_on(scene))
             .or_else(|| self.eval.novel_views_problem(scene))
-        {
-            return Some(problem);
-        }
+    }
+
+    /// `warmup.held_out` names a view the joint stage trains on.
+    fn held_out_trained_on(&self, scene: &neurofluid_core::scene::Scene) -> Option<String> {
         let held = self.warmup.held_out.as_ref()?;
         self.joint
             .views_by_role(scene)
