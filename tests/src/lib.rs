@@ -100,3 +100,23 @@ pub fn add_validation_copy(scene_dir: &Path, view: &str) {
     });
     m.write(&path).unwrap();
 }
+
+/// Asserts that `validation` scored the views of `add_validation_copy` (named `view`) frame by
+/// frame exactly as `test` scored the test view `test_view`: the same camera and images.
+pub fn assert_scored_as_the_test_view(
+    validation: &[neurofluid_train::report::ImageScore],
+    test: &[neurofluid_train::report::ImageScore],
+    view: &str,
+    test_view: &str,
+) {
+    assert_eq!(validation.len(), test.len());
+    assert!(!validation.is_empty());
+    for (v, t) in validation.iter().zip(test) {
+        assert_eq!((v.view.as_str(), t.view.as_str()), (view, test_view));
+        assert_eq!(
+            (v.t, v.psnr, v.ssim, v.lpips),
+            (t.t, t.psnr, t.ssim, t.lpips),
+            "the same camera and images score the same"
+        );
+    }
+}

@@ -193,17 +193,12 @@ fn a_baseline_resumes_exactly_and_is_scored_on_the_test_frames() {
     let c = nerf::train(&on_val, &mut log, NerfKind::NerfT).unwrap();
     assert_eq!(params(&c), params(&b), "eval.novel_views shapes no NeRF");
     let val = baseline::evaluate(&on_val, &c, NerfKind::NerfT).unwrap();
-    assert_eq!(val.images.len(), scores.images.len());
-    for (v, t) in val.images.iter().zip(&scores.images) {
-        assert_eq!(
-            (v.view.as_str(), t.view.as_str()),
-            ("view_9", test_view.as_str())
-        );
-        assert_eq!(
-            (v.t, v.psnr, v.ssim, v.lpips),
-            (t.t, t.psnr, t.ssim, t.lpips)
-        );
-    }
+    neurofluid_tests::assert_scored_as_the_test_view(
+        &val.images,
+        &scores.images,
+        "view_9",
+        &test_view,
+    );
     assert_eq!(baseline::read_all(&on_val).unwrap(), vec![val]);
     drop((log, on_val));
     let on_test = Run::prepare(

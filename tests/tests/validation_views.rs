@@ -6,7 +6,9 @@
 use std::path::Path;
 
 use neurofluid_core::scene::{MANIFEST_FILE, Role};
-use neurofluid_tests::{add_validation_copy, seeded_turn, tiny_experiment};
+use neurofluid_tests::{
+    add_validation_copy, assert_scored_as_the_test_view, seeded_turn, tiny_experiment,
+};
 use neurofluid_train::config::Experiment;
 use neurofluid_train::stage::Stage;
 use neurofluid_train::stages::{Run, Start, run_all};
@@ -58,18 +60,6 @@ fn validation_views_are_scored_in_place_of_the_test_views() {
         on_val.nvs_markdown()
     );
     assert_eq!(on_val.frames, on_test.frames, "the dynamics are the same");
-    assert_eq!(on_val.images.len(), on_test.images.len());
-    assert!(!on_val.images.is_empty());
-    for (v, t) in on_val.images.iter().zip(&on_test.images) {
-        assert_eq!(
-            (v.view.as_str(), t.view.as_str()),
-            ("view_9", test_view.as_str())
-        );
-        assert_eq!(
-            (v.t, v.psnr, v.ssim, v.lpips),
-            (t.t, t.psnr, t.ssim, t.lpips),
-            "the same camera and images score the same"
-        );
-    }
+    assert_scored_as_the_test_view(&on_val.images, &on_test.images, "view_9", &test_view);
     assert!(run.stage_dir(Stage::Eval).join("renders/view_9").is_dir());
 }
