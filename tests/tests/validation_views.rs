@@ -7,7 +7,7 @@ use std::path::Path;
 
 use neurofluid_core::scene::{MANIFEST_FILE, Role};
 use neurofluid_tests::{
-    add_validation_copy, assert_scored_as_the_test_view, seeded_turn, tiny_experiment,
+    add_validation_copy, assert_scored_as_the_test_view, files_under, seeded_turn, tiny_experiment,
 };
 use neurofluid_train::config::Experiment;
 use neurofluid_train::stage::Stage;
@@ -62,4 +62,63 @@ fn validation_views_are_scored_in_place_of_the_test_views() {
     assert_eq!(on_val.frames, on_test.frames, "the dynamics are the same");
     assert_scored_as_the_test_view(&on_val.images, &on_test.images, "view_9", &test_view);
     assert!(run.stage_dir(Stage::Eval).join("renders/view_9").is_dir());
+}
+
+/// A built-in scene generated without validation views gains them when
+/// `scene.generate.validation_views` asks (the generator's, on the ring beside the test view):
+/// the scene is generated again, every file it had the same but its manifest, and a finished run
+/// is scored on them without retraining (the key shapes no stage).
+#[test]
+fn a_built_in_scene_gains_validation_views_and_a_finished_run_is_scored_on_them() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let run = Run::prepare(experiment(tmp.path(), &[]), Start::Resume, &Stage::ALL).unwrap();
+    let mut log = run.open_log().unwrap();
+    let on_test = run_all(&run, &mut log).unwrap();
+    let scene_dir = run.scene.root().to_path_buf();
+    let joint_dir = run.stage_dir(Stage::Joint);
+    drop((run, log));
+    let read_all = |root: &Path| -> Vec<(std::path::PathBuf, Vec<u8>)> {
+        files_under(root)
+            .into_iter()
+            .map(|f| {
+                let bytes = std::fs::read(root.join(&f)).unwrap();
+                (f, bytes)
+            })
+            .collect()
+    };
+    let (scene_before, joint_before) = (read_all(&scene_dir), read_all(&joint_dir));
+
+    let ask = [ASK, "scene.generate.validation_views=true"];
+    let run = Run::prepare(experiment(tmp.path(), &ask), Start::Resume, &Stage::ALL).unwrap();
+    let val = ["view_6", "view_7", "view_8"];
+    assert_eq!(run.scene.views(Role::Validation), val);
+    assert_eq!(
+        run.scene.frames(Role::Validation),
+        run.scene.frames(Role::Test)
+    );
+    let scene_after = read_all(&scene_dir);
+    for (f, bytes) in &scene_before {
+        if f != Path::new(MANIFEST_FILE) {
+            let now = scene_after.iter().find(|(g, _)| g == f).map(|(_, b)| b);
+            assert!(now == Some(bytes), "{f:?} changed");
+        }
+    }
+    let mut log = run.open_log().unwrap();
+    let on_val = run_all(&run, &mut log).unwrap();
+    assert!(on_val.validation_views);
+    assert_eq!(on_val.frames, on_test.frames, "the dynamics are the same");
+    for v in val {
+        let scored = on_val.images.iter().filter(|s| s.view == v).count();
+        let on_the_test_view = on_test.images.len();
+        assert_eq!(
+            scored, on_the_test_view,
+            "{v}: one score per test-view step"
+        );
+    }
+    assert_eq!(
+        read_all(&joint_dir),
+        joint_before,
+        "nothing was trained again"
+    );
 }

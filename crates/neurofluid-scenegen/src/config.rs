@@ -119,6 +119,10 @@ pub struct SceneConfig {
     /// Render the warm-up views at every training frame (default false: at frame 0 only).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub warmup_every_frame: Option<bool>,
+    /// Render validation views too (default false): views on the warm-up ring over the test
+    /// frames, at the warm-up azimuths' midpoints that no test view takes.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub validation_views: Option<bool>,
 }
 
 impl SceneConfig {
@@ -139,6 +143,7 @@ impl SceneConfig {
             viscosity: None,
             density: None,
             warmup_every_frame: None,
+            validation_views: None,
         }
     }
 
@@ -216,6 +221,14 @@ impl SceneConfig {
         }
         if self.test_views.is_some_and(|v| !(1..=16).contains(&v)) {
             return bad("test_views", "1 to 16 views");
+        }
+        if self.validation_views == Some(true)
+            && crate::generate::validation_azimuths(self.test_views.unwrap_or(1)).is_empty()
+        {
+            return bad(
+                "validation_views",
+                "test views that leave a warm-up midpoint azimuth (75°, 165°, 255°, 345°) free",
+            );
         }
         if self.camera_angle_x.is_some_and(|a| !(a > 0.01 && a < 3.0)) {
             return bad("camera_angle_x", "an angle in (0.01, 3) radians");

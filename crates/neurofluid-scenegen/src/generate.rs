@@ -167,35 +167,77 @@ pub fn ring(p: &Preset) -> Ring {
     }
 }
 
-/// Warm-up views (view_1…view_4, view_1 also trains) and test views (view_5, …).
-pub fn views(p: &Preset) -> (Vec<ViewSpec>, Vec<ViewSpec>) {
+/// The view `view_{k}` on the preset's ring at azimuth `az` degrees (at the ring's elevation).
+fn ring_view(p: &Preset, k: usize, az: f32) -> ViewSpec {
     let rg = ring(p);
     let el = p.elevation_deg.to_radians();
-    let make = |k: usize, az: f32| {
-        let a = az.to_radians();
-        let t = glam::Vec3::from(rg.target);
-        let eye =
-            t + rg.distance * glam::Vec3::new(el.cos() * a.sin(), el.sin(), el.cos() * a.cos());
-        ViewSpec {
-            name: format!("view_{k}"),
-            azimuth_deg: az,
-            camera: Camera::look_at(
-                p.image_size,
-                p.image_size,
-                p.camera_angle_x,
-                eye.to_array(),
-                rg.target,
-                [0.0, 1.0, 0.0],
-            ),
-        }
+    let a = az.to_radians();
+    let t = glam::Vec3::from(rg.target);
+    let eye = t + rg.distance * glam::Vec3::new(el.cos() * a.sin(), el.sin(), el.cos() * a.cos());
+    ViewSpec {
+        name: format!("view_{k}"),
+        azimuth_deg: az,
+        camera: Camera::look_at(
+            p.image_size,
+            p.image_size,
+            p.camera_angle_x,
+            eye.to_array(),
+            rg.target,
+            [0.0, 1.0, 0.0],
+        ),
+    }
+}
+
+/// Azimuths (degrees) of the warm-up views view_1…view_4.
+const WARM_AZIMUTHS: [f32; 4] = [30.0, 120.0, 210.0, 300.0];
+
+/// Azimuth (degrees) of test view `i` of `n`.
+fn test_azimuth(i: usize, n: usize) -> f32 {
+    75.0 + 360.0 * i as f32 / n as f32
+}
+
+/// The validation views' azimuths for `test_views` test views: the midpoints between
+/// neighbouring warm-up azimuths (75°, 165°, 255°, 345°; the first test view sits on 75°) that
+/// no test view takes (none within 1°), in increasing order.
+pub fn validation_azimuths(test_views: usize) -> Vec<f32> {
+    let taken = |az: f32| {
+        (0..test_views).any(|i| {
+            let d = (test_azimuth(i, test_views) - az).rem_euclid(360.0);
+            d.min(360.0 - d) < 1.0
+        })
     };
-    let warm = (0..4)
-        .map(|i| make(i + 1, 30.0 + 90.0 * i as f32))
+    WARM_AZIMUTHS
+        .iter()
+        .map(|a| a + 45.0)
+        .filter(|&az| !taken(az))
+        .collect()
+}
+
+/// Warm-up views (view_1…view_4, view_1 also trains) and test views (view_5, …).
+pub fn views(p: &Preset) -> (Vec<ViewSpec>, Vec<ViewSpec>) {
+    let warm = WARM_AZIMUTHS
+        .iter()
+        .enumerate()
+        .map(|(i, &az)| ring_view(p, i + 1, az))
         .collect();
     let test = (0..p.test_views)
-        .map(|i| make(5 + i, 75.0 + 360.0 * i as f32 / p.test_views as f32))
+        .map(|i| ring_view(p, 5 + i, test_azimuth(i, p.test_views)))
         .collect();
     (warm, test)
+}
+
+/// The validation views of a preset with `validation_views` (none without): on the ring, where
+/// the built-in test views sit, at [`validation_azimuths`], named after the test views
+/// (`view_{5 + test_views}`, …). What the test view measures, at azimuths it does not take.
+pub fn validation_views(p: &Preset) -> Vec<ViewSpec> {
+    if !p.validation_views {
+        return Vec::new();
+    }
+    validation_azimuths(p.test_views)
+        .into_iter()
+        .enumerate()
+        .map(|(i, az)| ring_view(p, 5 + p.test_views + i, az))
+        .collect()
 }
 
 /// What a generation run produced and how long it took.
@@ -341,7 +383,14 @@ pub fn scene_manifest(p: &Preset) -> SceneManifest {
                 end: p.test_frames,
             },
         },
-        validation: None,
+        validation: p.validation_views.then(|| ViewSet {
+            views: validation_views(p).iter().map(|v| v.name.clone()).collect(),
+            split: "test".into(),
+            frames: FrameRange {
+                start: 0,
+                end: p.test_frames,
+            },
+        }),
         box_file: "box.npz".into(),
         box_interior: Aabb {
             min: p.box_lo.map(|v| v as f32 + r),
@@ -400,7 +449,8 @@ pub(crate) fn render_frame(
 /// transforms, box and manifest. Existing files of the same names are replaced atomically.
 /// With `p.warmup_every_frame` every warm-up view is rendered at every training frame, in the
 /// same frame loop: the same files as generating without it and then
-/// [`crate::render_warmup_frames`].
+/// [`crate::render_warmup_frames`]. With `p.validation_views` the validation views are rendered
+/// beside the test views; every other file is the same.
 pub fn generate(p: &Preset, out: &Path, progress: bool) -> Result<Report, SceneError> {
     std::fs::create_dir_all(out).map_err(|e| SceneError::io(out, e))?;
     let n_frames = p.train_frames.max(p.test_frames);
@@ -408,7 +458,9 @@ pub fn generate(p: &Preset, out: &Path, progress: bool) -> Result<Report, SceneE
     let t0 = Instant::now();
     let sim = simulate(p, n_frames, progress);
     let simulate_s = t0.elapsed().as_secs_f64();
-    let (warm, test) = views(p);
+    let (warm, mut test) = views(p);
+    // the validation views render and write as test views do (split `test`, the test frames)
+    test.extend(validation_views(p));
 
     let mut time = Timings::default();
     let mut images = 0;

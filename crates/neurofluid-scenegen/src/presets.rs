@@ -62,6 +62,11 @@ pub struct Preset {
     /// the NeRF-T baseline and of multi-view losses.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub warmup_every_frame: bool,
+    /// Render validation views too: views on the warm-up ring over the test frames, at the
+    /// warm-up azimuths' midpoints that no test view takes ([`crate::generate::validation_views`]).
+    /// No stage trains on them; `eval.novel_views = "validation"` scores them.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub validation_views: bool,
 }
 
 impl Preset {
@@ -145,6 +150,7 @@ impl Preset {
             iso: 0.4,
             surface_support: 5.0,
             warmup_every_frame: cfg.warmup_every_frame.unwrap_or(false),
+            validation_views: cfg.validation_views.unwrap_or(false),
         }
     }
 
@@ -158,17 +164,20 @@ impl Preset {
     }
 }
 
+/// The settings that only add views to a scene (compared by no identity check).
+const ADDED_VIEWS: [&str; 2] = ["warmup_every_frame", "validation_views"];
+
 impl Preset {
     /// The settings of this preset that differ from `generator`, the serialisation a generated
-    /// scene's manifest records (`warmup_every_frame` aside: the warm-up views are added to an
-    /// existing scene). Settings the record lacks (a scene of an earlier release) are not
+    /// scene's manifest records (`warmup_every_frame` and `validation_views` aside: they add
+    /// views to an existing scene and change nothing simulated or rendered). Settings the record lacks (a scene of an earlier release) are not
     /// compared.
     pub fn changes_from(&self, generator: &serde_json::Value) -> Vec<String> {
         let Ok(serde_json::Value::Object(now)) = serde_json::to_value(self) else {
             return Vec::new();
         };
         now.iter()
-            .filter(|(k, _)| k.as_str() != "warmup_every_frame")
+            .filter(|(k, _)| !ADDED_VIEWS.contains(&k.as_str()))
             .filter(|(k, v)| generator.get(k.as_str()).is_some_and(|g| g != *v))
             .map(|(k, _)| k.clone())
             .collect()

@@ -72,6 +72,12 @@ cadenced!(NerfSection);
 impl Section for SceneSection {
     const KEY: &'static str = "scene";
 
+    /// Validation views are added to a scene beside its other views, which they leave as they
+    /// are, and no stage reads them.
+    fn free_keys() -> Vec<&'static str> {
+        vec!["generate.validation_views"]
+    }
+
     fn problem(&self) -> Problem {
         match (&self.path, &self.builtin) {
             (Some(_), Some(_)) => {

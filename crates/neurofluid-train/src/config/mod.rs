@@ -287,6 +287,7 @@ impl Experiment {
     /// logged and when, the device, where outputs go, memory; each section names its own.
     pub fn free_keys() -> Vec<String> {
         let mut keys: Vec<String> = ["name", "device", "out_dir"].map(String::from).to_vec();
+        keys.extend(checks::free_keys_of::<SceneSection>());
         keys.extend(checks::free_keys_of::<EvalSection>());
         keys.extend(checks::free_keys_of::<PhysNerfConfig>());
         keys.extend(checks::free_keys_of::<WarmupSection>());

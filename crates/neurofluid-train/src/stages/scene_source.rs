@@ -69,6 +69,22 @@ pub fn generate_scene_if_missing(exp: &Experiment) -> anyhow::Result<PathBuf> {
                     dir.display(),
                     changes.join(", ")
                 );
+            } else if cfg.validation_views == Some(true)
+                && let Ok(scene) = neurofluid_core::scene::Scene::open(&dir)
+                && scene.views(Role::Validation).is_empty()
+            {
+                // a scene generated before its validation views were asked for: generated again
+                // with them (every other file comes out the same; the warm-up views at every
+                // frame kept where it has them)
+                let _lock = FolderLock::wait(&dir)?;
+                let preset = Preset {
+                    warmup_every_frame: preset.warmup_every_frame
+                        || scene.frames(Role::Warmup).len() == scene.frames(Role::Train).len(),
+                    ..preset
+                };
+                tracing::info!("the scene lacks validation views: generating it again with them");
+                neurofluid_scenegen::generate(&preset, &dir, true)
+                    .with_context(|| format!("adding the validation views to {}", dir.display()))?;
             } else if cfg.warmup_every_frame == Some(true)
                 && neurofluid_core::scene::Scene::open(&dir)
                     .is_ok_and(|s| s.frames(Role::Warmup).len() < s.frames(Role::Train).len())
