@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
-"""The renderer chosen on the validation views (experiments/bed/README.md rule 18).
+"""The renderer chosen on the validation views (experiments/bed/README.md rules 18 and 19).
 
     python3 scripts/validation-table.py [experiments/bed/validation-runs.txt]
+    python3 scripts/validation-table.py experiments/bed/validation-builtin-runs.txt   # rule 19
 
 The runs file lists `scene seed candidate run validation_copy` per line (`#` starts a comment);
 each validation copy was evaluated by experiments/bed/validation-evals.sh (`eval.novel_views =
@@ -25,7 +26,8 @@ _spec.loader.exec_module(novel_views)
 window_means, TRUTH = novel_views.window_means, novel_views.TRUTH
 
 MATERIAL = {"water-dam-z": "water", "water-torus-tilted-z": "water", "honey-drop-z": "honey",
-            "water-sphere-y": "water", "honey-slump-y-400": "honey"}
+            "water-sphere-y": "water", "honey-slump-y-400": "honey",
+            "watercube": "water", "watersphere": "water", "waterbunny": "water", "honeycone": "honey"}
 
 
 def read(path):
@@ -50,7 +52,7 @@ def main():
                 rows.append(line)  # scene seed candidate run copy
     val_psnr = {}  # (scene, seed, candidate) -> PSNR over t < 50 on the validation views
     nerf_t_psnr = {}  # (scene, seed) -> NeRF-T's
-    print("| scene | seed | renderer | validation views, t < 50: PSNR / SSIM / LPIPS | view_6 ‖ view_7 PSNR | "
+    print("| scene | seed | renderer | validation views, t < 50: PSNR / SSIM / LPIPS | each view's PSNR (view_6 ‖ view_7 …) | "
           "the renderer on the true particles | NeRF-T (NeuroFluid's images) | test view PSNR, t < 50 ‖ t ≥ 50 |")
     print("|---|---|---|---|---|---|---|---|")
     for scene, seed, cand, run, copy in rows:

@@ -67,18 +67,27 @@ pub struct RefitTrainer {
     data: JointData,
     /// The grounded DLF's rollout over the training frames (index 0: the true first state).
     rollout: Vec<Vec<[f32; 3]>>,
-    /// `refit.replay_rays` > 0: the warm-up renderer's orbit and its particles on the device.
-    replay: Option<(WarmupData, Tensor<2>)>,
+    /// `refit.replay_rays` > 0: what every fit step replays.
+    replay: Option<Replay>,
     /// `warmup.held_out`: the warm-up frame's particles on the device (uploaded once).
     held_out_particles: Option<Tensor<2>>,
-    replay_rays: usize,
     seed: u64,
+}
+
+/// The warm-up renderer's orbit that each fit step replays rays of (`refit.replay_rays`).
+struct Replay {
+    /// The orbit's views and the warm-up frame's particles.
+    orbit: WarmupData,
+    /// Those particles on the device (uploaded once).
+    particles: Tensor<2>,
+    /// Rays per fit step.
+    rays: usize,
 }
 
 impl RefitTrainer {
     /// A refit of the fresh renderer `physnerf`: its warm-up as `warmup` says on `warmup_data`,
-    /// then the joint stage's images `data` with the particles of `rollout`, with `replay_rays`
-    /// rays of `replay`'s views replayed at every fit step (none without it).
+    /// then the joint stage's images `data` with the particles of `rollout`; `replay`: an orbit's
+    /// views and the rays of them replayed at every fit step (none without it).
     #[allow(clippy::too_many_arguments)]
     pub fn new(
         warmup: &WarmupSection,
@@ -87,8 +96,7 @@ impl RefitTrainer {
         warmup_data: WarmupData,
         data: JointData,
         rollout: Vec<Vec<[f32; 3]>>,
-        replay: Option<WarmupData>,
-        replay_rays: usize,
+        replay: Option<(WarmupData, usize)>,
         seed: u64,
     ) -> anyhow::Result<Self> {
         anyhow::ensure!(
@@ -98,9 +106,10 @@ impl RefitTrainer {
             data.views[0].len()
         );
         let device = physnerf.device();
-        let replay = replay.map(|r| {
-            let particles = points_tensor(&r.particles, &device);
-            (r, particles)
+        let replay = replay.map(|(orbit, rays)| Replay {
+            particles: points_tensor(&orbit.particles, &device),
+            orbit,
+            rays,
         });
         let held_out_particles = data
             .held_out
@@ -116,7 +125,6 @@ impl RefitTrainer {
             rollout,
             replay,
             held_out_particles,
-            replay_rays,
             seed,
         })
     }
@@ -161,9 +169,16 @@ impl RefitTrainer {
             .render_rays_with_host(&positions, particles, &rays, jitter)?;
         let loss = fit.physnerf.loss(&out, colours);
         let mut total = loss.total;
-        if let Some((replay, positions)) = &self.replay {
-            let rays = self.replay_rays;
-            total = total + replay_loss(&fit.physnerf, replay, positions, rays, &mut fit.rng, i)?;
+        if let Some(r) = &self.replay {
+            let replayed = replay_loss(
+                &fit.physnerf,
+                &r.orbit,
+                &r.particles,
+                r.rays,
+                &mut fit.rng,
+                i,
+            )?;
+            total = total + replayed;
         }
         let lr = fit.opt.lr();
         let update = renderer_update(&fit.physnerf, &mut fit.opt, vec![loss.fine], total)?;
@@ -327,7 +342,7 @@ pub fn run_until(
         let up = run.scene.up_axis().index();
         let replay = super::orbit::orbit_replay(&teacher, &warmup_data, up)
             .context("the warm-up renderer's orbit (refit.replay_rays)")?;
-        Some(replay)
+        Some((replay, exp.refit.replay_rays))
     } else {
         None
     };
@@ -339,7 +354,6 @@ pub fn run_until(
         data,
         rollout,
         replay,
-        exp.refit.replay_rays,
         exp.seed,
     )?;
     // the joint stage's cadence, through both phases
