@@ -150,7 +150,8 @@ fn foreign_transforms(path: &Path, found: &TransformsFile, full: &TransformsFile
 /// for `p` with `warmup_every_frame` false — a scene to extend — or true — a finished scene; the
 /// flag of `p` itself does not matter. The flag is compared only together with the warm-up
 /// frame range it produces, because it changes which views were rendered, not what was
-/// simulated or how it looks; every other preset setting (shape, seed, material, sizes, frame
+/// simulated or how it looks (so are the validation views: the scene's own are kept, whatever
+/// `p.validation_views` says); every other preset setting (shape, seed, material, sizes, frame
 /// counts, cameras, …) must match, as must each warm-up view's transforms file (a prefix of the
 /// full one: the same intrinsics and cameras) and view_1's particle file at every training
 /// frame. Anything else is refused before any file is written, with an error naming the file and
@@ -160,14 +161,6 @@ pub fn render_warmup_frames(
     out: &Path,
     progress: bool,
 ) -> Result<WarmupReport, SceneError> {
-    let without = Preset {
-        warmup_every_frame: false,
-        ..p.clone()
-    };
-    let with = Preset {
-        warmup_every_frame: true,
-        ..p.clone()
-    };
     let mut time = Timings::default();
     let t_read = std::time::Instant::now();
 
@@ -189,6 +182,17 @@ pub fn render_warmup_frames(
         path: mpath.clone(),
         message: e.to_string(),
     })?;
+    // the validation views as the scene has them, whatever `p` says (they add views only)
+    let validation_views = found.get("validation").is_some_and(|v| !v.is_null());
+    let without = Preset {
+        warmup_every_frame: false,
+        validation_views,
+        ..p.clone()
+    };
+    let with = Preset {
+        warmup_every_frame: true,
+        ..without.clone()
+    };
     let value = |m: SceneManifest| reparsed::<_, Value>(&m, &mpath);
     let target = value(scene_manifest(&with))?;
     let manifest_done = found == target;

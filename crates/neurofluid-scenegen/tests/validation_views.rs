@@ -168,3 +168,23 @@ fn validation_views_are_added_and_every_other_file_is_the_same() {
         let _ = std::fs::remove_dir_all(d);
     }
 }
+
+/// The warm-up views at every frame are added to a scene with validation views by a preset
+/// without the flag (it is a free setting): the scene keeps them, and comes out as `generate`
+/// writes it with both.
+#[test]
+fn a_scene_keeps_its_validation_views_when_its_warm_up_views_are_extended() {
+    let (a, b) = (tmp("ext_both"), tmp("ext_val"));
+    let both = Preset {
+        warmup_every_frame: true,
+        ..tiny(true)
+    };
+    generate(&both, &a, false).unwrap();
+    generate(&tiny(true), &b, false).unwrap();
+    let r = neurofluid_scenegen::render_warmup_frames(&tiny(false), &b, false).unwrap();
+    assert!(r.manifest && r.images > 0);
+    assert_eq!(contents(&a), contents(&b));
+    for d in [a, b] {
+        let _ = std::fs::remove_dir_all(d);
+    }
+}
