@@ -348,6 +348,7 @@ pub(crate) fn transforms_file(p: &Preset, frames: Vec<FrameEntry>) -> Transforms
 /// frame with `warmup_every_frame`; `generator` holds the preset's serialisation).
 pub fn scene_manifest(p: &Preset) -> SceneManifest {
     let (warm, test) = views(p);
+    let validation = validation_views(p);
     let rg = ring(p);
     let r = p.radius as f32;
     SceneManifest {
@@ -383,8 +384,8 @@ pub fn scene_manifest(p: &Preset) -> SceneManifest {
                 end: p.test_frames,
             },
         },
-        validation: p.validation_views.then(|| ViewSet {
-            views: validation_views(p).iter().map(|v| v.name.clone()).collect(),
+        validation: (!validation.is_empty()).then(|| ViewSet {
+            views: validation.iter().map(|v| v.name.clone()).collect(),
             split: "test".into(),
             frames: FrameRange {
                 start: 0,
