@@ -2,57 +2,21 @@
 //! test view sits, at the warm-up midpoints no test view takes, over the test frames; every other
 //! file of the scene as it is without them. Tiny sizes.
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use neurofluid_core::scene::{MANIFEST_FILE, Role, Scene};
 use neurofluid_scenegen::generate::{validation_azimuths, validation_views, views};
-use neurofluid_scenegen::shapes::Shape;
 use neurofluid_scenegen::{Preset, Scale, SceneConfig, SceneKind, generate};
 
+mod common;
+use common::contents;
+
 fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("nf_validation_{name}_{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    d
+    common::tmp("validation", name)
 }
 
-/// The sizes of `warmup_frames.rs`: a small box and sphere, 24-pixel images, a few frames.
 fn tiny(validation: bool) -> Preset {
-    let mut cfg = SceneConfig::new(SceneKind::WaterSphere, Scale::Quick);
-    cfg.seed = 4;
-    cfg.image_size = Some(24);
-    cfg.samples_per_axis = Some(1);
-    cfg.train_frames = Some(3);
-    cfg.test_frames = Some(2);
-    cfg.validation_views = Some(validation);
-    let mut p = Preset::resolve(&cfg);
-    p.box_lo = [-0.4, -0.4, -0.4];
-    p.box_hi = [0.4, 0.6, 0.4];
-    p.shape = Shape::Sphere {
-        center: [0.0, 0.0, 0.0],
-        radius: 0.2,
-    };
-    p
-}
-
-/// Every file under `root`, relative to it, with its bytes.
-fn contents(root: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
-    let mut out = BTreeMap::new();
-    let mut stack = vec![root.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                stack.push(p);
-            } else {
-                out.insert(
-                    p.strip_prefix(root).unwrap().to_path_buf(),
-                    std::fs::read(&p).unwrap(),
-                );
-            }
-        }
-    }
-    out
+    common::tiny(4, 3, |c| c.validation_views = Some(validation))
 }
 
 #[test]

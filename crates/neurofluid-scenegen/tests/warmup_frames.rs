@@ -5,53 +5,21 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use neurofluid_core::scene::{MANIFEST_FILE, Particles, Role, Scene, transforms_path};
-use neurofluid_scenegen::shapes::Shape;
 use neurofluid_scenegen::{Preset, Scale, SceneConfig, SceneKind, generate, render_warmup_frames};
 
 const TRAIN_FRAMES: usize = 4;
 
+mod common;
+use common::contents;
+
 fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("nf_warmup_{name}_{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    d
+    common::tmp("warmup", name)
 }
 
-/// A small box, a small sphere, 24-pixel images and a few frames: fast enough for CI (the same
-/// sizes as the generator tests of the workspace's `tests` crate).
 fn tiny(seed: u64, every_frame: bool) -> Preset {
-    let mut cfg = SceneConfig::new(SceneKind::WaterSphere, Scale::Quick);
-    cfg.seed = seed;
-    cfg.image_size = Some(24);
-    cfg.samples_per_axis = Some(1);
-    cfg.train_frames = Some(TRAIN_FRAMES);
-    cfg.test_frames = Some(2);
-    cfg.warmup_every_frame = Some(every_frame);
-    let mut p = Preset::resolve(&cfg);
-    p.box_lo = [-0.4, -0.4, -0.4];
-    p.box_hi = [0.4, 0.6, 0.4];
-    p.shape = Shape::Sphere {
-        center: [0.0, 0.0, 0.0],
-        radius: 0.2,
-    };
-    p
-}
-
-/// Every file under `root`, relative to it, with its bytes.
-fn contents(root: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
-    let mut out = BTreeMap::new();
-    let mut stack = vec![root.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                stack.push(p);
-            } else {
-                let bytes = std::fs::read(&p).unwrap();
-                out.insert(p.strip_prefix(root).unwrap().to_path_buf(), bytes);
-            }
-        }
-    }
-    out
+    common::tiny(seed, TRAIN_FRAMES, |c| {
+        c.warmup_every_frame = Some(every_frame)
+    })
 }
 
 /// Modification times of every file under `root`.
