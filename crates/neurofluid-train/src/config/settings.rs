@@ -159,7 +159,8 @@ mod tests {
     use super::*;
     use std::path::Path;
 
-    /// The free keys the sections name are the hand list of the release before them.
+    /// The free keys the sections name are the hand list of the release before them, and the
+    /// validation views added to a built-in scene since.
     #[test]
     fn free_keys_come_from_the_sections() {
         let mut keys = Experiment::free_keys();
@@ -180,10 +181,12 @@ mod tests {
             "nerf.ckpt_every",
             "nerf.preview_every",
             "nerf.model.chunk",
+            "scene.generate.validation_views",
         ];
         before.sort();
         assert_eq!(keys, before);
         assert!(is_free("eval.views") && is_free("warmup.log_every"));
+        assert!(is_free("scene.generate.validation_views") && !is_free("scene.generate.seed"));
         assert!(!is_free("evaluate") && !is_free("warmup.log_everything"));
     }
 
