@@ -73,6 +73,17 @@ pub fn files_under(root: &Path) -> Vec<PathBuf> {
     out
 }
 
+/// Every file under `root` (as [`files_under`] names them) with its bytes.
+pub fn contents(root: &Path) -> std::collections::BTreeMap<PathBuf, Vec<u8>> {
+    files_under(root)
+        .into_iter()
+        .map(|f| {
+            let bytes = std::fs::read(root.join(&f)).unwrap();
+            (f, bytes)
+        })
+        .collect()
+}
+
 /// Copies the folder `from` to `to` (files and subfolders).
 pub fn copy_dir(from: &Path, to: &Path) {
     std::fs::create_dir_all(to).unwrap();

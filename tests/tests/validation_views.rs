@@ -7,7 +7,7 @@ use std::path::Path;
 
 use neurofluid_core::scene::{MANIFEST_FILE, Role};
 use neurofluid_tests::{
-    add_validation_copy, assert_scored_as_the_test_view, files_under, seeded_turn, tiny_experiment,
+    add_validation_copy, assert_scored_as_the_test_view, contents, seeded_turn, tiny_experiment,
 };
 use neurofluid_train::config::Experiment;
 use neurofluid_train::stage::Stage;
@@ -78,16 +78,7 @@ fn a_built_in_scene_gains_validation_views_and_a_finished_run_is_scored_on_them(
     let scene_dir = run.scene.root().to_path_buf();
     let joint_dir = run.stage_dir(Stage::Joint);
     drop((run, log));
-    let read_all = |root: &Path| -> Vec<(std::path::PathBuf, Vec<u8>)> {
-        files_under(root)
-            .into_iter()
-            .map(|f| {
-                let bytes = std::fs::read(root.join(&f)).unwrap();
-                (f, bytes)
-            })
-            .collect()
-    };
-    let (scene_before, joint_before) = (read_all(&scene_dir), read_all(&joint_dir));
+    let (scene_before, joint_before) = (contents(&scene_dir), contents(&joint_dir));
 
     let ask = [ASK, "scene.generate.validation_views=true"];
     let run = Run::prepare(experiment(tmp.path(), &ask), Start::Resume, &Stage::ALL).unwrap();
@@ -97,11 +88,10 @@ fn a_built_in_scene_gains_validation_views_and_a_finished_run_is_scored_on_them(
         run.scene.frames(Role::Validation),
         run.scene.frames(Role::Test)
     );
-    let scene_after = read_all(&scene_dir);
+    let scene_after = contents(&scene_dir);
     for (f, bytes) in &scene_before {
         if f != Path::new(MANIFEST_FILE) {
-            let now = scene_after.iter().find(|(g, _)| g == f).map(|(_, b)| b);
-            assert!(now == Some(bytes), "{f:?} changed");
+            assert!(scene_after.get(f) == Some(bytes), "{f:?} changed");
         }
     }
     let mut log = run.open_log().unwrap();
@@ -117,7 +107,7 @@ fn a_built_in_scene_gains_validation_views_and_a_finished_run_is_scored_on_them(
         );
     }
     assert_eq!(
-        read_all(&joint_dir),
+        contents(&joint_dir),
         joint_before,
         "nothing was trained again"
     );

@@ -170,8 +170,8 @@ const ADDED_VIEWS: [&str; 2] = ["warmup_every_frame", "validation_views"];
 impl Preset {
     /// The settings of this preset that differ from `generator`, the serialisation a generated
     /// scene's manifest records (`warmup_every_frame` and `validation_views` aside: they add
-    /// views to an existing scene and change nothing simulated or rendered). Settings the record lacks (a scene of an earlier release) are not
-    /// compared.
+    /// views to an existing scene and change nothing simulated or rendered). Settings the record
+    /// lacks (a scene of an earlier release) are not compared.
     pub fn changes_from(&self, generator: &serde_json::Value) -> Vec<String> {
         let Ok(serde_json::Value::Object(now)) = serde_json::to_value(self) else {
             return Vec::new();

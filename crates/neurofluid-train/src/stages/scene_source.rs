@@ -78,8 +78,7 @@ pub fn generate_scene_if_missing(exp: &Experiment) -> anyhow::Result<PathBuf> {
                 // frame kept where it has them)
                 let _lock = FolderLock::wait(&dir)?;
                 let preset = Preset {
-                    warmup_every_frame: preset.warmup_every_frame
-                        || scene.frames(Role::Warmup).len() == scene.frames(Role::Train).len(),
+                    warmup_every_frame: preset.warmup_every_frame || has_warmup_every_frame(&scene),
                     ..preset
                 };
                 tracing::info!("the scene lacks validation views: generating it again with them");
@@ -87,7 +86,7 @@ pub fn generate_scene_if_missing(exp: &Experiment) -> anyhow::Result<PathBuf> {
                     .with_context(|| format!("adding the validation views to {}", dir.display()))?;
             } else if cfg.warmup_every_frame == Some(true)
                 && neurofluid_core::scene::Scene::open(&dir)
-                    .is_ok_and(|s| s.frames(Role::Warmup).len() < s.frames(Role::Train).len())
+                    .is_ok_and(|s| !has_warmup_every_frame(&s))
             {
                 // a scene generated before the warm-up views were asked for at every frame: its
                 // stored particles are rendered from those views (nothing is simulated again)
@@ -104,6 +103,11 @@ pub fn generate_scene_if_missing(exp: &Experiment) -> anyhow::Result<PathBuf> {
         }
     }
     Ok(dir)
+}
+
+/// Whether `scene` has its warm-up views at every training frame (not at frame 0 only).
+fn has_warmup_every_frame(scene: &neurofluid_core::scene::Scene) -> bool {
+    scene.frames(Role::Warmup).len() >= scene.frames(Role::Train).len()
 }
 
 /// The generator settings a generated scene's manifest records (`None` for a scene without).
