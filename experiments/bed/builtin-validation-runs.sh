@@ -20,7 +20,9 @@ mkdir -p "$a" "$c"
 if [[ ! -f $a/eval/report.json ]]; then
   "$bin" run "$config" "${common[@]}" --set out_dir="$a" >> "$a.log" 2>&1
 fi
-cp -r "$a/warmup" "$a/joint" "$c/"
+if [[ ! -d $c/joint ]]; then
+  cp -r "$a/warmup" "$a/joint" "$c/"
+fi
 if [[ ! -f $c/eval/report.json ]]; then
   "$bin" run "$config" "${common[@]}" "${refit[@]}" --set out_dir="$c" >> "$c.log" 2>&1
 fi
@@ -35,5 +37,5 @@ score "$a" A
 score "$c" C "${refit[@]}"
 if [[ ${NERF_T:-0} == 1 && ! -f $a/nerf-t/scores.json ]]; then
   "$bin" baseline nerf-t "$config" "${common[@]}" --set out_dir="$a" \
-    --set nerf.t_images=neurofluid > "$a.nerft.log" 2>&1
+    --set nerf.t_images=neurofluid >> "$a.nerft.log" 2>&1
 fi
