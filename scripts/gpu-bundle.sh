@@ -25,7 +25,7 @@ cd "$root"
 # 22.3's lavapipe crashes), GPU_BUNDLE_FEATURES=neurofluid-train/wgpu-base
 features=${GPU_BUNDLE_FEATURES:-neurofluid-train/wgpu-base,neurofluid-train/vulkan}
 # the backend-generic tests that check numbers on the device (the float64 ones are refused on wgpu)
-tests="dense_layer posenc indexed_rows backends conv_geometry fused_conv parity_forward
+tests="dense_layer half_matmul posenc indexed_rows backends conv_geometry fused_conv parity_forward
 parity_backward parity_rollout parity_e2e_f32 parity_stages options_and_weights nerf_fit
 supervised_dlf pipeline_resume pretrain_on_scene learning transfers"
 mkdir -p "$out"
@@ -87,7 +87,7 @@ cp "$stage/build-root" "$stage/commit" "$stage/profile" "$out/"
 # same folder there. Two compress at a time.
 parts=(
     "neurofluid-train train_step dlf_step"
-    "dense_layer posenc indexed_rows backends"
+    "dense_layer half_matmul posenc indexed_rows backends"
     "conv_geometry fused_conv parity_forward parity_backward"
     "parity_rollout supervised_dlf parity_e2e_f32 parity_stages"
     "options_and_weights nerf_fit pipeline_resume transfers"

@@ -9,6 +9,10 @@
 #   dlf       DLF forward and forward+backward at 8k and 32k fluid particles, wgpu then CPU
 #   physnerf-wgpu, dlf-wgpu  the same on wgpu alone (a second call, the references measured);
 #             physnerf-wgpu also with the dense layers in one matmul over every row (--split-rows 0)
+#   half      the PhysNeRF step on wgpu with the dense layers' matmuls on 16-bit operands (f16,
+#             then bf16: the tensor cores; `--matmul`), its kernel profile with f16 (do the
+#             matmul kernels' names say cmma?), and the quick main job's warm-up with f16
+#             (HALF_QUICK_SECONDS, default 120)
 #   split     the PhysNeRF step on wgpu with the dense layers' rows in blocks of each of
 #             SPLIT_ROWS (default "2048 8192 16384"; the default block is 4,096)
 #   quick     the quick main job on wgpu, GPU utilisation sampled every second (per stage in the
@@ -147,6 +151,26 @@ for step in $steps; do
             --bench --device wgpu --split-rows 0
         report "$log" "step \(forward|MLPs alone"
         ;;
+    half)
+        log=$results/physnerf.log
+        for m in f16 bf16; do
+            timed "PhysNeRF step, wgpu, $m operands" 100 "$log" "$bin/train_step" --bench \
+                --device wgpu --matmul "$m"
+            report "$log" "step \(forward|MLPs alone|host–device"
+        done
+        timed "one small PhysNeRF step with f16 operands, cubecl's kernel profile" 60 \
+            "$results/profile-f16.log" env CUBECL_DEBUG_OPTION=profile \
+            CUBECL_DEBUG_LOG="$results/profile-f16-kernels.log" "$bin/train_step" --device wgpu \
+            --matmul f16
+        python3 scripts/cubecl-profile-summary.py "$results/profile-f16-kernels.log" --top 12 |
+            sed 's/^/    /' | tee -a "$summary"
+        timed "quick main job, wgpu, f16 operands (${HALF_QUICK_SECONDS:-120} s at most)" \
+            "${HALF_QUICK_SECONDS:-120}" "$results/quick-f16.log" "$bin/neurofluid-train" run \
+            experiments/quick-watercube.toml --device wgpu --fresh --set name=gpu-quick-f16 \
+            --set matmul=f16
+        grep -E 'warmup step [0-9]+' "$results/quick-f16.log" | tail -3 | sed 's/^/    /' |
+            tee -a "$summary"
+        ;;
     split)
         log=$results/physnerf.log
         for rows in ${SPLIT_ROWS:-2048 8192 16384}; do
@@ -232,7 +256,7 @@ PY
             tee -a "$summary"
         ;;
     tests)
-        for t in dense_layer posenc indexed_rows backends conv_geometry fused_conv parity_forward \
+        for t in dense_layer half_matmul posenc indexed_rows backends conv_geometry fused_conv parity_forward \
             parity_backward parity_rollout parity_e2e_f32 parity_stages options_and_weights \
             nerf_fit supervised_dlf pipeline_resume pretrain_on_scene learning transfers; do
             NEUROFLUID_TEST_DEVICE=wgpu timed "test $t" 600 "$results/tests.log" "$bin/$t"
@@ -245,7 +269,7 @@ PY
             "${PAPER_SECONDS:-300}" "$results/paper.log" "$bin/neurofluid-train" run \
             experiments/paper-watercube.toml --device wgpu --set name=gpu-paper
         ;;
-    *) say "unknown step $step (physnerf, physnerf-wgpu, split, dlf, dlf-wgpu, quick, profile, dlfprofile, tests, paper)" ;;
+    *) say "unknown step $step (physnerf, physnerf-wgpu, half, split, dlf, dlf-wgpu, quick, profile, dlfprofile, tests, paper)" ;;
     esac
 done
 say "done at $(date -u +%FT%TZ), $SECONDS s"

@@ -12,6 +12,7 @@ use burn::prelude::*;
 use burn::tensor::activation::relu;
 use rayon::prelude::*;
 
+use crate::half_matmul::{MatmulOperands, half_matmul, matmul_operands};
 use crate::matmul::{Epilogue, Lanes, LayoutA, PackedB, matmul};
 use crate::real::{Real, axpy, dot_in_lanes, par_zeros};
 
@@ -356,7 +357,8 @@ pub fn linear(layer: &Linear, x: Tensor<2>, act: Activation) -> Tensor<2> {
 /// `act(layer(cat[x₁, x₂, …]))` (column blocks side by side, as the MLP's skip and direction
 /// inputs): on flex one host operation that reads the blocks in place ([`Blocks`]); on an
 /// accelerator Burn's ops with the rows in blocks ([`linear_in_row_blocks`]) when there are
-/// more than [`split_rows`] of them; Burn's `cat` and ops otherwise.
+/// more than [`split_rows`] of them or the process's matmuls take 16-bit operands
+/// ([`crate::half_matmul::matmul_operands`]); Burn's `cat` and ops otherwise.
 ///
 /// # Panics
 /// When `xs` is empty.
@@ -371,9 +373,14 @@ pub fn linear_of_cat(layer: &Linear, xs: Vec<Tensor<2>>, act: Activation) -> Ten
     } else {
         Tensor::cat(xs, 1)
     };
-    let block = split_rows();
-    if block > 0 && x.dims()[0] > block && !crate::device::is_host(&x.device()) {
-        return linear_in_row_blocks(layer, x, act, block);
+    if !crate::device::is_host(&x.device()) {
+        let (m, block, operands) = (x.dims()[0], split_rows(), matmul_operands());
+        if block > 0 && m > block {
+            return linear_in_row_blocks(layer, x, act, block, operands);
+        }
+        if operands != MatmulOperands::F32 {
+            return linear_in_row_blocks(layer, x, act, m, operands);
+        }
     }
     act.apply(layer.forward(x))
 }
@@ -398,12 +405,15 @@ pub fn set_split_rows(rows: usize) {
 /// GPU needs. A single matmul's weight gradient has an inner dimension of every row (PhysNeRF's
 /// 150k samples), which the fixed matmul kernel runs on a few workgroups: on an H100 the MLPs'
 /// backward took 48 times their forward (BENCHMARKS.md, "Issue 30, first H100 session").
-/// The same values as `act(layer.forward(x))` up to the order of the sums.
+/// With 16-bit `operands` the blocks' products are [`half_matmul`]s (forward and backward).
+/// The same values as `act(layer.forward(x))` up to the order of the sums (and the 16-bit
+/// operands' rounding).
 pub fn linear_in_row_blocks(
     layer: &Linear,
     x: Tensor<2>,
     act: Activation,
     block: usize,
+    operands: MatmulOperands,
 ) -> Tensor<2> {
     let [m, k] = x.dims();
     let block = block.max(1);
@@ -418,10 +428,12 @@ pub fn linear_in_row_blocks(
     };
     let w = layer.weight.val();
     let n = w.dims()[1];
-    let z = x
-        .reshape([blocks, block, k])
-        .matmul(w.unsqueeze_dim::<3>(0))
-        .reshape([padded, n]);
+    let x = x.reshape([blocks, block, k]);
+    let z = match operands.half() {
+        None => x.matmul(w.unsqueeze_dim::<3>(0)),
+        Some(half) => half_matmul(x, w, half),
+    }
+    .reshape([padded, n]);
     let z = if padded > m { z.slice([0..m, 0..n]) } else { z };
     let z = match &layer.bias {
         Some(b) => z + b.val().unsqueeze_dim::<2>(0),

@@ -127,11 +127,13 @@ const WGPU_NAMES: [&str; 2] = ["wgpu", "gpu"];
 /// were off by up to 1). The float64 checks (finite differences, the f64 parity case) need
 /// this; training runs in float32.
 pub fn float64_supported(name: &str) -> bool {
-    let lower = name.trim().to_ascii_lowercase();
-    if WGPU_NAMES.contains(&lower.as_str()) {
-        return false;
-    }
-    parse_device(&lower).is_ok_and(|d| d.supports_dtype(burn::tensor::DType::F64))
+    !is_wgpu_name(name)
+        && parse_device(name).is_ok_and(|d| d.supports_dtype(burn::tensor::DType::F64))
+}
+
+/// Whether `name` (a [`parse_device`] name) names the wgpu device.
+pub fn is_wgpu_name(name: &str) -> bool {
+    WGPU_NAMES.contains(&name.trim().to_ascii_lowercase().as_str())
 }
 
 /// [`float64_supported`] for the device the backend-generic tests run on.
@@ -187,6 +189,25 @@ fn ndarray() -> Option<Device> {
     #[allow(deprecated)]
     return Some(Device::ndarray());
     #[cfg(not(feature = "ndarray"))]
+    None
+}
+
+/// The tensor-core (cooperative-matrix) shapes the wgpu device offers its matmuls, as
+/// `a×b→c m×n×k` (e.g. `f16×f16→f32 16×16×16`), sorted; `None` where wgpu is not compiled in.
+/// An empty list: every matmul runs on the scalar kernel.
+pub fn wgpu_tensor_core_shapes() -> Option<Vec<String>> {
+    #[cfg(feature = "wgpu-base")]
+    {
+        let client = cubecl::Device::Wgpu(burn::backend::wgpu::WgpuDevice::default()).client();
+        let shapes = client.properties().features.matmul.cmma.iter().map(|c| {
+            format!(
+                "{}×{}→{} {}×{}×{}",
+                c.a_type, c.b_type, c.cd_type, c.m, c.n, c.k
+            )
+        });
+        Some(shapes.collect())
+    }
+    #[cfg(not(feature = "wgpu-base"))]
     None
 }
 

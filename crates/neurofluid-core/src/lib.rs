@@ -11,6 +11,7 @@ pub mod dense;
 pub mod device;
 #[cfg(feature = "flex")]
 pub mod flex_host;
+pub mod half_matmul;
 pub mod limits;
 pub mod logging;
 pub mod malloc;

@@ -13,6 +13,7 @@ use neurofluid_core::dense::{
     Activation, linear, linear_in_row_blocks, linear_of_cat, try_host_linear,
 };
 use neurofluid_core::device::{test_device, test_device_name};
+use neurofluid_core::half_matmul::MatmulOperands;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -121,7 +122,9 @@ impl Case {
                 let blocks = blocks.clone().expect("two column blocks");
                 linear_of_cat(&layer, blocks.to_vec(), act)
             }
-            Path::RowBlocks(rows) => linear_in_row_blocks(&layer, x.clone(), act, rows),
+            Path::RowBlocks(rows) => {
+                linear_in_row_blocks(&layer, x.clone(), act, rows, MatmulOperands::F32)
+            }
         };
         let loss = (y.clone() * tensor(&self.coeff, [self.m, self.n], &ad)).sum();
         let grads = loss.backward();

@@ -10,7 +10,8 @@
 //! prints the step's host–device copies (`neurofluid_core::transfer`: reads and uploads, count
 //! and bytes, the closing read-back of the particle gradient's sum included). `--split-rows N`
 //! sets the rows per block of the dense layers on an accelerator
-//! (`neurofluid_core::dense::set_split_rows`; 0: one matmul over every row).
+//! (`neurofluid_core::dense::set_split_rows`; 0: one matmul over every row), `--matmul f16|bf16`
+//! their operands (`neurofluid_core::half_matmul`: the tensor cores; f32 by default).
 //! The weights are the reference case's test weights (opaque, textured), the particles a
 //! 22×22×21 lattice (spacing 0.05, jitter ±0.003, randomly permuted: 10,164 particles), the
 //! camera 4 units away (400×400, as in NeuroFluid), the rays 1024 random pixels of the view.
@@ -22,6 +23,7 @@ use burn::prelude::*;
 use burn::tensor::{DType, Distribution, Float, TensorData};
 use neurofluid_core::camera::Camera;
 use neurofluid_core::cpu_time::process_cpu_seconds;
+use neurofluid_core::half_matmul::{MatmulOperands, matmul_operands, set_matmul_operands};
 use neurofluid_core::transfer::{self, Counts, upload};
 use neurofluid_physnerf::{PhysNerf, PhysNerfConfig, RayBatch, Timings};
 use rand::seq::SliceRandom;
@@ -70,9 +72,23 @@ fn main() {
             }
         }
     }
+    if let Some(name) = args
+        .iter()
+        .position(|a| a == "--matmul")
+        .and_then(|i| args.get(i + 1))
+    {
+        match name.parse::<MatmulOperands>() {
+            Ok(m) => set_matmul_operands(m),
+            Err(e) => {
+                eprintln!("--matmul: {e}");
+                std::process::exit(2);
+            }
+        }
+    }
     println!(
-        "dense layers on an accelerator: {} rows per block",
-        neurofluid_core::dense::split_rows()
+        "dense layers on an accelerator: {} rows per block, {} operands",
+        neurofluid_core::dense::split_rows(),
+        matmul_operands().name()
     );
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
     let mut particles = Vec::new();

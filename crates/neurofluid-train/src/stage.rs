@@ -94,7 +94,7 @@ impl Stage {
     /// The other stages keep no state that settings shape.
     pub fn shaped_by(self, key: &str, exp: &Experiment) -> bool {
         let under = |prefix: &str| key == prefix || key.starts_with(&format!("{prefix}."));
-        let common = under("seed") || under("scene");
+        let common = under("seed") || under("scene") || under("matmul");
         let nerf_model = under("nerf") && !under("nerf.t_images");
         let nerf_t_images = under("nerf.t_images")
             || (exp.nerf.t_images == NerfTImages::Neurofluid

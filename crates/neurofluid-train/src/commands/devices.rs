@@ -26,6 +26,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "device {name} computed 1²+2²+3² = {s}"
         );
         println!("device {name}: {device:?} works (1²+2²+3² = {s})");
+        if neurofluid_core::device::is_wgpu_name(&name)
+            && let Some(shapes) = neurofluid_core::device::wgpu_tensor_core_shapes()
+        {
+            if shapes.is_empty() {
+                println!("tensor cores: none offered (every matmul on the scalar kernel)");
+            } else {
+                println!(
+                    "tensor cores (operands × operands → accumulator, m×n×k): {}; `matmul = \"f16\"` or \"bf16\" in the experiment uses them",
+                    shapes.join(", ")
+                );
+            }
+        }
     }
     Ok(())
 }

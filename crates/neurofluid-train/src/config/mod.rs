@@ -64,6 +64,11 @@ pub struct Experiment {
     /// Device: `cpu`, `flex`, `ndarray`, `wgpu`, `cuda`, `cuda:N`. Default `cpu`.
     #[serde(default = "default_device")]
     pub device: String,
+    /// The operands of the dense layers' matmuls on an accelerator: `f32` (default), `f16` or
+    /// `bf16` for a GPU's tensor cores, f32 accumulation, each operand scaled by its largest
+    /// magnitude (`neurofluid_core::half_matmul`). The CPU's host layers ignore it.
+    #[serde(default)]
+    pub matmul: neurofluid_core::half_matmul::MatmulOperands,
     /// Output folder; default `runs/<name>` (see [`Experiment::out_dir`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub out_dir: Option<PathBuf>,

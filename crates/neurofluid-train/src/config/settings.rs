@@ -28,6 +28,7 @@ fn is_free(key: &str) -> bool {
 /// that does not record such a key was made with that value, so it is not a change.
 const ADDED_KEYS: &[(&str, &str)] = &[
     ("physnerf.density", "\"relu\""),
+    ("matmul", "\"f32\""),
     ("scene.initial", "\"true\""),
     ("joint.foreground_rays", "0.0"),
     ("joint.dlf_every", "1"),
@@ -223,6 +224,19 @@ mod tests {
         }
         let w = Settings::of_stage(&exp(&["joint.dlf_optim.lr=1e-4"]), Stage::Warmup);
         assert_eq!(w, Settings::of_stage(&exp(&[]), Stage::Warmup));
+        // the matmuls' operands shape every stage with a network, not the evaluation
+        let half = exp(&["matmul=\"f16\""]);
+        for stage in [Stage::Warmup, Stage::Joint, Stage::Refit, Stage::Nerf] {
+            let changes = Settings::of_stage(&half, stage)
+                .changes_since(&Settings::of_stage(&exp(&[]), stage));
+            assert_eq!(changes.len(), 1, "{stage}");
+            assert_eq!(changes[0].to_string(), "matmul: \"f32\" → \"f16\"");
+        }
+        assert!(
+            Settings::of_stage(&half, Stage::Eval)
+                .changes_since(&Settings::of_stage(&exp(&[]), Stage::Eval))
+                .is_empty()
+        );
     }
 
     #[test]

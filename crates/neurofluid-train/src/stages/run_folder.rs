@@ -72,6 +72,7 @@ impl Run {
         let device = neurofluid_core::device::parse_device(&exp.device)
             .with_context(|| format!("the experiment's device `{}`", exp.device))?
             .autodiff();
+        neurofluid_core::half_matmul::set_matmul_operands(exp.matmul);
         let scene_dir = exp.scene.scene_dir();
         anyhow::ensure!(
             scene_dir.is_dir(),
