@@ -46,7 +46,12 @@ def report_rows(path):
         if line.startswith("| model |"):
             # each table is known by its first column after the model's
             head = cells(line)[1]
-            table = first if head.startswith("d_avg") else second if head.startswith("d′") else views
+            table = (
+                first if head.startswith("d_avg")
+                else second if head.startswith("d′")
+                else views if head.startswith("PSNR")
+                else None  # the novel views' error split (MSE on the fluid and around it)
+            )
             continue
         if table is None or not line.startswith("| ") or line.startswith("|---"):
             continue
