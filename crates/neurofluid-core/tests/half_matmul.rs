@@ -14,7 +14,14 @@ use neurofluid_core::half_matmul::{MatmulOperands, half_matmul, scaled_half_matm
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-const HALVES: [MatmulOperands; 2] = [MatmulOperands::F16, MatmulOperands::Bf16];
+/// The 16-bit operand types the test device has (WGSL, lavapipe's, has no bf16).
+fn halves() -> Vec<MatmulOperands> {
+    let device = test_device();
+    [MatmulOperands::F16, MatmulOperands::Bf16]
+        .into_iter()
+        .filter(|m| device.supports_dtype(m.half().expect("a 16-bit type")))
+        .collect()
+}
 
 fn random(n: usize, scale: f64, rng: &mut ChaCha8Rng) -> Vec<f64> {
     (0..n)
@@ -74,6 +81,7 @@ fn scaled_products_hold_the_rounding_bound_far_outside_f16s_range() {
     let device = test_device();
     let (m, k, n) = (23, 70, 9);
     let mut rng = ChaCha8Rng::seed_from_u64(3);
+    println!("16-bit operand types of the test device: {:?}", halves());
     for (scale_a, scale_b) in [(1.0, 1.0), (1e-7, 3e-6), (2e4, 5e3), (1e-9, 4e3)] {
         let a = random(2 * m * k, scale_a, &mut rng);
         let b = random(k * n, scale_b, &mut rng);
@@ -84,7 +92,7 @@ fn scaled_products_hold_the_rounding_bound_far_outside_f16s_range() {
             want.extend(c);
             scale.extend(s);
         }
-        for operands in HALVES {
+        for operands in halves() {
             let dtype = operands.half().expect("a 16-bit type");
             let got = scaled_half_matmul(
                 tensor(&a, [2, m, k], &device),
@@ -122,7 +130,7 @@ fn gradients_hold_the_rounding_bound_with_tiny_output_gradients() {
     let x = random(b * m * k, 2.0, &mut rng);
     let w = random(k * n, 0.3, &mut rng);
     let c = random(b * m * n, 1e-8, &mut rng);
-    for operands in HALVES {
+    for operands in halves() {
         let half = operands.half().expect("a 16-bit type");
         for tracked in [[true, true], [true, false], [false, true]] {
             let track = |t: Tensor<3>, on| if on { t.require_grad() } else { t };
@@ -198,7 +206,7 @@ fn dense_layer_with_16_bit_operands_follows_the_f32_layer() {
         ]
     };
     let want = run(MatmulOperands::F32);
-    for operands in HALVES {
+    for operands in halves() {
         let got = run(operands);
         for (name, (g, w)) in ["y", "dx", "dw", "db"].iter().zip(got.iter().zip(&want)) {
             let largest = w.iter().fold(0.0f64, |a, v| a.max(v.abs()));
@@ -229,4 +237,18 @@ fn operand_names_round_trip_and_a_wrong_one_is_named() {
         e.contains("f32, f16 or bf16") && e.contains("`fp16`"),
         "{e}"
     );
+}
+
+/// On wgpu the driver's tensor-core shapes can be listed (lavapipe lists none); off it, `None`
+/// where wgpu is not compiled in.
+#[test]
+fn tensor_core_shapes_are_listed_where_wgpu_is_compiled_in() {
+    use neurofluid_core::device::{is_wgpu_name, test_device_name, wgpu_tensor_core_shapes};
+    let shapes = wgpu_tensor_core_shapes();
+    assert_eq!(shapes.is_some(), cfg!(feature = "wgpu-base"));
+    if is_wgpu_name(&test_device_name()) {
+        let shapes = shapes.expect("wgpu compiled in");
+        println!("tensor-core shapes: {shapes:?}");
+        assert!(shapes.iter().all(|s| s.contains('×') && s.contains('→')));
+    }
 }

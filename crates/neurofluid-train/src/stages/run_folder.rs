@@ -72,6 +72,16 @@ impl Run {
         let device = neurofluid_core::device::parse_device(&exp.device)
             .with_context(|| format!("the experiment's device `{}`", exp.device))?
             .autodiff();
+        if let Some(half) = exp.matmul.half()
+            && !neurofluid_core::device::is_host(&device)
+        {
+            anyhow::ensure!(
+                device.supports_dtype(half),
+                "matmul = \"{}\": the device `{}` has no {half:?} type; use \"f32\" there",
+                exp.matmul.name(),
+                exp.device
+            );
+        }
         neurofluid_core::half_matmul::set_matmul_operands(exp.matmul);
         let scene_dir = exp.scene.scene_dir();
         anyhow::ensure!(
