@@ -78,6 +78,10 @@ fn main() {
         .and_then(|i| args.get(i + 1))
     {
         match name.parse::<MatmulOperands>() {
+            Ok(m) if m.half().is_some_and(|h| !device.supports_dtype(h)) => {
+                println!("--matmul {name}: the device has no {name} type; nothing measured");
+                return;
+            }
             Ok(m) => set_matmul_operands(m),
             Err(e) => {
                 eprintln!("--matmul: {e}");
