@@ -378,7 +378,7 @@ pub fn linear_of_cat(layer: &Linear, xs: Vec<Tensor<2>>, act: Activation) -> Ten
         if block > 0 && m > block {
             return linear_in_row_blocks(layer, x, act, block, operands);
         }
-        if operands != MatmulOperands::F32 {
+        if operands != MatmulOperands::F32 && m > 0 {
             return linear_in_row_blocks(layer, x, act, m, operands);
         }
     }
