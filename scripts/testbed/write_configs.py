@@ -38,7 +38,7 @@ BED_ONLY = {"water": REFIT, "honey": REFIT}
 # quick config replaced in place, each with its reason written above it.
 BPTT_NOTE = (
     "# test bed, water (experiments/bed/README.md rules 20-21): 8 transitions unrolled (the quick\n"
-    "# configs: 4, pending the built-in scenes' check). Chosen on the bed's three water scenes over\n"
+    "# configs: 4, which did better on the built-in scenes). Chosen on the bed's water scenes over\n"
     "# t < 50, seeds 11-12 ((d + d')/2 lower on each; BENCHMARKS.md, twenty-third session); d' over\n"
     "# t >= 50 rose on each (reported there).\n"
 )
