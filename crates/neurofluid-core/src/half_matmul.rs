@@ -33,6 +33,9 @@ pub enum MatmulOperands {
 }
 
 impl MatmulOperands {
+    /// Every choice, in the order of the process setting's code.
+    const ALL: [Self; 3] = [Self::F32, Self::F16, Self::Bf16];
+
     /// The 16-bit type, `None` for f32.
     pub fn half(self) -> Option<DType> {
         match self {
@@ -65,45 +68,61 @@ impl std::str::FromStr for MatmulOperands {
     type Err = String;
 
     fn from_str(s: &str) -> Result<Self, String> {
-        [Self::F32, Self::F16, Self::Bf16]
+        Self::ALL
             .into_iter()
             .find(|m| m.name() == s)
             .ok_or_else(|| format!("expected f32, f16 or bf16, got `{s}`"))
     }
 }
 
-/// The process's choice (f32 unless set).
+/// The process's choice, its index in [`MatmulOperands::ALL`] (f32 unless set).
 static OPERANDS: std::sync::atomic::AtomicU8 = std::sync::atomic::AtomicU8::new(0);
 
 /// The operands' type of the dense layers' matmuls on an accelerator in this process.
 pub fn matmul_operands() -> MatmulOperands {
-    match OPERANDS.load(std::sync::atomic::Ordering::Relaxed) {
-        1 => MatmulOperands::F16,
-        2 => MatmulOperands::Bf16,
-        _ => MatmulOperands::F32,
-    }
+    MatmulOperands::ALL[usize::from(OPERANDS.load(std::sync::atomic::Ordering::Relaxed))]
 }
 
 /// Sets the operands' type of the dense layers' matmuls on an accelerator for this process (the
 /// trainer sets the experiment's `matmul` when it opens a run).
 pub fn set_matmul_operands(operands: MatmulOperands) {
-    let v = match operands {
-        MatmulOperands::F32 => 0,
-        MatmulOperands::F16 => 1,
-        MatmulOperands::Bf16 => 2,
-    };
-    OPERANDS.store(v, std::sync::atomic::Ordering::Relaxed);
+    OPERANDS.store(operands as u8, std::sync::atomic::Ordering::Relaxed);
 }
 
 /// The largest inner dimension whose products of operands in [−1, 1] f16 can hold.
 const MAX_INNER: usize = 65_504;
 
-/// `t / s` with `s` its largest magnitude (a tiny positive number for an all-zero tensor), in
-/// the 16-bit type, and `s` as a one-element tensor of `t`'s type.
-fn scaled<const D: usize>(t: Tensor<D>, half: DType) -> (Tensor<D>, Tensor<1>) {
-    let s = t.clone().abs().max().clamp_min(f32::MIN_POSITIVE as f64);
-    let div = s.clone().reshape([1; D]);
-    ((t / div).cast(half), s)
+/// A tensor divided by its largest magnitude (a tiny positive number for an all-zero tensor),
+/// in the 16-bit type, with that magnitude as a one-element tensor of the tensor's own type.
+#[derive(Debug, Clone)]
+struct Scaled<const D: usize> {
+    half: Tensor<D>,
+    scale: Tensor<1>,
+}
+
+impl<const D: usize> Scaled<D> {
+    fn new(t: Tensor<D>, half: DType) -> Self {
+        let scale = t.clone().abs().max().clamp_min(f32::MIN_POSITIVE as f64);
+        let div = scale.clone().reshape([1; D]);
+        Self {
+            half: (t / div).cast(half),
+            scale,
+        }
+    }
+}
+
+/// `a·b` of scaled operands `a [B, m, k]`, `b [B or 1, k, n]` (16-bit, f32 accumulation),
+/// unscaled and returned in `dtype`.
+///
+/// # Panics
+/// When `k` exceeds 65,504 (products in [−k, k] would not fit in f16).
+fn product(a: Tensor<3>, sa: Tensor<1>, b: Tensor<3>, sb: Tensor<1>, dtype: DType) -> Tensor<3> {
+    let k = a.dims()[2];
+    assert!(
+        k <= MAX_INNER,
+        "a 16-bit matmul's inner dimension {k} exceeds {MAX_INNER}"
+    );
+    a.matmul(b).cast(dtype) * (sa * sb).reshape([1, 1, 1])
 }
 
 /// `a·b` for `a [B, m, k]`, `b [B or 1, k, n]` (untracked) with the operands in `half`, each
@@ -112,16 +131,9 @@ fn scaled<const D: usize>(t: Tensor<D>, half: DType) -> (Tensor<D>, Tensor<1>) {
 /// # Panics
 /// When `k` exceeds 65,504 (products in [−k, k] would not fit in f16).
 pub fn scaled_half_matmul(a: Tensor<3>, b: Tensor<3>, half: DType) -> Tensor<3> {
-    let k = a.dims()[2];
-    assert!(
-        k <= MAX_INNER,
-        "a 16-bit matmul's inner dimension {k} exceeds {MAX_INNER}"
-    );
     let dtype = a.dtype();
-    let (a, sa) = scaled(a, half);
-    let (b, sb) = scaled(b, half);
-    let s = (sa * sb).reshape([1, 1, 1]);
-    a.matmul(b).cast(dtype) * s
+    let (a, b) = (Scaled::new(a, half), Scaled::new(b, half));
+    product(a.half, a.scale, b.half, b.scale, dtype)
 }
 
 /// `x·w` for `x [B, m, k]` and `w [k, n]` with 16-bit operands ([`scaled_half_matmul`]) in the
@@ -148,21 +160,25 @@ pub fn half_matmul(x: Tensor<3>, w: Tensor<2>, half: DType) -> Tensor<3> {
     scaled_half_matmul(x, w.unsqueeze_dim::<3>(0), half)
 }
 
-/// The gradients of `x·w` from `dz [B, m, n]`: `(dx [B, m, k], dw [k, n])`, each when asked.
+/// The gradients of `x·w` from `dz [B, m, n]`, given the forward pass's scaled operands:
+/// `(dx [B, m, k], dw [k, n])`, each when asked; `dz` is scaled once for both.
 fn gradients(
-    x: &Tensor<3>,
-    w: &Tensor<2>,
+    x: &Scaled<3>,
+    w: &Scaled<2>,
     dz: Tensor<3>,
     half: DType,
     need: [bool; 2],
 ) -> (Option<Tensor<3>>, Option<Tensor<2>>) {
+    let dtype = dz.dtype();
+    let dz = Scaled::new(dz, half);
     let dx = need[0].then(|| {
-        let wt = w.clone().transpose().unsqueeze_dim::<3>(0);
-        scaled_half_matmul(dz.clone(), wt, half)
+        let wt = w.half.clone().transpose().unsqueeze_dim::<3>(0);
+        let (dzh, dzs) = (dz.half.clone(), dz.scale.clone());
+        product(dzh, dzs, wt, w.scale.clone(), dtype)
     });
     let dw = need[1].then(|| {
-        let xt = x.clone().swap_dims(1, 2);
-        scaled_half_matmul(xt, dz, half)
+        let xt = x.half.clone().swap_dims(1, 2);
+        product(xt, x.scale.clone(), dz.half, dz.scale, dtype)
             .sum_dim(0)
             .squeeze_dim::<2>(0)
     });
@@ -170,7 +186,7 @@ fn gradients(
 }
 
 /// The autodiff operation on one backend: `$backend` the untracked backend's type, `$name` the
-/// module's name. Parents (x, w); the state keeps both untracked.
+/// module's name. Parents (x, w); the state keeps both as the forward pass scaled them.
 macro_rules! half_matmul_op {
     ($name:ident, $backend:ty) => {
         mod $name {
@@ -187,10 +203,11 @@ macro_rules! half_matmul_op {
             #[derive(Debug)]
             struct HalfMatmulBackward;
 
+            /// The forward pass's scaled operands (no f32 copy kept).
             #[derive(Debug, Clone)]
             struct State {
-                x: Tensor<3>,
-                w: Tensor<2>,
+                x: Scaled<3>,
+                w: Scaled<2>,
                 half: DType,
             }
 
@@ -224,7 +241,16 @@ macro_rules! half_matmul_op {
                 let wa = w.clone().try_into_primitive::<Tracked>().ok()?;
                 let xp = Tensor::<3>::from_primitive::<Plain>(xa.primitive().clone());
                 let wp = Tensor::<2>::from_primitive::<Plain>(wa.primitive().clone());
-                let z = scaled_half_matmul(xp.clone(), wp.clone().unsqueeze_dim::<3>(0), half);
+                let dtype = xp.dtype();
+                let (xs, ws) = (Scaled::new(xp, half), Scaled::new(wp, half));
+                let wh = ws.half.clone().unsqueeze_dim::<3>(0);
+                let z = product(
+                    xs.half.clone(),
+                    xs.scale.clone(),
+                    wh,
+                    ws.scale.clone(),
+                    dtype,
+                );
                 let z = z
                     .try_into_primitive::<Plain>()
                     .expect("an untracked tensor");
@@ -233,7 +259,7 @@ macro_rules! half_matmul_op {
                     .compute_bound()
                     .stateful()
                 {
-                    OpsKind::Tracked(prep) => prep.finish(State { x: xp, w: wp, half }, z),
+                    OpsKind::Tracked(prep) => prep.finish(State { x: xs, w: ws, half }, z),
                     OpsKind::UnTracked(prep) => prep.finish(z),
                 };
                 Some(Tensor::<3>::from_primitive::<Tracked>(out))
