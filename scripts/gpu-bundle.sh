@@ -27,7 +27,8 @@ features=${GPU_BUNDLE_FEATURES:-neurofluid-train/wgpu-base,neurofluid-train/vulk
 # the backend-generic tests that check numbers on the device (the float64 ones are refused on wgpu)
 tests="dense_layer half_matmul posenc indexed_rows backends conv_geometry fused_conv parity_forward
 parity_backward parity_rollout parity_e2e_f32 parity_stages options_and_weights nerf_fit
-supervised_dlf pipeline_resume pretrain_on_scene learning transfers"
+supervised_dlf pipeline_resume pretrain_on_scene learning transfers device_search
+device_search_render"
 mkdir -p "$out"
 rm -f "$out"/part-*.tar.xz
 json=$(mktemp)
@@ -90,8 +91,8 @@ parts=(
     "dense_layer half_matmul posenc indexed_rows backends"
     "conv_geometry fused_conv parity_forward parity_backward"
     "parity_rollout supervised_dlf parity_e2e_f32 parity_stages"
-    "options_and_weights nerf_fit pipeline_resume transfers"
-    "pretrain_on_scene learning"
+    "options_and_weights nerf_fit pipeline_resume transfers device_search_render"
+    "pretrain_on_scene learning device_search"
 )
 [ "$only_first" = 1 ] && parts=("${parts[0]}")
 pack() {

@@ -13,6 +13,9 @@
 #             then bf16: the tensor cores; `--matmul`), its kernel profile with f16 (do the
 #             matmul kernels' names say cmma?), and the quick main job's warm-up with f16
 #             (HALF_QUICK_SECONDS, default 120)
+#   search    the PhysNeRF step on wgpu with the ball query on the GPU (`--search device`), with
+#             f32 and then f16 operands, and the quick main job's warm-up with it
+#             (SEARCH_QUICK_SECONDS, default 120; `neighbour_search = "device"`)
 #   split     the PhysNeRF step on wgpu with the dense layers' rows in blocks of each of
 #             SPLIT_ROWS (default "2048 8192 16384"; the default block is 4,096)
 #   quick     the quick main job on wgpu, GPU utilisation sampled every second (per stage in the
@@ -171,6 +174,20 @@ for step in $steps; do
         grep -E 'warmup step [0-9]+' "$results/quick-f16.log" | tail -3 | sed 's/^/    /' |
             tee -a "$summary"
         ;;
+    search)
+        log=$results/physnerf.log
+        for m in f32 f16; do
+            timed "PhysNeRF step, wgpu, ball query on the GPU, $m operands" 100 "$log" \
+                "$bin/train_step" --bench --device wgpu --search device --matmul "$m"
+            report "$log" "step \(forward|MLPs alone|host–device|forward [0-9]"
+        done
+        timed "quick main job, wgpu, ball query on the GPU (${SEARCH_QUICK_SECONDS:-120} s at most)" \
+            "${SEARCH_QUICK_SECONDS:-120}" "$results/quick-search.log" "$bin/neurofluid-train" run \
+            experiments/quick-watercube.toml --device wgpu --fresh --set name=gpu-quick-search \
+            --set neighbour_search=device
+        grep -E 'warmup step [0-9]+' "$results/quick-search.log" | tail -3 | sed 's/^/    /' |
+            tee -a "$summary"
+        ;;
     split)
         log=$results/physnerf.log
         for rows in ${SPLIT_ROWS:-2048 8192 16384}; do
@@ -258,7 +275,8 @@ PY
     tests)
         for t in dense_layer half_matmul posenc indexed_rows backends conv_geometry fused_conv parity_forward \
             parity_backward parity_rollout parity_e2e_f32 parity_stages options_and_weights \
-            nerf_fit supervised_dlf pipeline_resume pretrain_on_scene learning transfers; do
+            nerf_fit supervised_dlf pipeline_resume pretrain_on_scene learning transfers \
+            device_search device_search_render; do
             NEUROFLUID_TEST_DEVICE=wgpu timed "test $t" 600 "$results/tests.log" "$bin/$t"
             [ -x "$bin/$t" ] && grep '^test result' "$results/tests.log" | tail -1 |
                 sed 's/^/    /' | tee -a "$summary"
@@ -269,7 +287,7 @@ PY
             "${PAPER_SECONDS:-300}" "$results/paper.log" "$bin/neurofluid-train" run \
             experiments/paper-watercube.toml --device wgpu --set name=gpu-paper
         ;;
-    *) say "unknown step $step (physnerf, physnerf-wgpu, half, split, dlf, dlf-wgpu, quick, profile, dlfprofile, tests, paper)" ;;
+    *) say "unknown step $step (physnerf, physnerf-wgpu, half, search, split, dlf, dlf-wgpu, quick, profile, dlfprofile, tests, paper)" ;;
     esac
 done
 say "done at $(date -u +%FT%TZ), $SECONDS s"

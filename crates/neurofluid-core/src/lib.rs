@@ -9,6 +9,7 @@ pub mod camera;
 pub mod cpu_time;
 pub mod dense;
 pub mod device;
+pub mod device_search;
 #[cfg(feature = "flex")]
 pub mod flex_host;
 pub mod half_matmul;

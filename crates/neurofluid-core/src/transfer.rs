@@ -6,6 +6,7 @@
 //! through this module: [`read_vec`], [`read_data`], [`read_scalar`] (device → host) and
 //! [`upload`] (host → device), which count the calls and the bytes. [`counts`] gives the running
 //! totals; the step benchmarks and the trainer's metrics report the difference over a step.
+//! The project's own kernels (`device_search`) move their buffers themselves and count them here.
 //!
 //! The counters are per thread (the thread that asked for the copy): a step runs on one thread,
 //! and tests that run in parallel do not see each other's copies. The counts are the same on
@@ -92,10 +93,19 @@ fn add(f: impl FnOnce(&mut Counts)) {
     });
 }
 
-fn count_read(bytes: usize) {
+/// Counts one read of `bytes` made outside Burn's tensors (a cubecl kernel's own buffers).
+pub(crate) fn count_read(bytes: usize) {
     add(|c| {
         c.reads += 1;
         c.read_bytes += bytes as u64;
+    });
+}
+
+/// Counts one upload of `bytes` made outside Burn's tensors (a cubecl kernel's own buffers).
+pub(crate) fn count_upload(bytes: usize) {
+    add(|c| {
+        c.uploads += 1;
+        c.upload_bytes += bytes as u64;
     });
 }
 
@@ -140,10 +150,7 @@ pub fn upload<const D: usize, K: Basic, O: Into<TensorCreationOptions>>(
     options: O,
 ) -> Tensor<D, K> {
     let data: TensorData = data.into();
-    add(|c| {
-        c.uploads += 1;
-        c.upload_bytes += data.as_bytes().len() as u64;
-    });
+    count_upload(data.as_bytes().len());
     Tensor::from_data(data, options)
 }
 

@@ -72,32 +72,50 @@ fn ball_query_counts_and_index_sums() {
         .collect();
     let sel = inputs.config.selection;
     for (tag, z, s) in [("coarse", z_coarse, 64), ("fine", z_fine, 192)] {
-        let nb = ball_query(&particles, &samples(&o, &d, &z, s), 0.225, K, sel);
-        let num_nn = refi(&file, &format!("{tag}/num_nn"));
-        let mask = refi(&file, &format!("{tag}/mask"));
-        let isum = refi(&file, &format!("{tag}/nbr_idx_sum"));
-        let fragile = refi(&file, &format!("fragile/{tag}_sample"));
-        let (mut checked, mut skipped) = (0, 0);
-        for q in 0..num_nn.len() {
-            if fragile[q] != 0 {
-                skipped += 1;
-                continue;
+        let x = samples(&o, &d, &z, s);
+        let host = ball_query(&particles, &x, 0.225, K, sel);
+        // the GPU kernel's search where the test device is a GPU (`neurofluid_core::device_search`)
+        let on_gpu =
+            neurofluid_core::device_search::ball_query(&device(), &particles, &x, 0.225, K, sel)
+                .map(|found| {
+                    let bq = found.expect("the kernel runs");
+                    neurofluid_physnerf::neighbors::Neighbors {
+                        k: K,
+                        idx: bq.idx,
+                        dist2: bq.dist2,
+                    }
+                });
+        for (place, nb) in std::iter::once(("host", host)).chain(on_gpu.map(|nb| ("GPU", nb))) {
+            let num_nn = refi(&file, &format!("{tag}/num_nn"));
+            let mask = refi(&file, &format!("{tag}/mask"));
+            let isum = refi(&file, &format!("{tag}/nbr_idx_sum"));
+            let fragile = refi(&file, &format!("fragile/{tag}_sample"));
+            let (mut checked, mut skipped) = (0, 0);
+            for q in 0..num_nn.len() {
+                if fragile[q] != 0 {
+                    skipped += 1;
+                    continue;
+                }
+                checked += 1;
+                assert_eq!(
+                    nb.num_valid(q) as i64,
+                    num_nn[q],
+                    "{place}, {tag} sample {q}: num_nn"
+                );
+                assert_eq!(
+                    nb.gated(q) as i64,
+                    mask[q],
+                    "{place}, {tag} sample {q}: mask"
+                );
+                assert_eq!(
+                    nb.index_sum(q) as i64,
+                    isum[q],
+                    "{place}, {tag} sample {q}: nbr_idx_sum"
+                );
             }
-            checked += 1;
-            assert_eq!(
-                nb.num_valid(q) as i64,
-                num_nn[q],
-                "{tag} sample {q}: num_nn"
-            );
-            assert_eq!(nb.gated(q) as i64, mask[q], "{tag} sample {q}: mask");
-            assert_eq!(
-                nb.index_sum(q) as i64,
-                isum[q],
-                "{tag} sample {q}: nbr_idx_sum"
-            );
+            eprintln!("{place}, {tag}: {checked} samples exact, {skipped} fragile skipped");
+            assert!(skipped <= 40);
         }
-        eprintln!("{tag}: {checked} samples exact, {skipped} fragile skipped");
-        assert!(skipped <= 40);
     }
 }
 

@@ -5,13 +5,16 @@
 //! `cargo bench -p neurofluid-physnerf --bench train_step [-- --device wgpu]` (best of 2 steps after a warm-up;
 //! the best rather than the median because the machine is shared). Without `--bench` (as under
 //! `cargo test --benches`) it runs one 32-ray step as a smoke test. Off the CPU the stage times
-//! are host clocks around asynchronous GPU work (the neighbour search, host work, is exact); the
+//! are host clocks around asynchronous GPU work (the neighbour search is exact: host work, or a
+//! kernel that ends with a read-back); the
 //! step, the backward and the MLPs alone end with a read-back, so they are exact. It also
 //! prints the step's host–device copies (`neurofluid_core::transfer`: reads and uploads, count
 //! and bytes, the closing read-back of the particle gradient's sum included). `--split-rows N`
 //! sets the rows per block of the dense layers on an accelerator
 //! (`neurofluid_core::dense::set_split_rows`; 0: one matmul over every row), `--matmul f16|bf16`
-//! their operands (`neurofluid_core::half_matmul`: the tensor cores; f32 by default).
+//! their operands (`neurofluid_core::half_matmul`: the tensor cores; f32 by default),
+//! `--search device` puts the ball query on the GPU (`neurofluid_core::device_search`; the host
+//! by default; the `neighbours` time then includes the kernel and its read-back).
 //! The weights are the reference case's test weights (opaque, textured), the particles a
 //! 22×22×21 lattice (spacing 0.05, jitter ±0.003, randomly permuted: 10,164 particles), the
 //! camera 4 units away (400×400, as in NeuroFluid), the rays 1024 random pixels of the view.
@@ -23,6 +26,7 @@ use burn::prelude::*;
 use burn::tensor::{DType, Distribution, Float, TensorData};
 use neurofluid_core::camera::Camera;
 use neurofluid_core::cpu_time::process_cpu_seconds;
+use neurofluid_core::device_search::{NeighbourSearch, neighbour_search, set_neighbour_search};
 use neurofluid_core::half_matmul::{MatmulOperands, matmul_operands, set_matmul_operands};
 use neurofluid_core::transfer::{self, Counts, upload};
 use neurofluid_physnerf::{PhysNerf, PhysNerfConfig, RayBatch, Timings};
@@ -89,10 +93,24 @@ fn main() {
             }
         }
     }
+    if let Some(place) = args
+        .iter()
+        .position(|a| a == "--search")
+        .and_then(|i| args.get(i + 1))
+    {
+        match place.parse::<NeighbourSearch>() {
+            Ok(p) => set_neighbour_search(p),
+            Err(e) => {
+                eprintln!("--search: {e}");
+                std::process::exit(2);
+            }
+        }
+    }
     println!(
-        "dense layers on an accelerator: {} rows per block, {} operands",
+        "dense layers on an accelerator: {} rows per block, {} operands; ball query on the {}",
         neurofluid_core::dense::split_rows(),
-        matmul_operands().name()
+        matmul_operands().name(),
+        neighbour_search().name()
     );
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
     let mut particles = Vec::new();

@@ -1,14 +1,17 @@
 //! One rendering pass in stages, each a function a backend can replace on its own:
 //! [`sample_points`] → [`neighbours`] → [`Gate`] → [`features`] → [`field`] → [`place`] →
-//! [`composite`]. The sample positions, the ball query and the gate are host work (the gate
-//! decides which samples the networks see); the rest are tensor ops on the particles' device.
+//! [`composite`]. The sample positions and the gate are host work (the gate decides which
+//! samples the networks see), the ball query host work or a kernel on the particles' GPU
+//! (`neighbour_search`); the rest are tensor ops on the particles' device.
 
 use burn::prelude::*;
 use burn::tensor::DType;
+use neurofluid_core::device_search::{self, NeighbourSearch, neighbour_search};
 use neurofluid_core::rows::{RowIndex, add_rows};
 
 use crate::config::PhysNerfConfig;
 use crate::encoding::encode_inputs;
+use crate::error::{PhysNerfError, Result};
 use crate::features::{gather_neighbors, host_tensor, local_features, rows_tensor, valid_tensor};
 use crate::mlp::NerfMlp;
 use crate::neighbors::{Neighbors, ball_query};
@@ -39,13 +42,37 @@ pub fn sample_points<T: Real>(rays: &Rays<'_, T>) -> Vec<[T; 3]> {
     x
 }
 
-/// The K neighbours of every sample within the search radius (the configured selection rule).
+/// The K neighbours of every sample within the search radius (the configured selection rule):
+/// on the host, or on `device`'s GPU where the process's `neighbour_search` is `device`, the
+/// device is a GPU and the precision f32 (`neurofluid_core::device_search`).
 pub fn neighbours<T: Real>(
     particles: &[[T; 3]],
     x: &[[T; 3]],
     cfg: &PhysNerfConfig,
-) -> Neighbors<T> {
-    ball_query(particles, x, cfg.search_radius, cfg.k, cfg.selection)
+    device: &Device,
+) -> Result<Neighbors<T>> {
+    if T::DTYPE == DType::F32 && neighbour_search() == NeighbourSearch::Device {
+        let f32s = |v: &[[T; 3]]| -> Vec<[f32; 3]> {
+            v.iter().map(|p| p.map(|c| c.f64() as f32)).collect()
+        };
+        let (p, q) = (f32s(particles), f32s(x));
+        let r = cfg.search_radius as f32;
+        if let Some(found) = device_search::ball_query(device, &p, &q, r, cfg.k, cfg.selection) {
+            let bq = found.map_err(PhysNerfError::Readback)?;
+            return Ok(Neighbors {
+                k: cfg.k,
+                idx: bq.idx,
+                dist2: bq.dist2.into_iter().map(|d| T::of(f64::from(d))).collect(),
+            });
+        }
+    }
+    Ok(ball_query(
+        particles,
+        x,
+        cfg.search_radius,
+        cfg.k,
+        cfg.selection,
+    ))
 }
 
 /// The occupancy gate: a sample is seen by the networks when all K neighbour slots are filled.

@@ -322,7 +322,8 @@ impl PhysNerf {
         let cfg = &self.config;
         let t0 = Instant::now();
         let x = pass::sample_points(rays);
-        let gate = pass::Gate::of(pass::neighbours(p_host, &x, cfg), x.len(), cfg);
+        let neighbours = pass::neighbours(p_host, &x, cfg, &particles.device())?;
+        let gate = pass::Gate::of(neighbours, x.len(), cfg);
         timings.neighbors += t0.elapsed();
         let t1 = Instant::now();
         let inputs = pass::features(particles, rays, &x, &gate, cfg);

@@ -105,7 +105,9 @@ impl Stage {
         };
         let from_images = exp.scene.initial == InitialParticles::FromImages
             && (nerf_model || under("initial") || warmup_views);
-        let warmup = common || under("physnerf") || under("warmup") || from_images;
+        // PhysNeRF's ball query (its place shapes the renderer's stages, not the NeRFs')
+        let renderer = under("physnerf") || under("neighbour_search");
+        let warmup = common || renderer || under("warmup") || from_images;
         match self {
             Stage::Nerf | Stage::Initial => nerf(false),
             Stage::NerfT => nerf(nerf_t_images),

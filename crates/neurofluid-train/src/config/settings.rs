@@ -29,6 +29,7 @@ fn is_free(key: &str) -> bool {
 const ADDED_KEYS: &[(&str, &str)] = &[
     ("physnerf.density", "\"relu\""),
     ("matmul", "\"f32\""),
+    ("neighbour_search", "\"host\""),
     ("scene.initial", "\"true\""),
     ("joint.foreground_rays", "0.0"),
     ("joint.dlf_every", "1"),
@@ -224,19 +225,35 @@ mod tests {
         }
         let w = Settings::of_stage(&exp(&["joint.dlf_optim.lr=1e-4"]), Stage::Warmup);
         assert_eq!(w, Settings::of_stage(&exp(&[]), Stage::Warmup));
-        // the matmuls' operands shape every stage with a network, not the evaluation
-        let half = exp(&["matmul=\"f16\""]);
-        for stage in [Stage::Warmup, Stage::Joint, Stage::Refit, Stage::Nerf] {
-            let changes = Settings::of_stage(&half, stage)
-                .changes_since(&Settings::of_stage(&exp(&[]), stage));
-            assert_eq!(changes.len(), 1, "{stage}");
-            assert_eq!(changes[0].to_string(), "matmul: \"f32\" → \"f16\"");
+        // the matmuls' operands shape every stage with a network, the ball query's place every
+        // stage with PhysNeRF; neither the evaluation
+        for (set, change) in [
+            ("matmul=\"f16\"", "matmul: \"f32\" → \"f16\""),
+            (
+                "neighbour_search=\"device\"",
+                "neighbour_search: \"host\" → \"device\"",
+            ),
+        ] {
+            let changed = exp(&[set]);
+            let nerf = set.starts_with("matmul");
+            for stage in [Stage::Warmup, Stage::Joint, Stage::Refit, Stage::Nerf] {
+                if stage == Stage::Nerf && !nerf {
+                    // the NeRFs search no particles
+                    let s = Settings::of_stage(&changed, stage);
+                    assert_eq!(s, Settings::of_stage(&exp(&[]), stage));
+                    continue;
+                }
+                let changes = Settings::of_stage(&changed, stage)
+                    .changes_since(&Settings::of_stage(&exp(&[]), stage));
+                assert_eq!(changes.len(), 1, "{stage}");
+                assert_eq!(changes[0].to_string(), change);
+            }
+            assert!(
+                Settings::of_stage(&changed, Stage::Eval)
+                    .changes_since(&Settings::of_stage(&exp(&[]), Stage::Eval))
+                    .is_empty()
+            );
         }
-        assert!(
-            Settings::of_stage(&half, Stage::Eval)
-                .changes_since(&Settings::of_stage(&exp(&[]), Stage::Eval))
-                .is_empty()
-        );
     }
 
     #[test]

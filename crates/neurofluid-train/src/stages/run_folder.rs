@@ -83,6 +83,7 @@ impl Run {
             );
         }
         neurofluid_core::half_matmul::set_matmul_operands(exp.matmul);
+        neurofluid_core::device_search::set_neighbour_search(exp.neighbour_search);
         let scene_dir = exp.scene.scene_dir();
         anyhow::ensure!(
             scene_dir.is_dir(),
