@@ -120,6 +120,16 @@ report() {
     done
 }
 
+# label seconds tag key=value: the quick main job on wgpu with one setting for at most that long
+# (RESULTS/quick-TAG.log), and its last warm-up steps into the summary
+quick_start() {
+    timed "quick main job, wgpu, $1 ($2 s at most)" "$2" "$results/quick-$3.log" \
+        "$bin/neurofluid-train" run experiments/quick-watercube.toml --device wgpu --fresh \
+        --set "name=gpu-quick-$3" --set "$4"
+    grep -E 'warmup step [0-9]+' "$results/quick-$3.log" | tail -3 | sed 's/^/    /' |
+        tee -a "$summary"
+}
+
 has_cuda_torch() {
     command -v python3 >/dev/null &&
         python3 -c 'import sys, torch; sys.exit(0 if torch.cuda.is_available() else 1)' 2>/dev/null
@@ -167,12 +177,7 @@ for step in $steps; do
             --matmul f16
         python3 scripts/cubecl-profile-summary.py "$results/profile-f16-kernels.log" --top 12 |
             sed 's/^/    /' | tee -a "$summary"
-        timed "quick main job, wgpu, f16 operands (${HALF_QUICK_SECONDS:-120} s at most)" \
-            "${HALF_QUICK_SECONDS:-120}" "$results/quick-f16.log" "$bin/neurofluid-train" run \
-            experiments/quick-watercube.toml --device wgpu --fresh --set name=gpu-quick-f16 \
-            --set matmul=f16
-        grep -E 'warmup step [0-9]+' "$results/quick-f16.log" | tail -3 | sed 's/^/    /' |
-            tee -a "$summary"
+        quick_start "f16 operands" "${HALF_QUICK_SECONDS:-120}" f16 matmul=f16
         ;;
     search)
         log=$results/physnerf.log
@@ -181,12 +186,8 @@ for step in $steps; do
                 "$bin/train_step" --bench --device wgpu --search device --matmul "$m"
             report "$log" "step \(forward|MLPs alone|host–device|forward [0-9]"
         done
-        timed "quick main job, wgpu, ball query on the GPU (${SEARCH_QUICK_SECONDS:-120} s at most)" \
-            "${SEARCH_QUICK_SECONDS:-120}" "$results/quick-search.log" "$bin/neurofluid-train" run \
-            experiments/quick-watercube.toml --device wgpu --fresh --set name=gpu-quick-search \
-            --set neighbour_search=device
-        grep -E 'warmup step [0-9]+' "$results/quick-search.log" | tail -3 | sed 's/^/    /' |
-            tee -a "$summary"
+        quick_start "ball query on the GPU" "${SEARCH_QUICK_SECONDS:-120}" search \
+            neighbour_search=device
         ;;
     split)
         log=$results/physnerf.log

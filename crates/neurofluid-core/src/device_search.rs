@@ -15,6 +15,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::choice::{Choice, ProcessChoice};
+
 /// Where PhysNeRF's ball query runs. In files: `"host"` or `"device"`.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -27,12 +29,10 @@ pub enum NeighbourSearch {
     Device,
 }
 
-impl NeighbourSearch {
-    /// Every choice, in the order of the process setting's index.
-    pub const ALL: [NeighbourSearch; 2] = [NeighbourSearch::Host, NeighbourSearch::Device];
+impl Choice for NeighbourSearch {
+    const ALL: &'static [Self] = &[NeighbourSearch::Host, NeighbourSearch::Device];
 
-    /// The name in files.
-    pub fn name(self) -> &'static str {
+    fn name(self) -> &'static str {
         match self {
             NeighbourSearch::Host => "host",
             NeighbourSearch::Device => "device",
@@ -40,29 +40,18 @@ impl NeighbourSearch {
     }
 }
 
-impl std::str::FromStr for NeighbourSearch {
-    type Err = String;
-
-    fn from_str(s: &str) -> Result<Self, String> {
-        Self::ALL
-            .into_iter()
-            .find(|m| m.name() == s)
-            .ok_or_else(|| format!("expected host or device, got `{s}`"))
-    }
-}
-
-/// The process's choice, its index in [`NeighbourSearch::ALL`] (host unless set).
-static SEARCH: std::sync::atomic::AtomicU8 = std::sync::atomic::AtomicU8::new(0);
+/// The process's choice (host unless set).
+static SEARCH: ProcessChoice = ProcessChoice::new();
 
 /// Where PhysNeRF's ball query runs in this process.
 pub fn neighbour_search() -> NeighbourSearch {
-    NeighbourSearch::ALL[usize::from(SEARCH.load(std::sync::atomic::Ordering::Relaxed))]
+    SEARCH.get()
 }
 
 /// Sets where PhysNeRF's ball query runs in this process (the trainer sets the experiment's
 /// `neighbour_search` when it opens a run).
 pub fn set_neighbour_search(place: NeighbourSearch) {
-    SEARCH.store(place as u8, std::sync::atomic::Ordering::Relaxed);
+    SEARCH.set(place);
 }
 
 /// The capped ball query of `queries` against `points` on `device`'s GPU; `None` where the

@@ -18,6 +18,8 @@ use burn::prelude::*;
 use burn::tensor::DType;
 use serde::{Deserialize, Serialize};
 
+use crate::choice::{Choice, ProcessChoice};
+
 /// The operands' type of the dense layers' matmuls on an accelerator (the experiment's
 /// `matmul`). The CPU's host dense layers always compute in the tensors' own type.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -33,24 +35,12 @@ pub enum MatmulOperands {
 }
 
 impl MatmulOperands {
-    /// Every choice, in the order of the process setting's code.
-    const ALL: [Self; 3] = [Self::F32, Self::F16, Self::Bf16];
-
     /// The 16-bit type, `None` for f32.
     pub fn half(self) -> Option<DType> {
         match self {
             MatmulOperands::F32 => None,
             MatmulOperands::F16 => Some(DType::F16),
             MatmulOperands::Bf16 => Some(DType::BF16),
-        }
-    }
-
-    /// The name as in the experiment file.
-    pub fn name(self) -> &'static str {
-        match self {
-            MatmulOperands::F32 => "f32",
-            MatmulOperands::F16 => "f16",
-            MatmulOperands::Bf16 => "bf16",
         }
     }
 
@@ -64,29 +54,30 @@ impl MatmulOperands {
     }
 }
 
-impl std::str::FromStr for MatmulOperands {
-    type Err = String;
+impl Choice for MatmulOperands {
+    const ALL: &'static [Self] = &[Self::F32, Self::F16, Self::Bf16];
 
-    fn from_str(s: &str) -> Result<Self, String> {
-        Self::ALL
-            .into_iter()
-            .find(|m| m.name() == s)
-            .ok_or_else(|| format!("expected f32, f16 or bf16, got `{s}`"))
+    fn name(self) -> &'static str {
+        match self {
+            MatmulOperands::F32 => "f32",
+            MatmulOperands::F16 => "f16",
+            MatmulOperands::Bf16 => "bf16",
+        }
     }
 }
 
-/// The process's choice, its index in [`MatmulOperands::ALL`] (f32 unless set).
-static OPERANDS: std::sync::atomic::AtomicU8 = std::sync::atomic::AtomicU8::new(0);
+/// The process's choice (f32 unless set).
+static OPERANDS: ProcessChoice = ProcessChoice::new();
 
 /// The operands' type of the dense layers' matmuls on an accelerator in this process.
 pub fn matmul_operands() -> MatmulOperands {
-    MatmulOperands::ALL[usize::from(OPERANDS.load(std::sync::atomic::Ordering::Relaxed))]
+    OPERANDS.get()
 }
 
 /// Sets the operands' type of the dense layers' matmuls on an accelerator for this process (the
 /// trainer sets the experiment's `matmul` when it opens a run).
 pub fn set_matmul_operands(operands: MatmulOperands) {
-    OPERANDS.store(operands as u8, std::sync::atomic::Ordering::Relaxed);
+    OPERANDS.set(operands);
 }
 
 /// The largest inner dimension whose products of operands in [−1, 1] f16 can hold.

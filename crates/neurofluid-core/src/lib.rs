@@ -6,6 +6,7 @@
 
 pub mod atomic;
 pub mod camera;
+pub mod choice;
 pub mod cpu_time;
 pub mod dense;
 pub mod device;

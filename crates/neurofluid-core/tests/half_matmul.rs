@@ -8,6 +8,7 @@ use burn::module::Param;
 use burn::nn::Linear;
 use burn::prelude::*;
 use burn::tensor::{DType, TensorData};
+use neurofluid_core::choice::Choice;
 use neurofluid_core::dense::{Activation, linear_in_row_blocks};
 use neurofluid_core::device::test_device;
 use neurofluid_core::half_matmul::{MatmulOperands, half_matmul, scaled_half_matmul};
@@ -230,9 +231,9 @@ fn operand_names_round_trip_and_a_wrong_one_is_named() {
         MatmulOperands::F16,
         MatmulOperands::Bf16,
     ] {
-        assert_eq!(m.name().parse::<MatmulOperands>(), Ok(m));
+        assert_eq!(MatmulOperands::parse(m.name()), Ok(m));
     }
-    let e = "fp16".parse::<MatmulOperands>().unwrap_err();
+    let e = MatmulOperands::parse("fp16").unwrap_err();
     assert!(
         e.contains("f32, f16 or bf16") && e.contains("`fp16`"),
         "{e}"

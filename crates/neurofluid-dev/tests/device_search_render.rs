@@ -8,6 +8,7 @@ mod common;
 use burn::prelude::*;
 use burn::tensor::DType;
 use common::*;
+use neurofluid_core::choice::Choice;
 use neurofluid_core::device::is_host;
 use neurofluid_core::device_search::{NeighbourSearch, set_neighbour_search};
 use neurofluid_core::transfer;
@@ -20,7 +21,7 @@ fn the_gpu_search_renders_what_the_host_search_renders() {
     let target = Tensor::<2>::full([rays.len(), 3], 0.3, &device);
     let model = model(&inputs, &device, DType::F32);
     let mut results = Vec::new();
-    for place in NeighbourSearch::ALL {
+    for &place in NeighbourSearch::ALL {
         set_neighbour_search(place);
         let p = inputs.particles_tensor(&device, DType::F32).require_grad();
         let before = transfer::counts();

@@ -25,6 +25,7 @@ use std::time::{Duration, Instant};
 use burn::prelude::*;
 use burn::tensor::{DType, Distribution, Float, TensorData};
 use neurofluid_core::camera::Camera;
+use neurofluid_core::choice::Choice;
 use neurofluid_core::cpu_time::process_cpu_seconds;
 use neurofluid_core::device_search::{NeighbourSearch, neighbour_search, set_neighbour_search};
 use neurofluid_core::half_matmul::{MatmulOperands, matmul_operands, set_matmul_operands};
@@ -81,7 +82,7 @@ fn main() {
         .position(|a| a == "--matmul")
         .and_then(|i| args.get(i + 1))
     {
-        match name.parse::<MatmulOperands>() {
+        match MatmulOperands::parse(name) {
             Ok(m) if m.half().is_some_and(|h| !device.supports_dtype(h)) => {
                 println!("--matmul {name}: the device has no {name} type; nothing measured");
                 return;
@@ -98,7 +99,7 @@ fn main() {
         .position(|a| a == "--search")
         .and_then(|i| args.get(i + 1))
     {
-        match place.parse::<NeighbourSearch>() {
+        match NeighbourSearch::parse(place) {
             Ok(p) => set_neighbour_search(p),
             Err(e) => {
                 eprintln!("--search: {e}");

@@ -78,7 +78,7 @@ impl Run {
             anyhow::ensure!(
                 device.supports_dtype(half),
                 "matmul = \"{}\": the device `{}` has no {half:?} type; use \"f32\" there",
-                exp.matmul.name(),
+                neurofluid_core::choice::Choice::name(exp.matmul),
                 exp.device
             );
         }
