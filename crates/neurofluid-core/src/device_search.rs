@@ -10,8 +10,9 @@
 //! exact tie in distance, can fall the other way than on the host: the search's place
 //! (`neighbour_search` in an experiment) is part of what shapes a run.
 //!
-//! The points, the queries and the widened bounding box are uploaded, the slots read back:
-//! three uploads and two reads per query batch, counted by [`crate::transfer`].
+//! The points, the queries and the widened bounding box are uploaded, the slots' indices and
+//! distances read back together: three uploads and one read per query batch, counted by
+//! [`crate::transfer`].
 
 use serde::{Deserialize, Serialize};
 
@@ -245,14 +246,12 @@ mod kernel {
             k,
             selection == NeighborSelection::Nearest,
         );
-        let idx_bytes = client
-            .read_one(idx_handle)
-            .map_err(|e| format!("reading the ball query's indices: {e:?}"))?;
-        let d2_bytes = client
-            .read_one(d2_handle)
-            .map_err(|e| format!("reading the ball query's distances: {e:?}"))?;
-        crate::transfer::count_read(slots * 4);
-        crate::transfer::count_read(slots * 4);
+        // both slots' buffers in one read: one wait for the queue
+        let bytes = client
+            .read(vec![idx_handle, d2_handle])
+            .map_err(|e| format!("reading the ball query's slots: {e:?}"))?;
+        crate::transfer::count_read(2 * slots * 4);
+        let (idx_bytes, d2_bytes) = (&bytes[0], &bytes[1]);
         let idx: Vec<i32> = bytemuck::pod_collect_to_vec(&idx_bytes[..slots * 4]);
         let dist2: Vec<f32> = bytemuck::pod_collect_to_vec(&d2_bytes[..slots * 4]);
         let count = idx

@@ -166,7 +166,7 @@ fn edge_cases_and_the_copies_it_makes() {
             let copies = transfer::counts().since(before);
             assert_eq!(
                 (copies.uploads, copies.reads),
-                (3, 2),
+                (3, 1),
                 "{}",
                 copies.describe()
             );
