@@ -189,9 +189,10 @@ impl PhysNerf {
     }
 
     /// [`PhysNerf::render_rays`] given also the particles' values on the host (`host`, equal to
-    /// `particles`, which must be f32): the neighbour search runs on the host, and a caller that
-    /// already holds the positions spares the renderer reading them back from the device (a
-    /// stall of a GPU's queue).
+    /// `particles`, which must be f32): the neighbour search takes them (on the host, or uploaded
+    /// to the GPU's kernel with `neighbour_search = "device"`), and a caller that already holds
+    /// the positions spares the renderer reading them back from the device (a stall of a GPU's
+    /// queue).
     pub fn render_rays_with_host(
         &self,
         particles: &Tensor<2>,
