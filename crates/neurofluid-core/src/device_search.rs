@@ -200,14 +200,7 @@ mod kernel {
                 count: vec![0; n],
             });
         }
-        let mut lo = [f32::INFINITY; 3];
-        let mut hi = [f32::NEG_INFINITY; 3];
-        for p in points {
-            for a in 0..3 {
-                lo[a] = lo[a].min(p[a]);
-                hi[a] = hi[a].max(p[a]);
-            }
-        }
+        let (lo, hi) = crate::neighbors::bounding_box(points);
         // the host's test, `q < lo − r || q > hi + r`, in the same f32 arithmetic
         let bounds: [f32; 6] = [
             lo[0] - radius,

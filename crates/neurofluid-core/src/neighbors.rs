@@ -455,14 +455,7 @@ impl ColumnGrid {
     /// point (particles spread far apart) or there are no finite points.
     fn new(points: &[[f32; 3]], radius: f32) -> Option<Self> {
         let finite = |p: &&[f32; 3]| p.iter().all(|c| c.is_finite());
-        let mut lo = [f32::INFINITY; 3];
-        let mut hi = [f32::NEG_INFINITY; 3];
-        for p in points.iter().filter(finite) {
-            for a in 0..3 {
-                lo[a] = lo[a].min(p[a]);
-                hi[a] = hi[a].max(p[a]);
-            }
-        }
+        let (lo, hi) = bounding_box(points.iter().filter(finite));
         let inv_cell = CELLS_PER_RADIUS / radius;
         if lo[0] > hi[0] || !inv_cell.is_finite() {
             return None;
@@ -640,6 +633,21 @@ pub fn ball_query(
     NeighborGrid::new(points, radius).ball_query(queries, radius, k, selection)
 }
 
+/// The lowest and highest coordinate on each axis of `points` (`lo > hi` when there are none).
+pub(crate) fn bounding_box<'a, T: Float + 'a>(
+    points: impl IntoIterator<Item = &'a [T; 3]>,
+) -> ([T; 3], [T; 3]) {
+    let mut lo = [T::infinity(); 3];
+    let mut hi = [T::neg_infinity(); 3];
+    for p in points {
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
+        }
+    }
+    (lo, hi)
+}
+
 /// The capped ball query of [`NeighborGrid::ball_query`] in any float type, exact and without a
 /// grid: every point against every query, after a bounding-box test that skips queries far from
 /// all points. The grid's oracle in tests, and the search of f64 renders (precision checks).
@@ -659,14 +667,7 @@ pub fn exact_ball_query<T: Float + Send + Sync>(
         };
     }
     let r2 = radius * radius;
-    let mut lo = [T::infinity(); 3];
-    let mut hi = [T::neg_infinity(); 3];
-    for p in points {
-        for a in 0..3 {
-            lo[a] = lo[a].min(p[a]);
-            hi[a] = hi[a].max(p[a]);
-        }
-    }
+    let (lo, hi) = bounding_box(points);
     let mut idx = vec![-1i32; queries.len() * k];
     let mut d2 = vec![T::zero(); queries.len() * k];
     let count = idx

@@ -10,7 +10,7 @@ use neurofluid_physnerf::encoding::encode_inputs;
 use neurofluid_physnerf::features::{
     LocalFeatures, gather_neighbors, host_tensor, local_features, rows_tensor, valid_tensor,
 };
-use neurofluid_physnerf::neighbors::ball_query;
+use neurofluid_physnerf::neighbors::{ball_query, ball_query_on_gpu};
 use neurofluid_physnerf::sampling::{coarse_depths, merge_sorted, midpoints, sample_pdf};
 use neurofluid_physnerf::volume::{deltas, volume_render};
 use neurofluid_physnerf::{EncodingTerms, PhysNerfConfig};
@@ -75,16 +75,8 @@ fn ball_query_counts_and_index_sums() {
         let x = samples(&o, &d, &z, s);
         let host = ball_query(&particles, &x, 0.225, K, sel);
         // the GPU kernel's search where the test device is a GPU (`neurofluid_core::device_search`)
-        let on_gpu =
-            neurofluid_core::device_search::ball_query(&device(), &particles, &x, 0.225, K, sel)
-                .map(|found| {
-                    let bq = found.expect("the kernel runs");
-                    neurofluid_physnerf::neighbors::Neighbors {
-                        k: K,
-                        idx: bq.idx,
-                        dist2: bq.dist2,
-                    }
-                });
+        let on_gpu = ball_query_on_gpu(&device(), &particles, &x, 0.225, K, sel)
+            .map(|found| found.expect("the kernel runs"));
         for (place, nb) in std::iter::once(("host", host)).chain(on_gpu.map(|nb| ("GPU", nb))) {
             let num_nn = refi(&file, &format!("{tag}/num_nn"));
             let mask = refi(&file, &format!("{tag}/mask"));

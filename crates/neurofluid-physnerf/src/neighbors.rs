@@ -4,7 +4,8 @@
 //! strict, `r² = r·r` in the working precision, K lowest indices (or K nearest), empty slots
 //! `idx = −1`, `d² = 0`.
 
-use neurofluid_core::neighbors::{NeighborGrid, NeighborSelection, exact_ball_query};
+use neurofluid_core::device_search;
+use neurofluid_core::neighbors::{BallQuery, NeighborGrid, NeighborSelection, exact_ball_query};
 
 use crate::real::Real;
 
@@ -53,6 +54,20 @@ impl<T: Real> Neighbors<T> {
     }
 }
 
+/// `v` in f32 (exact for T = f32).
+fn f32s<T: Real>(v: &[[T; 3]]) -> Vec<[f32; 3]> {
+    v.iter().map(|p| p.map(|c| c.f64() as f32)).collect()
+}
+
+/// An f32 search's result in the working precision.
+fn of_f32<T: Real>(bq: BallQuery<f32>) -> Neighbors<T> {
+    Neighbors {
+        k: bq.k,
+        idx: bq.idx,
+        dist2: bq.dist2.into_iter().map(|d| T::of(f64::from(d))).collect(),
+    }
+}
+
 /// Ball query of `queries` against `points` in the working precision (see the module docs).
 pub fn ball_query<T: Real>(
     points: &[[T; 3]],
@@ -62,15 +77,9 @@ pub fn ball_query<T: Real>(
     selection: NeighborSelection,
 ) -> Neighbors<T> {
     if T::DTYPE == burn::tensor::DType::F32 {
-        let p: Vec<[f32; 3]> = points.iter().map(|v| v.map(|c| c.f64() as f32)).collect();
-        let q: Vec<[f32; 3]> = queries.iter().map(|v| v.map(|c| c.f64() as f32)).collect();
+        let (p, q) = (f32s(points), f32s(queries));
         let r = radius as f32;
-        let bq = NeighborGrid::new(&p, r).ball_query(&q, r, k, selection);
-        Neighbors {
-            k,
-            idx: bq.idx,
-            dist2: bq.dist2.into_iter().map(|d| T::of(d as f64)).collect(),
-        }
+        of_f32(NeighborGrid::new(&p, r).ball_query(&q, r, k, selection))
     } else {
         let bq = exact_ball_query(points, queries, T::of(radius), k, selection);
         Neighbors {
@@ -79,6 +88,24 @@ pub fn ball_query<T: Real>(
             dist2: bq.dist2,
         }
     }
+}
+
+/// [`ball_query`] as a kernel on `device`'s GPU (`neurofluid_core::device_search`); `None` where
+/// the device is not a GPU or the precision not f32.
+pub fn ball_query_on_gpu<T: Real>(
+    device: &burn::prelude::Device,
+    points: &[[T; 3]],
+    queries: &[[T; 3]],
+    radius: f64,
+    k: usize,
+    selection: NeighborSelection,
+) -> Option<Result<Neighbors<T>, String>> {
+    if T::DTYPE != burn::tensor::DType::F32 {
+        return None;
+    }
+    let (p, q) = (f32s(points), f32s(queries));
+    device_search::ball_query(device, &p, &q, radius as f32, k, selection)
+        .map(|found| found.map(of_f32))
 }
 
 #[cfg(test)]

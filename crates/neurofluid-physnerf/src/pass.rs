@@ -6,7 +6,7 @@
 
 use burn::prelude::*;
 use burn::tensor::DType;
-use neurofluid_core::device_search::{self, NeighbourSearch, neighbour_search};
+use neurofluid_core::device_search::{NeighbourSearch, neighbour_search};
 use neurofluid_core::rows::{RowIndex, add_rows};
 
 use crate::config::PhysNerfConfig;
@@ -14,7 +14,7 @@ use crate::encoding::encode_inputs;
 use crate::error::{PhysNerfError, Result};
 use crate::features::{gather_neighbors, host_tensor, local_features, rows_tensor, valid_tensor};
 use crate::mlp::NerfMlp;
-use crate::neighbors::{Neighbors, ball_query};
+use crate::neighbors::{Neighbors, ball_query, ball_query_on_gpu};
 use crate::real::Real;
 use crate::volume::{Composite, deltas, volume_render};
 
@@ -51,20 +51,17 @@ pub fn neighbours<T: Real>(
     cfg: &PhysNerfConfig,
     device: &Device,
 ) -> Result<Neighbors<T>> {
-    if T::DTYPE == DType::F32 && neighbour_search() == NeighbourSearch::Device {
-        let f32s = |v: &[[T; 3]]| -> Vec<[f32; 3]> {
-            v.iter().map(|p| p.map(|c| c.f64() as f32)).collect()
-        };
-        let (p, q) = (f32s(particles), f32s(x));
-        let r = cfg.search_radius as f32;
-        if let Some(found) = device_search::ball_query(device, &p, &q, r, cfg.k, cfg.selection) {
-            let bq = found.map_err(PhysNerfError::Readback)?;
-            return Ok(Neighbors {
-                k: cfg.k,
-                idx: bq.idx,
-                dist2: bq.dist2.into_iter().map(|d| T::of(f64::from(d))).collect(),
-            });
-        }
+    if neighbour_search() == NeighbourSearch::Device
+        && let Some(found) = ball_query_on_gpu(
+            device,
+            particles,
+            x,
+            cfg.search_radius,
+            cfg.k,
+            cfg.selection,
+        )
+    {
+        return found.map_err(PhysNerfError::Readback);
     }
     Ok(ball_query(
         particles,

@@ -5,6 +5,7 @@
 //! removes what those stages and the ones after them left, and writes the resolved config) and
 //! [`Run::open_existing`] (reads only).
 
+use neurofluid_core::choice::Choice;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
@@ -78,7 +79,7 @@ impl Run {
             anyhow::ensure!(
                 device.supports_dtype(half),
                 "matmul = \"{}\": the device `{}` has no {half:?} type; use \"f32\" there",
-                neurofluid_core::choice::Choice::name(exp.matmul),
+                exp.matmul.name(),
                 exp.device
             );
         }
