@@ -70,7 +70,7 @@ pub fn ball_query(
 ) -> Option<Result<crate::neighbors::BallQuery<f32>, String>> {
     #[cfg(any(feature = "wgpu-base", feature = "cuda"))]
     {
-        let cube = kernel::cube_device(device)?;
+        let cube = crate::cube_tensor::cube_device(device)?;
         Some(kernel::run(&cube, points, queries, radius, k, selection))
     }
     #[cfg(not(any(feature = "wgpu-base", feature = "cuda")))]
@@ -166,15 +166,6 @@ mod kernel {
                     }
                 }
             }
-        }
-    }
-
-    /// The cubecl device under a Burn device (autodiff unwrapped); `None` for other backends.
-    pub(super) fn cube_device(device: &burn::prelude::Device) -> Option<cubecl::Device> {
-        match device.clone().without_autodiff().as_dispatch() {
-            burn::backend::DispatchDevice::Cube(d) => Some(d.clone()),
-            #[allow(unreachable_patterns)]
-            _ => None,
         }
     }
 

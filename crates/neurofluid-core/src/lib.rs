@@ -8,8 +8,11 @@ pub mod atomic;
 pub mod camera;
 pub mod choice;
 pub mod cpu_time;
+#[cfg(any(feature = "wgpu-base", feature = "cuda"))]
+pub mod cube_tensor;
 pub mod dense;
 pub mod device;
+pub mod device_pairs;
 pub mod device_search;
 #[cfg(feature = "flex")]
 pub mod flex_host;

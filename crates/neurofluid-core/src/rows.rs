@@ -25,9 +25,20 @@ use crate::transfer::upload;
 /// sums rows into their destinations in a fixed order. Cheap to clone.
 #[derive(Debug, Clone)]
 pub struct RowIndex {
-    ids: Arc<[u32]>,
+    /// The host copy: given, or (an index made on the device) read back when a plan needs it.
+    ids: Arc<OnceLock<Arc<[u32]>>>,
+    len: usize,
     tensor: Tensor<1, Int>,
     plan: Arc<OnceLock<SumPlan>>,
+    transpose: Option<Arc<dyn RowSum>>,
+}
+
+/// A sum of rows into their destinations known to the maker of an index built on the device
+/// (e.g. from the index's structure, without its host copy): `Σ values[r]` over the rows `r`
+/// whose index is `j`, for every `j < n`, in a fixed order, on untracked tensors.
+pub trait RowSum: std::fmt::Debug + Send + Sync {
+    /// `[n, c]` from `values [L, c]`; `None` where it cannot (then the index's plan sums).
+    fn sum_into(&self, values: Tensor<2>, n: usize) -> Option<Tensor<2>>;
 }
 
 /// The fixed-order sum of `L` rows into `n` destinations, planned on the host and uploaded
@@ -57,35 +68,72 @@ impl RowIndex {
         let signed: Vec<i32> = ids.iter().map(|&i| i as i32).collect();
         let tensor = upload(TensorData::new(signed, [ids.len()]), device);
         Self {
-            ids,
+            len: ids.len(),
+            ids: Arc::new(OnceLock::from(ids)),
             tensor,
             plan: Arc::default(),
+            transpose: None,
         }
+    }
+
+    /// An index made on the device (`tensor`, int32 rows), with no host copy: its sums into
+    /// rows by `transpose` where given, else by a plan from a copy read back on first need.
+    pub fn on_device(tensor: Tensor<1, Int>, transpose: Option<Arc<dyn RowSum>>) -> Self {
+        Self {
+            len: tensor.dims()[0],
+            ids: Arc::default(),
+            tensor,
+            plan: Arc::default(),
+            transpose,
+        }
+    }
+
+    /// The indices as a device tensor.
+    pub fn tensor(&self) -> &Tensor<1, Int> {
+        &self.tensor
     }
 
     /// Number of indices.
     pub fn len(&self) -> usize {
-        self.ids.len()
+        self.len
     }
 
     /// Whether there are no indices.
     pub fn is_empty(&self) -> bool {
-        self.ids.is_empty()
+        self.len == 0
+    }
+
+    /// The host copy (read back from the device once, for an index made there).
+    fn ids(&self) -> &[u32] {
+        self.ids.get_or_init(|| {
+            crate::transfer::read_vec::<i32, 1, Int>(self.tensor.clone())
+                .expect("reading a row index back from its device")
+                .into_iter()
+                .map(|i| i as u32)
+                .collect()
+        })
     }
 
     /// `Σ values[r]` over the rows `r` whose index is `j`, for every `j < n` → `[n, c]`, in the
     /// plan's fixed order (the plan is cached for the first `n` asked for); a composition of
     /// Burn's gather and sum (any backend, any tracking).
     fn sum_into(&self, values: Tensor<2>, n: usize) -> Tensor<2> {
+        if let Some(out) = self
+            .transpose
+            .as_ref()
+            .and_then(|t| t.sum_into(values.clone(), n))
+        {
+            return out;
+        }
         let device = values.device();
         let owned;
         let cached = self
             .plan
-            .get_or_init(|| SumPlan::new(&self.ids, n, &device));
+            .get_or_init(|| SumPlan::new(self.ids(), n, &device));
         let plan = if cached.n == n {
             cached
         } else {
-            owned = SumPlan::new(&self.ids, n, &device);
+            owned = SumPlan::new(self.ids(), n, &device);
             &owned
         };
         let c = values.dims()[1];
