@@ -182,6 +182,7 @@ pub fn device_pairs(
 /// pair lies in neighbouring cells under float rounding), grown where the points spread so
 /// far that the cells would outnumber `MAX_CELLS`; the points' positions and indices in cell
 /// order (a stable counting sort: ascending index within a cell) and each cell's first point.
+#[cfg(any(feature = "wgpu-base", feature = "cuda"))]
 #[derive(Debug)]
 struct Grid {
     lo: [f32; 3],
@@ -192,8 +193,10 @@ struct Grid {
     starts: Vec<u32>,
 }
 
+#[cfg(any(feature = "wgpu-base", feature = "cuda"))]
 const MAX_CELLS: f64 = (1 << 22) as f64;
 
+#[cfg(any(feature = "wgpu-base", feature = "cuda"))]
 impl Grid {
     fn new(points: &[[f32; 3]], radius: f32) -> Self {
         let (lo, hi) = crate::neighbors::bounding_box(points);
@@ -682,6 +685,7 @@ mod tests {
         }
     }
 
+    #[cfg(any(feature = "wgpu-base", feature = "cuda"))]
     #[test]
     fn the_grid_sorts_points_by_cell_stably() {
         let pts: Vec<[f32; 3]> = (0..200)

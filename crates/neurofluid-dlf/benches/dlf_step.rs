@@ -205,7 +205,7 @@ fn main() {
     let solid = ConvGeometry::new(solid, None, &device);
     println!(
         "\nphases at N = {n}: fluid geometry {t_geo:.3} s ({} pairs), box geometry {t_geo_b:.3} s, upload {t_up:.3} s",
-        fluid.host.num_pairs()
+        fluid.num_pairs()
     );
     let feats = |c: usize| {
         Tensor::<2>::random(

@@ -74,20 +74,24 @@ impl ContinuousConv {
         let kernel = self.kernel.val().reshape([KERNEL_CELLS * cin, cout]);
         let dtype = features.dtype();
         let weights = || geometry.weights_tensor(dtype);
-        if let Some(out) = fused::try_fused_conv(&geometry.host, &features, weights, &kernel) {
+        let Some(host) = geometry.host.as_ref() else {
+            // found on the GPU: the chunks only
+            return self.forward_composed(features, geometry) + bias;
+        };
+        if let Some(out) = fused::try_fused_conv(host, &features, weights, &kernel) {
             return out + bias;
         }
-        let host = neurofluid_core::device::is_host(&device);
-        if host && !features.is_tracked() && !geometry.weights_tracked() {
+        let on_host = neurofluid_core::device::is_host(&device);
+        if on_host && !features.is_tracked() && !geometry.weights_tracked() {
             // the kernel-first order would cut K's gradient at the host
             let gather_first = fused::gather_first(cin, cout) || kernel.is_tracked();
             // the host weights as they are (no device round trip) unless overridden
             let weights = match &geometry.weights_override {
                 Some(w) => neurofluid_core::transfer::read_data(w.clone()),
-                None => TensorData::new(geometry.host.weights.clone(), [geometry.num_entries(), 1]),
+                None => TensorData::new(host.weights.clone(), [geometry.num_entries(), 1]),
             }
             .convert_dtype(dtype);
-            let out = fused::conv_forward(&geometry.host, features, &weights, kernel, gather_first);
+            let out = fused::conv_forward(host, features, &weights, kernel, gather_first);
             return out + bias;
         }
         self.forward_composed(features, geometry) + bias

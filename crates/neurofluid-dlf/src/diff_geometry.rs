@@ -39,40 +39,37 @@ pub fn differentiable_weights(
         return None;
     }
     let device = inputs.device();
-    let dtype = inputs.dtype();
     let cols = RowIndex::new(host.pairs.indices.iter().map(|&i| i as usize), &device);
     let rows = RowIndex::new(host.query_of_pair.iter().map(|&i| i as usize), &device);
     let rel = gather_rows(inputs, &cols) - gather_rows(outputs, &rows);
+    let (corners, _) = pair_weights(rel, extent, Branches::Host(host));
+    Some(corners.reshape([p * CORNERS, 1]))
+}
+
+/// Where the mapping's discrete choices come from.
+#[derive(Clone, Copy)]
+pub enum Branches<'a> {
+    /// The host geometry's, pair by pair (its pairs in its order).
+    Host(&'a HostGeometry),
+    /// Found from the values themselves, on their device (the tests of
+    /// [`crate::mapping::ball_to_cube_volume_preserving`] and [`crate::mapping::axis_interp`] as
+    /// tensor comparisons).
+    Values,
+}
+
+/// The trilinear corner weights × window `[P, 8]` (z outer, x inner, as
+/// [`crate::mapping::trilinear_corners`]) and the lower corners `[P, 3]` (x, y, z, as floats) of
+/// relative positions `rel [P, 3]` (neighbour − query), as Burn ops: the mapping's branches as
+/// `branches` says, the weights differentiable in `rel` wherever `rel` is tracked.
+pub fn pair_weights(rel: Tensor<2>, extent: f32, branches: Branches<'_>) -> (Tensor<2>, Tensor<2>) {
+    let [p, _] = rel.dims();
+    let device = rel.device();
+    let dtype = rel.dtype();
     let radius = search_radius(extent);
     // window on the squared distance
     let r2 = (rel.clone() * rel.clone()).sum_dim(1) / (radius * radius);
     let t = r2.neg() + 1.0;
     let window = (t.clone() * t.clone() * t).clamp(0.0, 1.0);
-
-    let br = &host.branches;
-    let zero = mask(br.iter().map(|b| b.zero).collect(), &device);
-    let cap = mask(br.iter().map(|b| b.cap).collect(), &device);
-    let side_ok = mask(br.iter().map(|b| !b.cap && !b.zero).collect(), &device);
-    let zero_xy = mask(br.iter().map(|b| b.zero_xy).collect(), &device);
-    let xdom = mask(br.iter().map(|b| b.x_dominant).collect(), &device);
-    let x_ok = mask(
-        br.iter().map(|b| b.x_dominant && !b.zero_xy).collect(),
-        &device,
-    );
-    let y_ok = mask(
-        br.iter().map(|b| !b.x_dominant && !b.zero_xy).collect(),
-        &device,
-    );
-    let sign_x = column(
-        &br.iter().map(|b| b.sign_x).collect::<Vec<_>>(),
-        &device,
-        dtype,
-    );
-    let sign_y = column(
-        &br.iter().map(|b| b.sign_y).collect::<Vec<_>>(),
-        &device,
-        dtype,
-    );
     let ones = Tensor::<2>::ones([p, 1], (&device, dtype));
     let zeros = Tensor::<2>::zeros([p, 1], (&device, dtype));
 
@@ -82,6 +79,21 @@ pub fn differentiable_weights(
     let z = q.narrow(1, 2, 1);
     let sq_xy = x.clone() * x.clone() + y.clone() * y.clone();
     let sq = sq_xy.clone() + z.clone() * z.clone();
+    let (zero, cap) = match branches {
+        Branches::Host(host) => (
+            mask(host.branches.iter().map(|b| b.zero).collect(), &device),
+            mask(host.branches.iter().map(|b| b.cap).collect(), &device),
+        ),
+        Branches::Values => {
+            let zero = sq.clone().detach().lower_elem(1e-12);
+            let z2 = z.clone().detach();
+            let cap = (z2.clone() * z2 * 1.25)
+                .greater(sq_xy.clone().detach())
+                .bool_and(zero.clone().bool_not());
+            (zero, cap)
+        }
+    };
+    let side_ok = cap.clone().bool_or(zero.clone()).bool_not();
     let norm = sq.mask_where(zero.clone(), ones.clone()).sqrt();
     let abs_z = z.clone().abs();
     let s_cap = ((norm.clone() * 3.0) / (norm.clone() + abs_z)).sqrt();
@@ -94,6 +106,34 @@ pub fn differentiable_weights(
         .mask_where(zero, zeros.clone());
 
     let sq_xy1 = x1.clone() * x1.clone() + y1.clone() * y1.clone();
+    let (zero_xy, xdom, sign_x, sign_y) = match branches {
+        Branches::Host(host) => {
+            let br = &host.branches;
+            let column = |v: Vec<f32>| column(&v, &device, dtype);
+            (
+                mask(br.iter().map(|b| b.zero_xy).collect(), &device),
+                mask(br.iter().map(|b| b.x_dominant).collect(), &device),
+                column(br.iter().map(|b| b.sign_x).collect()),
+                column(br.iter().map(|b| b.sign_y).collect()),
+            )
+        }
+        Branches::Values => {
+            let (x1, y1) = (x1.clone().detach(), y1.clone().detach());
+            // copysign(1, ·): where a sign of zero would matter, the branch is masked
+            let sign = |v: Tensor<2>| {
+                ones.clone()
+                    .mask_where(v.lower_elem(0.0), ones.clone().neg())
+            };
+            (
+                sq_xy1.clone().detach().lower_elem(1e-12),
+                y1.clone().abs().lower_equal(x1.clone().abs()),
+                sign(x1),
+                sign(y1),
+            )
+        }
+    };
+    let x_ok = xdom.clone().bool_and(zero_xy.clone().bool_not());
+    let y_ok = xdom.clone().bool_not().bool_and(zero_xy.clone().bool_not());
     let nxy = sq_xy1.mask_where(zero_xy.clone(), ones.clone()).sqrt();
     let four_over_pi = 4.0 / std::f32::consts::PI;
     let safe_x = x1.clone().mask_where(x_ok.bool_not(), ones.clone());
@@ -108,10 +148,18 @@ pub fn differentiable_weights(
     let y2 = ty.mask_where(xdom, y_from_x).mask_where(zero_xy, zeros);
 
     let k1 = (KERNEL_SIZE - 1) as f32;
-    let frac = |c: Tensor<2>, axis: usize| {
+    let mut lowers = Vec::with_capacity(3);
+    let mut frac = |c: Tensor<2>, axis: usize| {
         let u = (c * 0.5 + 0.5) * k1;
-        let lower: Vec<f32> = host.lower.iter().map(|l| l[axis] as f32).collect();
-        (u - column(&lower, &device, dtype)).clamp(0.0, 1.0)
+        let lower = match branches {
+            Branches::Host(host) => {
+                let lower: Vec<f32> = host.lower.iter().map(|l| l[axis] as f32).collect();
+                column(&lower, &device, dtype)
+            }
+            Branches::Values => u.clone().detach().floor().clamp(0.0, k1),
+        };
+        lowers.push(lower.clone());
+        (u - lower).clamp(0.0, 1.0)
     };
     let a = frac(x2, 0);
     let b = frac(y2, 1);
@@ -124,5 +172,5 @@ pub fn differentiable_weights(
             }
         }
     }
-    Some((Tensor::cat(corners, 1) * window).reshape([p * CORNERS, 1]))
+    (Tensor::cat(corners, 1) * window, Tensor::cat(lowers, 1))
 }

@@ -11,11 +11,13 @@ use std::sync::{Arc, OnceLock};
 use burn::prelude::*;
 use burn::tensor::DType;
 use burn::tensor::Float;
+use neurofluid_core::device_pairs::{DevicePairs, plan_chunks};
 use neurofluid_core::neighbors::{NeighborGrid, PairList};
 use neurofluid_core::rows::{RowIndex, gather_rows};
 use neurofluid_core::transfer::upload;
 use rayon::prelude::*;
 
+use crate::diff_geometry::{Branches, pair_weights};
 use crate::mapping::{
     KERNEL_CELLS, KERNEL_SIZE, MappingBranches, filter_coordinates, trilinear_corners, window_poly6,
 };
@@ -164,17 +166,21 @@ pub struct GeometryChunk {
 
 /// A geometry ready for [`crate::ContinuousConv`]: the host arrays (used directly by the
 /// inference path) and, built on first use, the per-chunk index and weight tensors of the
-/// autodiff path.
+/// autodiff path; or, found on the GPU ([`ConvGeometry::on_device`]), the chunks alone.
 #[derive(Debug, Clone)]
 pub struct ConvGeometry {
-    /// The host arrays it was built from (shared with the backward passes that need them).
-    pub host: Arc<HostGeometry>,
+    /// The host arrays it was built from (shared with the backward passes that need them);
+    /// `None` for a geometry built on the device.
+    pub host: Option<Arc<HostGeometry>>,
     /// Differentiable weights `[8P, 1]` (the differentiable-geometry mode), else `None`.
     pub weights_override: Option<Tensor<2>>,
     device: Device,
     chunk_slots: usize,
     chunks: OnceLock<Vec<GeometryChunk>>,
     host_weights: OnceLock<Tensor<2>>,
+    counts: Arc<[u32]>,
+    num_in: usize,
+    tracked: bool,
 }
 
 impl ConvGeometry {
@@ -184,14 +190,80 @@ impl ConvGeometry {
         weights: Option<Tensor<2>>,
         device: &Device,
     ) -> Self {
+        let host: Arc<HostGeometry> = host.into();
         Self {
-            host: host.into(),
+            counts: host.counts().into(),
+            num_in: host.num_in,
+            tracked: weights.as_ref().is_some_and(|w| w.is_tracked()),
+            host: Some(host),
             weights_override: weights,
             device: device.clone(),
             chunk_slots: chunk_slots(device),
             chunks: OnceLock::new(),
             host_weights: OnceLock::new(),
         }
+    }
+
+    /// The geometry of `pairs` found on the GPU ([`neurofluid_core::device_pairs`]), with the
+    /// input and output positions `[N_in, 3]`, `[M, 3]` on that device: each chunk's slots
+    /// gathered, their relative positions mapped with the branches found from the values
+    /// ([`pair_weights`]), the padding's weights zeroed. Differentiable in the positions where
+    /// they are tracked (the gathers' gradients by the pairs' symmetric kernel for the fluid's
+    /// pairs; the box's points are constant).
+    pub fn on_device(
+        pairs: DevicePairs,
+        inputs: Tensor<2>,
+        outputs: Tensor<2>,
+        extent: f32,
+    ) -> Self {
+        let device = outputs.device();
+        let tracked = inputs.is_tracked() || outputs.is_tracked();
+        let chunks: Vec<GeometryChunk> = pairs
+            .chunks
+            .iter()
+            .enumerate()
+            .map(|(c, ch)| {
+                let (m, width) = (ch.q1 - ch.q0, ch.width);
+                let index = pairs.chunk_index(c);
+                let queries = outputs
+                    .clone()
+                    .narrow(0, ch.q0, m)
+                    .unsqueeze_dim::<3>(1)
+                    .expand([m, width, 3])
+                    .reshape([m * width, 3]);
+                let rel = gather_rows(inputs.clone(), &index) - queries;
+                let (corners, lower) = pair_weights(rel, extent, Branches::Values);
+                let real = pairs.real.clone().narrow(0, ch.start, ch.len());
+                GeometryChunk {
+                    out_start: ch.q0,
+                    out_len: m,
+                    width,
+                    inputs: index,
+                    cell_weights: cell_weights(corners * real, lower),
+                }
+            })
+            .collect();
+        Self {
+            host: None,
+            weights_override: None,
+            device: device.clone(),
+            chunk_slots: pairs.chunks.iter().map(|c| c.len()).max().unwrap_or(0),
+            chunks: OnceLock::from(chunks),
+            host_weights: OnceLock::new(),
+            counts: pairs.counts.into(),
+            num_in: pairs.num_in,
+            tracked,
+        }
+    }
+
+    /// The host arrays.
+    ///
+    /// # Panics
+    /// For a geometry built on the device (a programming error: only the host paths ask).
+    pub fn host(&self) -> &Arc<HostGeometry> {
+        self.host
+            .as_ref()
+            .expect("a geometry built on the device has no host arrays")
     }
 
     /// The pair-corner weights `[8P, 1]` as a tensor of `dtype`: the override, or the host
@@ -202,9 +274,9 @@ impl ConvGeometry {
             None => self
                 .host_weights
                 .get_or_init(|| {
-                    let n = self.host.weights.len();
+                    let weights = &self.host().weights;
                     neurofluid_core::transfer::upload::<2, burn::tensor::Float, _>(
-                        TensorData::new(self.host.weights.clone(), [n, 1]),
+                        TensorData::new(weights.clone(), [weights.len(), 1]),
                         &self.device,
                     )
                 })
@@ -215,14 +287,17 @@ impl ConvGeometry {
 
     /// Whether the weights carry gradients (differentiable geometry on tracked positions).
     pub fn weights_tracked(&self) -> bool {
-        self.weights_override
-            .as_ref()
-            .is_some_and(|w| w.is_tracked())
+        self.tracked
     }
 
     /// The same geometry cut into chunks of at most `slots` neighbour slots (at least one output
-    /// point each) instead of the device's [`chunk_slots`]; the sums do not depend on it.
+    /// point each) instead of the device's [`chunk_slots`]; the sums do not depend on it. A host
+    /// geometry only.
     pub fn with_chunk_slots(mut self, slots: usize) -> Self {
+        assert!(
+            self.host.is_some(),
+            "a geometry built on the device keeps its chunks"
+        );
         self.chunk_slots = slots;
         self.chunks = OnceLock::new();
         self
@@ -234,26 +309,10 @@ impl ConvGeometry {
     }
 
     fn build_chunks(&self) -> Vec<GeometryChunk> {
-        let host = &self.host;
-        let offsets = &host.pairs.offsets;
-        let count = |q: usize| offsets[q + 1] - offsets[q];
-        let mut chunks = Vec::new();
-        let mut q0 = 0;
-        while q0 < host.num_out {
-            let mut width = count(q0).max(1);
-            let mut q1 = q0 + 1;
-            while q1 < host.num_out {
-                let wider = width.max(count(q1));
-                if (q1 + 1 - q0) * wider > self.chunk_slots {
-                    break;
-                }
-                width = wider;
-                q1 += 1;
-            }
-            chunks.push(self.padded_chunk(q0, q1, width));
-            q0 = q1;
-        }
-        chunks
+        plan_chunks(&self.counts, self.chunk_slots)
+            .into_iter()
+            .map(|ch| self.padded_chunk(ch.q0, ch.q1, ch.width))
+            .collect()
     }
 
     /// The chunk of output points `q0..q1` in `width` slots each. The padding slots repeat their
@@ -262,7 +321,7 @@ impl ConvGeometry {
     /// padding slots (one zero row for every padding slot made a sum of 10⁵ rows, which the
     /// device ran serially: 12–29 ms per gather at 8k particles on an H100).
     fn padded_chunk(&self, q0: usize, q1: usize, width: usize) -> GeometryChunk {
-        let host = &self.host;
+        let host = self.host();
         let device = &self.device;
         let offsets = &host.pairs.offsets;
         let slots = (q1 - q0) * width;
@@ -314,17 +373,27 @@ impl ConvGeometry {
 
     /// Output points.
     pub fn num_out(&self) -> usize {
-        self.host.num_out
+        self.counts.len()
     }
 
     /// Input points.
     pub fn num_in(&self) -> usize {
-        self.host.num_in
+        self.num_in
+    }
+
+    /// Neighbour count of every output point.
+    pub fn counts(&self) -> Vec<u32> {
+        self.counts.to_vec()
+    }
+
+    /// Pairs.
+    pub fn num_pairs(&self) -> usize {
+        self.counts.iter().map(|&c| c as usize).sum()
     }
 
     /// Pair corners (8 per pair).
     pub fn num_entries(&self) -> usize {
-        self.host.cells.len()
+        self.num_pairs() * CORNERS
     }
 
     /// The device of the tensors.

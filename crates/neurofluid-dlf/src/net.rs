@@ -8,8 +8,10 @@ use crate::config::{DlfConfig, GeometryMode};
 use crate::conv::ContinuousConv;
 use crate::diff_geometry::differentiable_weights;
 use crate::energy_cap::cap_particle_energy;
-use crate::geometry::{ConvGeometry, build_host_geometry, search_radius};
+use crate::geometry::{ConvGeometry, build_host_geometry, chunk_slots, search_radius};
 use crate::viscosity::smooth_velocities;
+use neurofluid_core::device_pairs::device_pairs;
+use neurofluid_core::device_search::{NeighbourSearch, neighbour_search};
 use neurofluid_core::scene::Aabb;
 
 /// Channel widths of the published model: layer 0 branches, layers 1, 2, 3.
@@ -206,6 +208,9 @@ impl DlfNet {
     ) -> (ConvGeometry, ConvGeometry) {
         let device = pos_pred.device();
         let x = tensor_points(pos_pred);
+        if let Some(found) = self.device_geometries(&x, pos_pred, boundary) {
+            return found;
+        }
         let extent = self.config.extent;
         let fluid = build_host_geometry(&x, &x, extent, true, None);
         let solid = build_host_geometry(&boundary.points, &x, extent, true, None);
@@ -228,6 +233,42 @@ impl DlfNet {
                 )
             }
         }
+    }
+
+    /// The fluid and box geometries found on the GPU ([`ConvGeometry::on_device`]), where the
+    /// process searches there (`neighbour_search = "device"`), `pos_pred` lives on a GPU and no
+    /// step after the convs needs the pairs on the host (viscosity does); `None` otherwise, or
+    /// (with a warning) where the device fails to search.
+    fn device_geometries(
+        &self,
+        x: &[[f32; 3]],
+        pos_pred: &Tensor<2>,
+        boundary: &Boundary,
+    ) -> Option<(ConvGeometry, ConvGeometry)> {
+        if neighbour_search() != NeighbourSearch::Device || self.config.viscosity > 0.0 {
+            return None;
+        }
+        let device = pos_pred.device();
+        let extent = self.config.extent;
+        let radius = search_radius(extent);
+        let slots = chunk_slots(&device);
+        let fluid = device_pairs(&device, x, x, radius, true, true, slots)?;
+        let solid = device_pairs(&device, &boundary.points, x, radius, true, false, slots)?;
+        let (fluid, solid) = match (fluid, solid) {
+            (Ok(f), Ok(s)) => (f, s),
+            (Err(e), _) | (_, Err(e)) => {
+                tracing::warn!("DLF's search on the GPU failed ({e}); searching on the host");
+                return None;
+            }
+        };
+        let positions = match self.config.geometry {
+            GeometryMode::Constant => pos_pred.clone().detach(),
+            GeometryMode::Differentiable => pos_pred.clone(),
+        };
+        Some((
+            ConvGeometry::on_device(fluid, positions.clone(), positions.clone(), extent),
+            ConvGeometry::on_device(solid, boundary.points_tensor.clone(), positions, extent),
+        ))
     }
 
     /// Raw network output h3 `[N, 3]` at x* with velocities v* (model frame).
@@ -290,16 +331,16 @@ impl DlfNet {
         let vel_pred = vel.clone() + g;
         let pos_pred = pos.clone() + ((vel_pred.clone() + vel) * cfg.dt) / 2.0;
         let (fluid, solid) = self.geometries(&pos_pred, boundary);
-        let num_fluid_neighbors = fluid.host.counts();
+        let num_fluid_neighbors = fluid.counts();
         let (raw, features) = self.correction(vel_pred.clone(), boundary, &fluid, &solid);
         let pos_new = pos_pred.clone() + raw.clone() * cfg.output_scale;
         let vel_new = (pos_new.clone() - pos) / cfg.dt;
         let (pos_new, vel_new) = (self.to_scene(pos_new), self.to_scene(vel_new));
         let (pos_new, vel_new) = if cfg.viscosity > 0.0 {
             let radius = search_radius(cfg.extent);
-            let walls = cfg.no_slip.then_some(&*solid.host);
+            let walls = cfg.no_slip.then(|| &**solid.host());
             let smoothed =
-                smooth_velocities(vel_new.clone(), &fluid.host, walls, radius, cfg.viscosity);
+                smooth_velocities(vel_new.clone(), fluid.host(), walls, radius, cfg.viscosity);
             (pos_new + (smoothed.clone() - vel_new) * cfg.dt, smoothed)
         } else {
             (pos_new, vel_new)

@@ -105,7 +105,7 @@ fn check_conv(cin: usize, cout: usize, same_cloud: bool) {
         kernel: burn::module::Param::from_tensor(conv.kernel.val().to_device(&ad)),
         bias: burn::module::Param::from_tensor(conv.bias.val().to_device(&ad)),
     };
-    let geo_ad = ConvGeometry::new(geo.host.clone(), None, &ad);
+    let geo_ad = ConvGeometry::new(geo.host.clone().expect("a host geometry"), None, &ad);
     let slow = host(&conv_ad.forward(feats.to_device(&ad), &geo_ad));
     let e = rel_err(&slow, &expected);
     assert!(e < 2e-6, "autodiff path vs brute force: {e:.2e}");

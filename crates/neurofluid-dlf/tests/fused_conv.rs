@@ -252,5 +252,5 @@ fn the_cpu_takes_the_fused_path() {
     let features = Tensor::<2>::random([50, 4], Distribution::Default, &ad).require_grad();
     let kernel = Tensor::<2>::random([KERNEL_CELLS * 4, 8], Distribution::Default, &ad);
     let weights = || geometry.weights_tensor(DType::F32);
-    assert!(try_fused_conv(&geometry.host, &features, weights, &kernel).is_some());
+    assert!(try_fused_conv(geometry.host(), &features, weights, &kernel).is_some());
 }

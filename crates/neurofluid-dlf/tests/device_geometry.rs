@@ -1,0 +1,164 @@
+//! DLF's geometry found on the GPU (`neighbour_search = "device"`: the pairs by
+//! `neurofluid_core::device_pairs`, the mapping as tensor ops with its branches found from the
+//! values) against the host's: the mapping's kernel-cell weights on any device (the CPU in CI),
+//! and a whole step on the test device (`NEUROFLUID_TEST_DEVICE=wgpu`: lavapipe without a GPU):
+//! the positions, the neighbour counts, conv1's kernel gradient and, with the differentiable
+//! geometry, the positions' gradient. On a CPU backend the device search declines and the step
+//! is the host's to the bit.
+
+mod common;
+
+use burn::prelude::*;
+use common::*;
+use neurofluid_core::device_search::{NeighbourSearch, set_neighbour_search};
+use neurofluid_core::rows::{RowIndex, gather_rows};
+use neurofluid_core::transfer::{self, Counts};
+use neurofluid_dlf::diff_geometry::{Branches, pair_weights};
+use neurofluid_dlf::geometry::{FILTER_EXTENT, build_host_geometry, cell_weights};
+use neurofluid_dlf::scene::{block_in_box, dlf_wall_spacing};
+use neurofluid_dlf::{DlfConfig, DlfNet, GeometryMode, dlf_step_loss, load_dlf};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// A random cloud with points on the mapping's special lines (axes, poles, diagonals) around
+/// its first point, where the branches switch.
+fn cloud() -> Vec<[f32; 3]> {
+    let mut rng = ChaCha8Rng::seed_from_u64(21);
+    let mut pts: Vec<[f32; 3]> = (0..500)
+        .map(|_| std::array::from_fn(|_| rng.random_range(0.0..0.5)))
+        .collect();
+    let c = pts[0];
+    for d in [
+        [0.05, 0.0, 0.0],
+        [0.0, -0.05, 0.0],
+        [0.0, 0.0, 0.07],
+        [0.0, 0.0, -0.02],
+        [0.03, 0.03, 0.0],
+        [-0.03, 0.03, 0.01],
+        [0.02, -0.02, 0.06],
+    ] {
+        pts.push([c[0] + d[0], c[1] + d[1], c[2] + d[2]]);
+    }
+    pts
+}
+
+#[test]
+fn branches_found_from_the_values_give_the_hosts_cell_weights() {
+    let device = device();
+    let pts = cloud();
+    let host = build_host_geometry(&pts, &pts, FILTER_EXTENT, true, None);
+    let p = host.num_pairs();
+    assert!(p > 1000, "{p} pairs");
+    let x = to_tensor(&pts, &device);
+    let cols = RowIndex::new(host.pairs.indices.iter().map(|&i| i as usize), &device);
+    let rows = RowIndex::new(host.query_of_pair.iter().map(|&q| q as usize), &device);
+    let rel = gather_rows(x.clone(), &cols) - gather_rows(x, &rows);
+    let (corners, lower) = pair_weights(rel.clone(), FILTER_EXTENT, Branches::Values);
+    let found = host_values(&cell_weights(corners, lower));
+    // the host's own arrays: its corner weights and lower corners
+    let w = TensorData::new(host.weights.clone(), [p, 8]);
+    let l: Vec<f32> = host.lower.iter().flat_map(|l| l.map(f32::from)).collect();
+    let expected = host_values(&cell_weights(
+        neurofluid_core::transfer::upload(w, &device),
+        neurofluid_core::transfer::upload(TensorData::new(l, [p, 3]), &device),
+    ));
+    let err = rel_err(&found, &expected);
+    assert!(err < 2e-6, "cell weights differ by {err:.2e}");
+    // and the host branches through the same ops
+    let (corners, lower) = pair_weights(rel, FILTER_EXTENT, Branches::Host(&host));
+    let err = rel_err(&host_values(&cell_weights(corners, lower)), &expected);
+    assert!(err < 2e-6, "host branches: {err:.2e}");
+}
+
+fn host_values(t: &Tensor<2>) -> Vec<f32> {
+    transfer::read_vec::<f32, 2, burn::tensor::Float>(t.clone()).expect("read")
+}
+
+/// One step at `place` on `device` (autodiff): the positions, the neighbour counts, conv1's
+/// kernel gradient, the input positions' gradient, and the step's copies.
+struct Step {
+    pos: Vec<f32>,
+    counts: Vec<u32>,
+    kernel_grad: Vec<f32>,
+    pos_grad: Option<Vec<f32>>,
+    copies: Counts,
+}
+
+fn step(place: NeighbourSearch, mode: GeometryMode) -> Step {
+    let device = device().autodiff();
+    set_neighbour_search(place);
+    let config = DlfConfig {
+        geometry: mode,
+        ..DlfConfig::default()
+    };
+    let net: DlfNet =
+        load_dlf(&weights("pretrained_model_weights.pt"), config, &device).expect("weights");
+    let scene = block_in_box(700, dlf_wall_spacing(), [0.3, -0.2, 0.2], 0.002, 3, 0.01);
+    let boundary = net.boundary(&scene.box_points, &scene.box_normals, &device);
+    let pos = to_tensor(&scene.pos, &device).require_grad();
+    let vel = to_tensor(&scene.vel, &device);
+    let before = transfer::counts();
+    let o = net.step(pos.clone(), vel, &boundary);
+    let loss = dlf_step_loss(
+        o.pos.clone(),
+        pos.clone().detach() + 0.01,
+        &o.num_fluid_neighbors,
+    );
+    let grads = loss.backward();
+    let copies = transfer::counts().since(before);
+    set_neighbour_search(NeighbourSearch::Host);
+    let kernel_grad = net
+        .conv1
+        .kernel
+        .val()
+        .grad(&grads)
+        .expect("kernel gradient");
+    Step {
+        pos: host_values(&o.pos),
+        counts: o.num_fluid_neighbors,
+        kernel_grad: host_values(&kernel_grad.reshape([1, -1])),
+        pos_grad: (mode == GeometryMode::Differentiable)
+            .then(|| host_values(&pos.grad(&grads).expect("positions' gradient"))),
+        copies,
+    }
+}
+
+/// One test (the search's place is a process setting, which parallel tests would share).
+#[test]
+fn a_step_with_the_search_on_the_gpu_is_the_hosts() {
+    let on_gpu = !neurofluid_core::device::is_host(&device());
+    for mode in [GeometryMode::Constant, GeometryMode::Differentiable] {
+        let host = step(NeighbourSearch::Host, mode);
+        let found = step(NeighbourSearch::Device, mode);
+        assert_eq!(found.counts, host.counts, "{mode:?}: neighbour counts");
+        if !on_gpu {
+            // the CPU backends search on the host whatever the setting
+            assert_eq!(found.pos, host.pos);
+            assert_eq!(found.kernel_grad, host.kernel_grad);
+            continue;
+        }
+        let e = rel_err(&found.pos, &host.pos);
+        assert!(e < 1e-6, "{mode:?}: positions differ by {e:.2e}");
+        let e = rel_err(&found.kernel_grad, &host.kernel_grad);
+        assert!(
+            e < 1e-4,
+            "{mode:?}: conv1's kernel gradient differs by {e:.2e}"
+        );
+        if let (Some(a), Some(b)) = (&found.pos_grad, &host.pos_grad) {
+            let e = rel_err(a, b);
+            assert!(
+                e < 1e-4,
+                "{mode:?}: the positions' gradient differs by {e:.2e}"
+            );
+        }
+        eprintln!(
+            "{mode:?}: copies of a step with its gradient, search on the host: {}; on the GPU: {}",
+            host.copies.describe(),
+            found.copies.describe()
+        );
+        assert!(
+            found.copies.upload_bytes < host.copies.upload_bytes,
+            "{mode:?}: fewer bytes up with the search on the GPU"
+        );
+    }
+}
