@@ -14,7 +14,8 @@
 #             matmul kernels' names say cmma?), and the quick main job's warm-up with f16
 #             (HALF_QUICK_SECONDS, default 120)
 #   search    the PhysNeRF step on wgpu with the ball query on the GPU (`--search device`), with
-#             f32 and then f16 operands, and the quick main job's warm-up with it
+#             f32 and then f16 operands, the DLF step with its pairs found on the GPU, and the
+#             quick main job's warm-up with both
 #             (SEARCH_QUICK_SECONDS, default 120; `neighbour_search = "device"`)
 #   split     the PhysNeRF step on wgpu with the dense layers' rows in blocks of each of
 #             SPLIT_ROWS (default "2048 8192 16384"; the default block is 4,096)
@@ -186,7 +187,11 @@ for step in $steps; do
                 "$bin/train_step" --bench --device wgpu --search device --matmul "$m"
             report "$log" "step \(forward|MLPs alone|host–device|forward [0-9]"
         done
-        quick_start "ball query on the GPU" "${SEARCH_QUICK_SECONDS:-120}" search \
+        log=$results/dlf.log
+        timed "DLF step, wgpu, pairs on the GPU" 100 "$log" "$bin/dlf_step" --device wgpu \
+            --repeats 3 --sizes 8000 32000 --search device
+        report "$log" "^\| [0-9]" "N = [0-9]+:" "^phases" "^check against"
+        quick_start "searches on the GPU" "${SEARCH_QUICK_SECONDS:-120}" search \
             neighbour_search=device
         ;;
     split)
@@ -277,7 +282,7 @@ PY
         for t in dense_layer half_matmul posenc indexed_rows backends conv_geometry fused_conv parity_forward \
             parity_backward parity_rollout parity_e2e_f32 parity_stages options_and_weights \
             nerf_fit supervised_dlf pipeline_resume pretrain_on_scene learning transfers \
-            device_search device_search_render; do
+            device_search device_search_render device_pairs device_geometry; do
             NEUROFLUID_TEST_DEVICE=wgpu timed "test $t" 600 "$results/tests.log" "$bin/$t"
             [ -x "$bin/$t" ] && grep '^test result' "$results/tests.log" | tail -1 |
                 sed 's/^/    /' | tee -a "$summary"

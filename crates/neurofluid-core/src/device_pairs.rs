@@ -319,7 +319,6 @@ mod kernel {
         queries: &Tensor<f32>,
         counts: &mut Tensor<u32>,
         grid: &Tensor<f32>,
-        dims: &Tensor<u32>,
         n_queries: usize,
         r2: f32,
         #[comptime] ignore_identical: bool,
@@ -332,19 +331,22 @@ mod kernel {
             let mut x0 = scan_first(qx, grid[0], grid[3]);
             let y0 = scan_first(qy, grid[1], grid[3]);
             let z0 = scan_first(qz, grid[2], grid[3]);
-            let mut x1 = scan_end(qx, grid[0], grid[3], dims[0]);
-            let y1 = scan_end(qy, grid[1], grid[3], dims[1]);
-            let z1 = scan_end(qz, grid[2], grid[3], dims[2]);
+            // the grid: its lowest corner, the inverse cell size, the cells along each axis
+            let dims_x = u32::cast_from(grid[4]);
+            let dims_y = u32::cast_from(grid[5]);
+            let mut x1 = scan_end(qx, grid[0], grid[3], dims_x);
+            let y1 = scan_end(qy, grid[1], grid[3], dims_y);
+            let z1 = scan_end(qz, grid[2], grid[3], u32::cast_from(grid[6]));
             let mut count = 0u32;
-            if x0 > dims[0] {
-                x0 = dims[0];
+            if x0 > dims_x {
+                x0 = dims_x;
             }
             if x1 < x0 {
                 x1 = x0;
             }
             for z in z0..z1 {
                 for y in y0..y1 {
-                    let row = (z * dims[1] + y) * dims[0];
+                    let row = (z * dims_y + y) * dims_x;
                     let first = usize::cast_from(starts[usize::cast_from(row + x0)]);
                     let last = usize::cast_from(starts[usize::cast_from(row + x1)]);
                     for j in first..last {
@@ -370,7 +372,6 @@ mod kernel {
         slots: &mut Tensor<i32>,
         real: &mut Tensor<f32>,
         grid: &Tensor<f32>,
-        dims: &Tensor<u32>,
         n_queries: usize,
         n_points: u32,
         r2: f32,
@@ -388,19 +389,22 @@ mod kernel {
             let mut x0 = scan_first(qx, grid[0], grid[3]);
             let y0 = scan_first(qy, grid[1], grid[3]);
             let z0 = scan_first(qz, grid[2], grid[3]);
-            let mut x1 = scan_end(qx, grid[0], grid[3], dims[0]);
-            let y1 = scan_end(qy, grid[1], grid[3], dims[1]);
-            let z1 = scan_end(qz, grid[2], grid[3], dims[2]);
+            // the grid: its lowest corner, the inverse cell size, the cells along each axis
+            let dims_x = u32::cast_from(grid[4]);
+            let dims_y = u32::cast_from(grid[5]);
+            let mut x1 = scan_end(qx, grid[0], grid[3], dims_x);
+            let y1 = scan_end(qy, grid[1], grid[3], dims_y);
+            let z1 = scan_end(qz, grid[2], grid[3], u32::cast_from(grid[6]));
             let mut n = 0u32;
-            if x0 > dims[0] {
-                x0 = dims[0];
+            if x0 > dims_x {
+                x0 = dims_x;
             }
             if x1 < x0 {
                 x1 = x0;
             }
             for z in z0..z1 {
                 for y in y0..y1 {
-                    let row = (z * dims[1] + y) * dims[0];
+                    let row = (z * dims_y + y) * dims_x;
                     let first = usize::cast_from(starts[usize::cast_from(row + x0)]);
                     let last = usize::cast_from(starts[usize::cast_from(row + x1)]);
                     for j in first..last {
@@ -578,13 +582,21 @@ mod kernel {
         let m = queries.len();
         let grid = Grid::new(points, radius);
         let client = device.client();
-        let params = [grid.lo[0], grid.lo[1], grid.lo[2], grid.inv_cell];
+        // dims as floats: exact below 2^24 (the cells are at most MAX_CELLS)
+        let params = [
+            grid.lo[0],
+            grid.lo[1],
+            grid.lo[2],
+            grid.inv_cell,
+            grid.dims[0] as f32,
+            grid.dims[1] as f32,
+            grid.dims[2] as f32,
+        ];
         let p_h = upload(device, &grid.sorted);
         let o_h = upload(device, &grid.order);
         let s_h = upload(device, &grid.starts);
         let q_h = upload(device, bytemuck::cast_slice::<[f32; 3], f32>(queries));
         let g_h = upload(device, &params);
-        let d_h = upload(device, &grid.dims);
         let n_cells1 = grid.starts.len();
         let r2 = radius * radius;
         let cube_dim = CubeDim::new_1d(256);
@@ -598,8 +610,7 @@ mod kernel {
             u32s(&s_h, n_cells1),
             f32s(&q_h, m * 3),
             u32s(&counts_h, m.max(1)),
-            f32s(&g_h, 4),
-            u32s(&d_h, 3),
+            f32s(&g_h, 7),
             m,
             r2,
             ignore_identical,
@@ -633,8 +644,7 @@ mod kernel {
             u32s(&l_h, m * 3),
             i32s(&slots_h, num_slots.max(1)),
             f32s(&real_h, num_slots.max(1)),
-            f32s(&g_h, 4),
-            u32s(&d_h, 3),
+            f32s(&g_h, 7),
             m,
             points.len().max(1) as u32,
             r2,

@@ -18,7 +18,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::choice::{Choice, ProcessChoice};
 
-/// Where PhysNeRF's ball query runs. In files: `"host"` or `"device"`.
+/// Where the neighbour searches run: PhysNeRF's ball query (here) and DLF's pairs
+/// ([`crate::device_pairs`]). In files: `"host"` or `"device"`.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum NeighbourSearch {
@@ -44,12 +45,12 @@ impl Choice for NeighbourSearch {
 /// The process's choice (host unless set).
 static SEARCH: ProcessChoice = ProcessChoice::new();
 
-/// Where PhysNeRF's ball query runs in this process.
+/// Where the neighbour searches run in this process.
 pub fn neighbour_search() -> NeighbourSearch {
     SEARCH.get()
 }
 
-/// Sets where PhysNeRF's ball query runs in this process (the trainer sets the experiment's
+/// Sets where the neighbour searches run in this process (the trainer sets the experiment's
 /// `neighbour_search` when it opens a run).
 pub fn set_neighbour_search(place: NeighbourSearch) {
     SEARCH.set(place);

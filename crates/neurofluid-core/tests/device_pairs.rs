@@ -179,7 +179,7 @@ fn one_read_and_the_grids_uploads_per_search() {
     let copies = transfer::counts().since(before);
     assert_eq!(
         (copies.reads, copies.uploads),
-        (1, 7),
+        (1, 6),
         "{}",
         copies.describe()
     );

@@ -7,16 +7,22 @@
 //! (`neurofluid_core::transfer`: reads and uploads, count and bytes, the closing read-back that
 //! ends each timed step included).
 //!
-//! `cargo bench --profile dev -p neurofluid-dlf --bench dlf_step -- [--repeats 5] [--sizes 2000 8000 32000] [--device wgpu]`
+//! `--search device` finds the pairs on the GPU (`neighbour_search = "device"`:
+//! `neurofluid_core::device_pairs`, the mapping as tensor ops); the phases then time that search.
+//!
+//! `cargo bench --profile dev -p neurofluid-dlf --bench dlf_step -- [--repeats 5] [--sizes 2000 8000 32000] [--device wgpu] [--search device]`
 //! (the dev profile builds every dependency at opt-level 3; `cargo bench` alone uses release).
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use burn::prelude::*;
+use neurofluid_core::choice::Choice;
 use neurofluid_core::cpu_time::process_cpu_seconds;
+use neurofluid_core::device_pairs::device_pairs;
+use neurofluid_core::device_search::{NeighbourSearch, neighbour_search, set_neighbour_search};
 use neurofluid_core::transfer::{self, Counts};
-use neurofluid_dlf::geometry::{ConvGeometry, build_host_geometry};
+use neurofluid_dlf::geometry::{ConvGeometry, build_host_geometry, chunk_slots, search_radius};
 use neurofluid_dlf::net::{points_tensor, tensor_points};
 use neurofluid_dlf::scene::{block_in_box, dlf_wall_spacing};
 use neurofluid_dlf::{DlfConfig, DlfNet, dlf_step_loss, load_dlf};
@@ -130,6 +136,17 @@ fn main() {
                 device_name = args.get(i + 1).cloned().unwrap_or_default();
                 i += 2;
             }
+            "--search" => {
+                let place = args.get(i + 1).cloned().unwrap_or_default();
+                match NeighbourSearch::parse(&place) {
+                    Ok(p) => set_neighbour_search(p),
+                    Err(e) => {
+                        eprintln!("--search: {e}");
+                        std::process::exit(2);
+                    }
+                }
+                i += 2;
+            }
             _ => i += 1, // cargo's own flags (--bench)
         }
     }
@@ -142,7 +159,10 @@ fn main() {
             std::process::exit(2);
         }
     };
-    println!("device: {device_name}");
+    println!(
+        "device: {device_name}; pairs searched on the {}",
+        neighbour_search().name()
+    );
     let ad = device.clone().autodiff();
     let net = load_dlf(&weights, DlfConfig::default(), &device).expect("weights");
     let net_ad: DlfNet = load_dlf(&weights, DlfConfig::default(), &ad).expect("weights");
@@ -199,14 +219,46 @@ fn main() {
     let boundary = net.boundary(&scene.box_points, &scene.box_normals, &device);
     let pos = points_tensor(&scene.pos, &device);
     let x = tensor_points(&pos);
-    let (fluid, t_geo) = time(|| build_host_geometry(&x, &x, 0.225, true, None));
-    let (solid, t_geo_b) = time(|| build_host_geometry(&boundary.points, &x, 0.225, true, None));
-    let (fluid, t_up) = time(|| ConvGeometry::new(fluid, None, &device));
-    let solid = ConvGeometry::new(solid, None, &device);
-    println!(
-        "\nphases at N = {n}: fluid geometry {t_geo:.3} s ({} pairs), box geometry {t_geo_b:.3} s, upload {t_up:.3} s",
-        fluid.num_pairs()
-    );
+    let (fluid, solid) = if neighbour_search() == NeighbourSearch::Device
+        && !neurofluid_core::device::is_host(&device)
+    {
+        let (r, slots) = (search_radius(0.225), chunk_slots(&device));
+        // the search, then the mapping of every chunk, each closed by a read of one value
+        let (pairs, t_search) = time(|| {
+            device_pairs(&device, &x, &x, r, true, true, slots)
+                .expect("a GPU device")
+                .expect("the search runs")
+        });
+        let pairs_b = device_pairs(&device, &boundary.points, &x, r, true, false, slots)
+            .expect("a GPU device")
+            .expect("the search runs");
+        let (fluid, t_map) = time(|| {
+            let g = ConvGeometry::on_device(pairs, pos.clone(), pos.clone(), 0.225);
+            for ch in g.chunks() {
+                sync(&ch.cell_weights.clone().slice([0..1, 0..1]));
+            }
+            g
+        });
+        println!(
+            "\nphases at N = {n}: fluid pairs on the GPU {t_search:.3} s ({} pairs, {} chunks), their mapping {t_map:.3} s",
+            fluid.num_pairs(),
+            fluid.chunks().len()
+        );
+        let solid =
+            ConvGeometry::on_device(pairs_b, boundary.points_tensor.clone(), pos.clone(), 0.225);
+        (fluid, solid)
+    } else {
+        let (fluid, t_geo) = time(|| build_host_geometry(&x, &x, 0.225, true, None));
+        let (solid, t_geo_b) =
+            time(|| build_host_geometry(&boundary.points, &x, 0.225, true, None));
+        let (fluid, t_up) = time(|| ConvGeometry::new(fluid, None, &device));
+        let solid = ConvGeometry::new(solid, None, &device);
+        println!(
+            "\nphases at N = {n}: fluid geometry {t_geo:.3} s ({} pairs), box geometry {t_geo_b:.3} s, upload {t_up:.3} s",
+            fluid.num_pairs()
+        );
+        (fluid, solid)
+    };
     let feats = |c: usize| {
         Tensor::<2>::random(
             [n, c],

@@ -1,7 +1,8 @@
-//! Differentiable geometry: the pair-corner weights recomputed from position tensors with Burn
+//! The geometry as tensor ops: the pair-corner weights computed from position tensors with Burn
 //! ops, so gradients flow through positions into the mapping, the trilinear weights and the
-//! window. The discrete choices (pairs, mapping branches, cells) come from the host geometry and
-//! are piecewise constant in the positions.
+//! window. The discrete choices (mapping branches, cells) come from the host geometry, or are
+//! found from the values on their device (the geometry found on the GPU); either way they are
+//! piecewise constant in the positions.
 
 use burn::prelude::*;
 use neurofluid_core::rows::{RowIndex, gather_rows};

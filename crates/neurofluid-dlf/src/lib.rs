@@ -3,8 +3,8 @@
 //! training loop, and DLF's `.msgpack.zst` records.
 //!
 //! The geometry of a step (neighbour pairs, mapped coordinates, trilinear corners × window) is
-//! built once on the host ([`geometry`]) and shared by the four fluid convs; each conv is then a
-//! gather/scatter and one matmul ([`ContinuousConv`]).
+//! built once, on the host or on the GPU ([`geometry`]), and shared by the four fluid convs;
+//! each conv is then a gather/scatter and one matmul ([`ContinuousConv`]).
 
 pub mod config;
 pub mod conv;

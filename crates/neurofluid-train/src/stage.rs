@@ -105,7 +105,8 @@ impl Stage {
         };
         let from_images = exp.scene.initial == InitialParticles::FromImages
             && (nerf_model || under("initial") || warmup_views);
-        // PhysNeRF's ball query (its place shapes the renderer's stages, not the NeRFs')
+        // the searches' place (PhysNeRF's ball query, DLF's pairs: the renderer's stages and
+        // those after them, not the NeRFs')
         let renderer = under("physnerf") || under("neighbour_search");
         let warmup = common || renderer || under("warmup") || from_images;
         match self {

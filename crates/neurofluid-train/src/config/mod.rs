@@ -69,10 +69,11 @@ pub struct Experiment {
     /// magnitude (`neurofluid_core::half_matmul`). The CPU's host layers ignore it.
     #[serde(default)]
     pub matmul: neurofluid_core::half_matmul::MatmulOperands,
-    /// Where PhysNeRF's ball query runs: `host` (default, the uniform grid on the CPU's cores)
-    /// or `device` (a kernel on the GPU the particles are on; the host on a CPU device).
-    /// Fused multiply-adds on a GPU can move a point within an ulp of the radius, so it shapes
-    /// every stage with a renderer (`neurofluid_core::device_search`).
+    /// Where PhysNeRF's ball query and DLF's pair search run: `host` (default, the uniform grid on
+    /// the CPU's cores) or `device` (kernels on the GPU the particles are on; the host on a CPU
+    /// device). Fused multiply-adds on a GPU can move a point within an ulp of the radius, so it
+    /// shapes every stage with a renderer (`neurofluid_core::device_search`,
+    /// `neurofluid_core::device_pairs`).
     #[serde(default)]
     pub neighbour_search: neurofluid_core::device_search::NeighbourSearch,
     /// Output folder; default `runs/<name>` (see [`Experiment::out_dir`]).
