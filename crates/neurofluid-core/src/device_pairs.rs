@@ -580,6 +580,22 @@ mod kernel {
         max_slots: usize,
     ) -> Result<DevicePairs, String> {
         let m = queries.len();
+        if points.is_empty() {
+            // no pairs: every query one padding slot (row 0 of an empty set, weight zero)
+            let counts = vec![0u32; m];
+            let chunks = plan_chunks(&counts, max_slots);
+            let slots = cube_tensor::int_tensor(device, upload(device, &vec![0i32; m.max(1)]), [m]);
+            let real =
+                cube_tensor::float_tensor(device, upload(device, &vec![0f32; m.max(1)]), [m, 1]);
+            return Ok(DevicePairs {
+                counts,
+                chunks,
+                num_in: 0,
+                slots,
+                real,
+                symmetric: None,
+            });
+        }
         let grid = Grid::new(points, radius);
         let client = device.client();
         // dims as floats: exact below 2^24 (the cells are at most MAX_CELLS)

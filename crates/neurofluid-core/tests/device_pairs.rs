@@ -184,3 +184,20 @@ fn one_read_and_the_grids_uploads_per_search() {
         copies.describe()
     );
 }
+
+#[test]
+fn searches_without_pairs_have_padding_only() {
+    let mut rng = ChaCha8Rng::seed_from_u64(14);
+    let points = lattice(&mut rng, 200);
+    let far: Vec<[f32; 3]> = (0..50).map(|i| [10.0 + i as f32, -7.0, 3.0]).collect();
+    for (pts, queries) in [(&points, &far), (&Vec::new(), &points)] {
+        let Some(found) = on_device(pts, queries, 0.15, false, 4096) else {
+            return;
+        };
+        assert_eq!(found.counts, vec![0; queries.len()]);
+        assert_eq!(found.num_pairs(), 0);
+        let slots = found.chunks.iter().map(|c| c.len()).sum::<usize>();
+        assert_eq!(slots, queries.len(), "one padding slot a query");
+        assert!(floats(found.real).iter().all(|&r| r == 0.0));
+    }
+}

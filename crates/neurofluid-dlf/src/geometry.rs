@@ -209,7 +209,8 @@ impl ConvGeometry {
     /// gathered, their relative positions mapped with the branches found from the values
     /// ([`pair_weights`]), the padding's weights zeroed. Differentiable in the positions where
     /// they are tracked (the gathers' gradients by the pairs' symmetric kernel for the fluid's
-    /// pairs; the box's points are constant).
+    /// pairs; the box's points are constant). Without pairs it has no chunks (a conv over it
+    /// gives its bias, and a padding slot could name a row of an empty point set).
     pub fn on_device(
         pairs: DevicePairs,
         inputs: Tensor<2>,
@@ -218,9 +219,11 @@ impl ConvGeometry {
     ) -> Self {
         let device = outputs.device();
         let tracked = inputs.is_tracked() || outputs.is_tracked();
+        let no_pairs = pairs.num_pairs() == 0;
         let chunks: Vec<GeometryChunk> = pairs
             .chunks
             .iter()
+            .filter(|_| !no_pairs)
             .enumerate()
             .map(|(c, ch)| {
                 let (m, width) = (ch.q1 - ch.q0, ch.width);
