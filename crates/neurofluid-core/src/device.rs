@@ -63,6 +63,21 @@ pub fn is_host(device: &Device) -> bool {
     cpu_devices().iter().any(|(_, d)| d == device)
 }
 
+/// The most bytes `device` allocates in one buffer, where its backend says (the cubecl
+/// backends: wgpu's storage-binding and buffer limits, CUDA's); `None` for the CPU backends.
+pub fn max_buffer_bytes(device: &Device) -> Option<u64> {
+    #[cfg(any(feature = "wgpu-base", feature = "cuda"))]
+    {
+        let cube = crate::cube_tensor::cube_device(device)?;
+        Some(cube.client().properties().memory.max_page_size)
+    }
+    #[cfg(not(any(feature = "wgpu-base", feature = "cuda")))]
+    {
+        let _ = device;
+        None
+    }
+}
+
 /// The default CPU device: flex when compiled in, else ndarray.
 ///
 /// # Panics

@@ -132,16 +132,26 @@ pub const HOST_CHUNK_SLOTS: usize = 1 << 14;
 
 /// Neighbour slots per chunk on an accelerator (wgpu, CUDA): 2^20 slots' kernel-cell weights are
 /// 2^26 floats (256 MB in f32), the widest conv's `G` about as much; a 32k-particle step (about 50
-/// neighbours each) takes two chunks. Every chunk costs a few kernel launches.
+/// neighbours each) takes two chunks. Every chunk costs a few kernel launches. Fewer where the
+/// device allocates less in one buffer ([`SLOT_BYTES`]).
 pub const DEVICE_CHUNK_SLOTS: usize = 1 << 20;
 
-/// Neighbour slots per chunk of the padded path on `device`.
+/// The largest bytes a chunk's temporaries hold per slot: the kernel-first conv (64 → 3) gathers
+/// `H`'s rows of 64 cells × 3 outputs for every slot (192 f32), more than the cell weights (64)
+/// or the widest gathered features (96).
+pub const SLOT_BYTES: u64 = 192 * 4;
+
+/// Neighbour slots per chunk of the padded path on `device`: [`HOST_CHUNK_SLOTS`] on a CPU
+/// backend, else [`DEVICE_CHUNK_SLOTS`] or as many as the device's largest buffer holds at
+/// [`SLOT_BYTES`] each (Mesa's lavapipe binds at most 128 MiB: 174,762 slots; an NVIDIA
+/// driver through Vulkan, gigabytes).
 pub fn chunk_slots(device: &Device) -> usize {
     if neurofluid_core::device::is_host(device) {
-        HOST_CHUNK_SLOTS
-    } else {
-        DEVICE_CHUNK_SLOTS
+        return HOST_CHUNK_SLOTS;
     }
+    let fits = neurofluid_core::device::max_buffer_bytes(device)
+        .map_or(usize::MAX, |bytes| (bytes / SLOT_BYTES).max(1) as usize);
+    DEVICE_CHUNK_SLOTS.min(fits)
 }
 
 /// A run of consecutive output points with their neighbours in `width` slots each (the run's

@@ -162,3 +162,20 @@ fn a_step_with_the_search_on_the_gpu_is_the_hosts() {
         );
     }
 }
+
+#[test]
+fn a_chunk_fits_the_devices_largest_buffer() {
+    use neurofluid_dlf::geometry::{HOST_CHUNK_SLOTS, SLOT_BYTES, chunk_slots};
+    let device = device();
+    let slots = chunk_slots(&device);
+    match neurofluid_core::device::max_buffer_bytes(&device) {
+        None => assert_eq!(slots, HOST_CHUNK_SLOTS),
+        Some(bytes) => {
+            assert!(
+                slots as u64 * SLOT_BYTES <= bytes,
+                "{slots} slots in {bytes} bytes"
+            );
+            assert!(slots >= 1);
+        }
+    }
+}
