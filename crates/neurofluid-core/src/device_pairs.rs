@@ -214,29 +214,14 @@ impl Grid {
         let cell_of =
             |p: [f32; 3]| ((coord(p, 2) * dims[1] + coord(p, 1)) * dims[0] + coord(p, 0)) as usize;
         let n_cells = (dims[0] * dims[1] * dims[2]) as usize;
-        let mut starts = vec![0u32; n_cells + 1];
-        let cell_ids: Vec<usize> = points.iter().map(|&p| cell_of(p)).collect();
-        for &c in &cell_ids {
-            starts[c + 1] += 1;
-        }
-        for c in 0..n_cells {
-            starts[c + 1] += starts[c];
-        }
-        let mut next = starts.clone();
-        let mut order = vec![0i32; points.len()];
-        let mut sorted = vec![0f32; points.len() * 3];
-        for (i, &c) in cell_ids.iter().enumerate() {
-            let at = next[c] as usize;
-            next[c] += 1;
-            order[at] = i as i32;
-            sorted[at * 3..at * 3 + 3].copy_from_slice(&points[i]);
-        }
+        let (starts, order) =
+            crate::neighbors::counting_sort(points, n_cells, |p| Some(cell_of(p)));
         Self {
             lo,
             inv_cell,
             dims,
-            sorted,
-            order,
+            sorted: order.iter().flat_map(|&i| points[i as usize]).collect(),
+            order: order.into_iter().map(|i| i as i32).collect(),
             starts,
         }
     }
@@ -280,6 +265,47 @@ mod kernel {
             end = dim;
         }
         end
+    }
+
+    /// The cells a query scans: `x0..x1`, `y0..y1`, `z0..z1` (its own cell's neighbours, clamped
+    /// to the grid; `x0 ≤ x1 ≤ dims_x`, so that `starts[row + x0..=row + x1]` stays in the row),
+    /// with the grid's row lengths.
+    #[derive(CubeType, Clone, Copy)]
+    struct CellScan {
+        x0: u32,
+        x1: u32,
+        y0: u32,
+        y1: u32,
+        z0: u32,
+        z1: u32,
+        dims_x: u32,
+        dims_y: u32,
+    }
+
+    /// The cells around `(qx, qy, qz)` in `grid`: its lowest corner, the inverse cell size and
+    /// the cells along each axis.
+    #[cube]
+    fn cell_scan(qx: f32, qy: f32, qz: f32, grid: &Tensor<f32>) -> CellScan {
+        let dims_x = u32::cast_from(grid[4]);
+        let dims_y = u32::cast_from(grid[5]);
+        let mut x0 = scan_first(qx, grid[0], grid[3]);
+        let mut x1 = scan_end(qx, grid[0], grid[3], dims_x);
+        if x0 > dims_x {
+            x0 = dims_x;
+        }
+        if x1 < x0 {
+            x1 = x0;
+        }
+        CellScan {
+            x0,
+            x1,
+            y0: scan_first(qy, grid[1], grid[3]),
+            y1: scan_end(qy, grid[1], grid[3], dims_y),
+            z0: scan_first(qz, grid[2], grid[3]),
+            z1: scan_end(qz, grid[2], grid[3], u32::cast_from(grid[6])),
+            dims_x,
+            dims_y,
+        }
     }
 
     /// Whether input `j` (in cell order) pairs with the query at `(qx, qy, qz)`: `d² ≤ r²` with
@@ -328,27 +354,13 @@ mod kernel {
             let qx = queries[q * 3];
             let qy = queries[q * 3 + 1];
             let qz = queries[q * 3 + 2];
-            let mut x0 = scan_first(qx, grid[0], grid[3]);
-            let y0 = scan_first(qy, grid[1], grid[3]);
-            let z0 = scan_first(qz, grid[2], grid[3]);
-            // the grid: its lowest corner, the inverse cell size, the cells along each axis
-            let dims_x = u32::cast_from(grid[4]);
-            let dims_y = u32::cast_from(grid[5]);
-            let mut x1 = scan_end(qx, grid[0], grid[3], dims_x);
-            let y1 = scan_end(qy, grid[1], grid[3], dims_y);
-            let z1 = scan_end(qz, grid[2], grid[3], u32::cast_from(grid[6]));
+            let scan = cell_scan(qx, qy, qz, grid);
             let mut count = 0u32;
-            if x0 > dims_x {
-                x0 = dims_x;
-            }
-            if x1 < x0 {
-                x1 = x0;
-            }
-            for z in z0..z1 {
-                for y in y0..y1 {
-                    let row = (z * dims_y + y) * dims_x;
-                    let first = usize::cast_from(starts[usize::cast_from(row + x0)]);
-                    let last = usize::cast_from(starts[usize::cast_from(row + x1)]);
+            for z in scan.z0..scan.z1 {
+                for y in scan.y0..scan.y1 {
+                    let row = (z * scan.dims_y + y) * scan.dims_x;
+                    let first = usize::cast_from(starts[usize::cast_from(row + scan.x0)]);
+                    let last = usize::cast_from(starts[usize::cast_from(row + scan.x1)]);
                     for j in first..last {
                         if pairs_with(points, j, qx, qy, qz, r2, ignore_identical) {
                             count += 1;
@@ -386,27 +398,13 @@ mod kernel {
             let qx = queries[q * 3];
             let qy = queries[q * 3 + 1];
             let qz = queries[q * 3 + 2];
-            let mut x0 = scan_first(qx, grid[0], grid[3]);
-            let y0 = scan_first(qy, grid[1], grid[3]);
-            let z0 = scan_first(qz, grid[2], grid[3]);
-            // the grid: its lowest corner, the inverse cell size, the cells along each axis
-            let dims_x = u32::cast_from(grid[4]);
-            let dims_y = u32::cast_from(grid[5]);
-            let mut x1 = scan_end(qx, grid[0], grid[3], dims_x);
-            let y1 = scan_end(qy, grid[1], grid[3], dims_y);
-            let z1 = scan_end(qz, grid[2], grid[3], u32::cast_from(grid[6]));
+            let scan = cell_scan(qx, qy, qz, grid);
             let mut n = 0u32;
-            if x0 > dims_x {
-                x0 = dims_x;
-            }
-            if x1 < x0 {
-                x1 = x0;
-            }
-            for z in z0..z1 {
-                for y in y0..y1 {
-                    let row = (z * dims_y + y) * dims_x;
-                    let first = usize::cast_from(starts[usize::cast_from(row + x0)]);
-                    let last = usize::cast_from(starts[usize::cast_from(row + x1)]);
+            for z in scan.z0..scan.z1 {
+                for y in scan.y0..scan.y1 {
+                    let row = (z * scan.dims_y + y) * scan.dims_x;
+                    let first = usize::cast_from(starts[usize::cast_from(row + scan.x0)]);
+                    let last = usize::cast_from(starts[usize::cast_from(row + scan.x1)]);
                     for j in first..last {
                         if n < count && pairs_with(points, j, qx, qy, qz, r2, ignore_identical) {
                             let i = order[j];

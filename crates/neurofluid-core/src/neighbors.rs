@@ -175,23 +175,7 @@ impl<'a> NeighborGrid<'a> {
             .iter()
             .map(|&p| cell_of(p, inv_cell).map_or(usize::MAX, |c| hash_cell(c, mask)))
             .collect();
-        let mut starts = vec![0u32; buckets + 1];
-        for &k in &keys {
-            if k != usize::MAX {
-                starts[k + 1] += 1;
-            }
-        }
-        for b in 0..buckets {
-            starts[b + 1] += starts[b];
-        }
-        let mut fill = starts.clone();
-        let mut order = vec![0u32; starts[buckets] as usize];
-        for (i, &k) in keys.iter().enumerate() {
-            if k != usize::MAX {
-                order[fill[k] as usize] = i as u32;
-                fill[k] += 1;
-            }
-        }
+        let (starts, order) = counting_sort(&keys, buckets, |k| (k != usize::MAX).then_some(k));
         Self {
             points,
             inv_cell,
@@ -476,7 +460,7 @@ impl ColumnGrid {
             origin: lo,
             inv_cell,
             dims,
-            starts: vec![0u32; cells + 1],
+            starts: Vec::new(),
             order: Vec::new(),
             pos: Vec::new(),
         };
@@ -490,24 +474,8 @@ impl ColumnGrid {
                 }
             })
             .collect();
-        for &key in keys.iter().filter(|&&key| key != usize::MAX) {
-            grid.starts[key + 1] += 1;
-        }
-        for c in 0..cells {
-            grid.starts[c + 1] += grid.starts[c];
-        }
-        let mut fill = grid.starts.clone();
-        let total = grid.starts[cells] as usize;
-        grid.order = vec![0u32; total];
-        grid.pos = vec![[0f32; 3]; total];
-        for (i, &key) in keys.iter().enumerate() {
-            if key != usize::MAX {
-                let slot = fill[key] as usize;
-                grid.order[slot] = i as u32;
-                grid.pos[slot] = points[i];
-                fill[key] += 1;
-            }
-        }
+        (grid.starts, grid.order) = counting_sort(&keys, cells, |k| (k != usize::MAX).then_some(k));
+        grid.pos = grid.order.iter().map(|&i| points[i as usize]).collect();
         Some(grid)
     }
 
@@ -634,6 +602,32 @@ pub fn ball_query(
 }
 
 /// The lowest and highest coordinate on each axis of `points` (`lo > hi` when there are none).
+/// A stable counting sort of `keys` into `buckets` buckets (`bucket` of a key: its bucket, or
+/// `None` to leave it out): each bucket's first position in the order (`buckets + 1` offsets)
+/// and the keys' indices by bucket, ascending within a bucket.
+pub(crate) fn counting_sort<K: Copy>(
+    keys: &[K],
+    buckets: usize,
+    bucket: impl Fn(K) -> Option<usize>,
+) -> (Vec<u32>, Vec<u32>) {
+    let mut starts = vec![0u32; buckets + 1];
+    for b in keys.iter().filter_map(|&k| bucket(k)) {
+        starts[b + 1] += 1;
+    }
+    for b in 0..buckets {
+        starts[b + 1] += starts[b];
+    }
+    let mut fill = starts.clone();
+    let mut order = vec![0u32; starts[buckets] as usize];
+    for (i, &k) in keys.iter().enumerate() {
+        if let Some(b) = bucket(k) {
+            order[fill[b] as usize] = i as u32;
+            fill[b] += 1;
+        }
+    }
+    (starts, order)
+}
+
 pub(crate) fn bounding_box<'a, T: Float + 'a>(
     points: impl IntoIterator<Item = &'a [T; 3]>,
 ) -> ([T; 3], [T; 3]) {

@@ -164,19 +164,8 @@ impl SumPlan {
     /// of their row count; the arrays uploaded to `device`.
     fn new(ids: &[u32], n: usize, device: &Device) -> Self {
         let l = ids.len();
-        let mut start = vec![0usize; n + 1];
-        for &i in ids {
-            start[i as usize + 1] += 1;
-        }
-        for j in 0..n {
-            start[j + 1] += start[j];
-        }
-        let mut order = vec![0i32; l];
-        let mut next = start.clone();
-        for (p, &i) in ids.iter().enumerate() {
-            order[next[i as usize]] = p as i32;
-            next[i as usize] += 1;
-        }
+        let (start, order) = crate::neighbors::counting_sort(ids, n, |i| Some(i as usize));
+        let start: Vec<usize> = start.into_iter().map(|s| s as usize).collect();
         let mut by_width: BTreeMap<usize, Vec<usize>> = BTreeMap::new();
         for j in 0..n {
             let count = start[j + 1] - start[j];
@@ -195,7 +184,7 @@ impl SumPlan {
                 let mut positions = Vec::with_capacity(dests.len() * width);
                 for &j in &dests {
                     let rows = &order[start[j]..start[j + 1]];
-                    positions.extend_from_slice(rows);
+                    positions.extend(rows.iter().map(|&p| p as i32));
                     positions.resize(positions.len() + width - rows.len(), l as i32);
                     place[j] = stacked as i32;
                     stacked += 1;
