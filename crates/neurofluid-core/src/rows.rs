@@ -140,19 +140,25 @@ impl RowIndex {
         let dtype = values.dtype();
         let zero = || Tensor::<2>::zeros([1, c], (&device, dtype));
         let padded = Tensor::cat(vec![values, zero()], 0);
-        let mut parts: Vec<Tensor<2>> = plan
-            .groups
-            .iter()
-            .map(|(positions, width)| {
-                let rows = positions.dims()[0] / width;
-                let g = plain_gather(padded.clone(), positions.clone());
-                if *width == 1 {
+        // a group's gathered rows are its largest temporary: cut where the device's buffers
+        // are smaller (lavapipe binds 128 MiB, and past it a fused kernel read wrong rows)
+        let buffer = crate::device::max_buffer_bytes(&device).map_or(usize::MAX, |b| b as usize);
+        let row_bytes = c * dtype.size();
+        let mut parts: Vec<Tensor<2>> = Vec::new();
+        for (positions, width) in &plan.groups {
+            let dests = positions.dims()[0] / width;
+            let per_piece = (buffer / (width * row_bytes).max(1)).clamp(1, dests);
+            for first in (0..dests).step_by(per_piece) {
+                let rows = per_piece.min(dests - first);
+                let piece = positions.clone().narrow(0, first * width, rows * width);
+                let g = plain_gather(padded.clone(), piece);
+                parts.push(if *width == 1 {
                     g
                 } else {
                     g.reshape([rows, *width, c]).sum_dim(1).reshape([rows, c])
-                }
-            })
-            .collect();
+                });
+            }
+        }
         parts.push(zero());
         plain_gather(Tensor::cat(parts, 0), plan.place.clone())
     }

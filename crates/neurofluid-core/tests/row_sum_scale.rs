@@ -9,8 +9,16 @@ use rand_chacha::ChaCha8Rng;
 
 #[test]
 fn the_planned_sum_at_a_dlf_steps_scale() {
+    planned_sum(8000, 170_000, 96);
+}
+
+#[test]
+fn the_planned_sum_of_the_kernel_first_convs_rows() {
+    planned_sum(8000, 170_000, 192);
+}
+
+fn planned_sum(n: usize, l: usize, c: usize) {
     let mut rng = ChaCha8Rng::seed_from_u64(5);
-    let (n, l, c) = (8000usize, 170_000usize, 96usize);
     let ids: Vec<usize> = (0..l).map(|_| rng.random_range(0..n)).collect();
     let w: Vec<f32> = (0..l * c).map(|_| rng.random_range(-1.0..1.0)).collect();
     let device = test_device().autodiff();
