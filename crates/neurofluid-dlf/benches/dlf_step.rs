@@ -8,7 +8,8 @@
 //! ends each timed step included).
 //!
 //! `--search device` finds the pairs on the GPU (`neighbour_search = "device"`:
-//! `neurofluid_core::device_pairs`, the mapping as tensor ops); the phases then time that search.
+//! `neurofluid_core::device_pairs`, the mapping one kernel, `neurofluid_dlf::device_cells`, on the cubecl
+//! backends); the phases then time that search and the mapping.
 //!
 //! `cargo bench --profile dev -p neurofluid-dlf --bench dlf_step -- [--repeats 5] [--sizes 2000 8000 32000] [--device wgpu] [--search device]`
 //! (the dev profile builds every dependency at opt-level 3; `cargo bench` alone uses release).

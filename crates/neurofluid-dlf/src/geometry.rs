@@ -17,6 +17,7 @@ use neurofluid_core::rows::{RowIndex, gather_rows};
 use neurofluid_core::transfer::upload;
 use rayon::prelude::*;
 
+use crate::device_cells::slot_cell_weights;
 use crate::diff_geometry::{Branches, pair_weights};
 use crate::mapping::{
     KERNEL_CELLS, KERNEL_SIZE, MappingBranches, filter_coordinates, trilinear_corners, window_poly6,
@@ -216,8 +217,9 @@ impl ConvGeometry {
 
     /// The geometry of `pairs` found on the GPU ([`neurofluid_core::device_pairs`]), with the
     /// input and output positions `[N_in, 3]`, `[M, 3]` on that device: each chunk's slots
-    /// gathered, their relative positions mapped with the branches found from the values
-    /// ([`pair_weights`]), the padding's weights zeroed. Differentiable in the positions where
+    /// gathered, their relative positions mapped to kernel-cell weights with the branches found
+    /// from the values, the padding's weights zeroed: one kernel with its own backward on the
+    /// cubecl backends ([`slot_cell_weights`]), else the tensor ops ([`pair_weights`]). Differentiable in the positions where
     /// they are tracked (the gathers' gradients by the pairs' symmetric kernel for the fluid's
     /// pairs; the box's points are constant). Without pairs it has no chunks (a conv over it
     /// gives its bias, and a padding slot could name a row of an empty point set).
@@ -245,14 +247,17 @@ impl ConvGeometry {
                     .expand([m, width, 3])
                     .reshape([m * width, 3]);
                 let rel = gather_rows(inputs.clone(), &index) - queries;
-                let (corners, lower) = pair_weights(rel, extent, Branches::Values);
                 let real = pairs.real.clone().narrow(0, ch.start, ch.len());
+                let cells = slot_cell_weights(&rel, &real, extent).unwrap_or_else(|| {
+                    let (corners, lower) = pair_weights(rel, extent, Branches::Values);
+                    cell_weights(corners * real, lower)
+                });
                 GeometryChunk {
                     out_start: ch.q0,
                     out_len: m,
                     width,
                     inputs: index,
-                    cell_weights: cell_weights(corners * real, lower),
+                    cell_weights: cells,
                 }
             })
             .collect();

@@ -8,6 +8,7 @@
 
 pub mod config;
 pub mod conv;
+pub mod device_cells;
 pub mod diff_geometry;
 pub mod energy_cap;
 pub mod fused;

@@ -179,3 +179,68 @@ fn a_chunk_fits_the_devices_largest_buffer() {
         }
     }
 }
+
+/// The slots' kernel-cell weights as one kernel (`device_cells`, the cubecl backends) against
+/// the tensor mapping they replace, values and gradients in the relative positions: the cloud's
+/// pairs (the mapping's special lines among them), each also as a padding slot, and a query on
+/// its own point. Off the cubecl backends the kernel declines.
+#[test]
+fn the_slot_kernel_is_the_tensor_mapping() {
+    use neurofluid_dlf::device_cells::slot_cell_weights;
+    let device = device().autodiff();
+    let pts = cloud();
+    let host = build_host_geometry(&pts, &pts, FILTER_EXTENT, true, None);
+    let mut rel: Vec<f32> = Vec::new();
+    for (p, &j) in host.pairs.indices.iter().enumerate() {
+        let (a, b) = (pts[j as usize], pts[host.query_of_pair[p] as usize]);
+        rel.extend((0..3).map(|k| a[k] - b[k]));
+    }
+    let pairs = rel.len() / 3;
+    // padding: the same pairs again, weight zero; a pair of a point with itself
+    rel.extend_from_within(..);
+    rel.extend([0.0, 0.0, 0.0]);
+    let slots = rel.len() / 3;
+    let real: Vec<f32> = (0..slots)
+        .map(|s| f32::from(u8::from(s < pairs || s == slots - 1)))
+        .collect();
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let up: Vec<f32> = (0..slots * 64)
+        .map(|_| rng.random_range(-1.0..1.0))
+        .collect();
+    let up =
+        transfer::upload::<2, burn::tensor::Float, _>(TensorData::new(up, [slots, 64]), &device);
+    let real =
+        transfer::upload::<2, burn::tensor::Float, _>(TensorData::new(real, [slots, 1]), &device);
+    let rel_of = || {
+        transfer::upload::<2, burn::tensor::Float, _>(
+            TensorData::new(rel.clone(), [slots, 3]),
+            &device,
+        )
+        .require_grad()
+    };
+    if slot_cell_weights(&rel_of(), &real, FILTER_EXTENT).is_none() {
+        assert!(
+            neurofluid_core::device::is_host(&device),
+            "the kernel declined on a GPU backend"
+        );
+        return;
+    }
+    let rel_k = rel_of();
+    let found = slot_cell_weights(&rel_k, &real, FILTER_EXTENT).expect("the kernel");
+    let rel_t = rel_of();
+    let (corners, lower) = pair_weights(rel_t.clone(), FILTER_EXTENT, Branches::Values);
+    let expected = cell_weights(corners * real.clone(), lower);
+    let e = rel_err(&host_values(&found), &host_values(&expected));
+    assert!(e < 2e-6, "cell weights differ by {e:.2e}");
+    let g_found = (found * up.clone()).sum().backward();
+    let g_expected = (expected * up).sum().backward();
+    let a = host_values(&rel_k.grad(&g_found).expect("kernel gradient"));
+    let b = host_values(&rel_t.grad(&g_expected).expect("tensor gradient"));
+    assert!(
+        a[pairs * 3..(slots - 1) * 3].iter().all(|&g| g == 0.0),
+        "padding has no gradient"
+    );
+    let e = rel_err(&a, &b);
+    assert!(e < 1e-4, "gradients differ by {e:.2e}");
+    eprintln!("{slots} slots: weights and gradients agree ({e:.2e})");
+}
