@@ -178,6 +178,34 @@ pub fn device_pairs(
     }
 }
 
+/// The pairs of a search made on the host (`pairs`: each query's inputs ascending, as
+/// [`crate::neighbors::NeighborGrid::pairs`] gives them, among `num_in` input points) in the
+/// slots [`device_pairs`] writes — the same layout, padding and gradient kernel — uploaded to
+/// `device`'s GPU. `None` where the device is not a cubecl device.
+///
+/// # Errors
+/// When a row of `pairs` is not ascending or names an input past `num_in`.
+pub fn device_pairs_from_host(
+    device: &Device,
+    pairs: &crate::neighbors::PairList,
+    num_in: usize,
+    symmetric: bool,
+    max_slots: usize,
+) -> Option<Result<DevicePairs, String>> {
+    #[cfg(any(feature = "wgpu-base", feature = "cuda"))]
+    {
+        let cube = crate::cube_tensor::cube_device(device)?;
+        Some(kernel::from_host(
+            &cube, pairs, num_in, symmetric, max_slots,
+        ))
+    }
+    #[cfg(not(any(feature = "wgpu-base", feature = "cuda")))]
+    {
+        let _ = (device, pairs, num_in, symmetric, max_slots);
+        None
+    }
+}
+
 /// The uniform grid of the input points: cell size a little above the radius (so that every
 /// pair lies in neighbouring cells under float rounding), grown where the points spread so
 /// far that the cells would outnumber `MAX_CELLS`; the points' positions and indices in cell
@@ -636,15 +664,7 @@ mod kernel {
         let counts: Vec<u32> = bytemuck::pod_collect_to_vec(&bytes[0][..m * 4]);
         let chunks = plan_chunks(&counts, max_slots);
         let num_slots = chunks.last().map_or(0, |c| c.start + c.len());
-        let mut layout = vec![0u32; m * 3];
-        for ch in &chunks {
-            for q in ch.q0..ch.q1 {
-                layout[q * 3] = counts[q];
-                layout[q * 3 + 1] = (ch.start + (q - ch.q0) * ch.width) as u32;
-                layout[q * 3 + 2] = ch.width as u32;
-            }
-        }
-        let l_h = upload(device, &layout);
+        let l_h = upload(device, &layout_of(&counts, &chunks));
         let slots_h = client.empty(num_slots.max(1) * 4);
         let real_h = client.empty(num_slots.max(1) * 4);
         fill_slots::launch(
@@ -664,23 +684,103 @@ mod kernel {
             r2,
             ignore_identical,
         );
-        let symmetric = symmetric.then(|| {
+        let layout = symmetric.then_some(l_h);
+        Ok(finish(
+            device,
+            (counts, chunks, points.len()),
+            (slots_h, real_h),
+            layout,
+        ))
+    }
+
+    /// The pairs in their slots on `device`: `(counts, chunks, num_in)`, the slots' and the
+    /// `real` column's buffers, and the layout's buffer where the pairs are symmetric (for the
+    /// gradient's kernel).
+    fn finish(
+        device: &cubecl::Device,
+        (counts, chunks, num_in): (Vec<u32>, Vec<SlotChunk>, usize),
+        (slots_h, real_h): (Handle, Handle),
+        layout: Option<Handle>,
+    ) -> DevicePairs {
+        let num_slots = chunks.last().map_or(0, |c| c.start + c.len());
+        let symmetric = layout.map(|layout| {
             Arc::new(Symmetric {
                 device: device.clone(),
                 slots: slots_h.clone(),
-                layout: l_h,
+                layout,
                 num_slots,
-                num_queries: m,
+                num_queries: counts.len(),
             }) as Arc<dyn RowSumOfChunk>
         });
-        Ok(DevicePairs {
+        DevicePairs {
             counts,
             chunks,
-            num_in: points.len(),
+            num_in,
             slots: cube_tensor::int_tensor(device, slots_h, [num_slots]),
             real: cube_tensor::float_tensor(device, real_h, [num_slots, 1]),
             symmetric,
-        })
+        }
+    }
+
+    /// Each query's layout: its pair count, its first slot and its chunk's width.
+    fn layout_of(counts: &[u32], chunks: &[SlotChunk]) -> Vec<u32> {
+        let mut layout = vec![0u32; counts.len() * 3];
+        for ch in chunks {
+            for q in ch.q0..ch.q1 {
+                layout[q * 3] = counts[q];
+                layout[q * 3 + 1] = (ch.start + (q - ch.q0) * ch.width) as u32;
+                layout[q * 3 + 2] = ch.width as u32;
+            }
+        }
+        layout
+    }
+
+    pub(super) fn from_host(
+        device: &cubecl::Device,
+        pairs: &crate::neighbors::PairList,
+        num_in: usize,
+        symmetric: bool,
+        max_slots: usize,
+    ) -> Result<DevicePairs, String> {
+        let m = pairs.num_queries();
+        let counts: Vec<u32> = pairs
+            .offsets
+            .windows(2)
+            .map(|w| (w[1] - w[0]) as u32)
+            .collect();
+        let chunks = plan_chunks(&counts, max_slots);
+        let num_slots = chunks.last().map_or(0, |c| c.start + c.len());
+        let mut slots = vec![0i32; num_slots.max(1)];
+        let mut real = vec![0f32; num_slots.max(1)];
+        for ch in &chunks {
+            for q in ch.q0..ch.q1 {
+                let row = &pairs.indices[pairs.offsets[q]..pairs.offsets[q + 1]];
+                if row.windows(2).any(|w| w[0] >= w[1]) || row.iter().any(|&i| i as usize >= num_in)
+                {
+                    return Err(format!(
+                        "query {q}'s pairs are not ascending inputs below {num_in}"
+                    ));
+                }
+                let s0 = ch.start + (q - ch.q0) * ch.width;
+                for k in 0..ch.width {
+                    slots[s0 + k] = match row.len() {
+                        0 => ((q + k) % num_in.max(1)) as i32,
+                        n => row[k % n] as i32,
+                    };
+                    real[s0 + k] = f32::from(u8::from(k < row.len()));
+                }
+            }
+        }
+        let slots_h = upload(device, &slots);
+        let real_h = upload(device, &real);
+        let layout = symmetric.then(|| upload(device, &layout_of(&counts, &chunks)));
+        debug_assert_eq!(counts.len(), m);
+        Ok(finish(
+            device,
+            (counts, chunks, num_in),
+            (slots_h, real_h),
+            layout,
+        ))
     }
 }
 

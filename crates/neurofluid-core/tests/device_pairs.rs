@@ -8,7 +8,9 @@
 
 use burn::prelude::*;
 use neurofluid_core::device::{is_host, test_device};
-use neurofluid_core::device_pairs::{DevicePairs, device_pairs, plan_chunks};
+use neurofluid_core::device_pairs::{
+    DevicePairs, device_pairs, device_pairs_from_host, plan_chunks,
+};
 use neurofluid_core::neighbors::NeighborGrid;
 use neurofluid_core::rows::{RowIndex, gather_rows};
 use neurofluid_core::transfer::{self, read_vec, upload};
@@ -200,4 +202,71 @@ fn searches_without_pairs_have_padding_only() {
         assert_eq!(slots, queries.len(), "one padding slot a query");
         assert!(floats(found.real).iter().all(|&r| r == 0.0));
     }
+}
+
+/// A host search's pairs put in slots on the GPU are the GPU search's slots, padding and chunks
+/// to the bit (lattice points, where no rounding can move a pair; the points' own pairs and
+/// other queries'), and their symmetric gradient kernel serves the gathers the same way.
+#[test]
+fn the_hosts_pairs_in_slots_are_the_gpu_searchs() {
+    let mut rng = ChaCha8Rng::seed_from_u64(13);
+    let points = lattice(&mut rng, 1200);
+    let r = 0.15f32;
+    let queries: Vec<[f32; 3]> = (0..500)
+        .map(|_| [0, 1, 2].map(|_| rng.random_range(-40..=60) as f32 / 32.0))
+        .collect();
+    let device = test_device();
+    for (qs, symmetric, max_slots) in [
+        (&points, true, 1usize << 20),
+        (&points, true, 3000),
+        (&queries, false, 2000),
+    ] {
+        let host = NeighborGrid::new(&points, r).pairs(qs, r, true);
+        let moved = device_pairs_from_host(&device, &host, points.len(), symmetric, max_slots);
+        let Some(found) = on_device(&points, qs, r, symmetric, max_slots) else {
+            assert!(moved.is_none(), "a CPU backend has no GPU slots");
+            return;
+        };
+        let moved = moved.expect("a GPU device").expect("uploaded");
+        assert_eq!(moved.counts, found.counts);
+        assert_eq!(moved.chunks, found.chunks);
+        assert_eq!(ints(moved.slots.clone()), ints(found.slots.clone()));
+        assert_eq!(floats(moved.real.clone()), floats(found.real.clone()));
+        if symmetric {
+            // the gradient of a gather through each chunk: the same kernel, the same bits
+            let autodiff = device.clone().autodiff();
+            let grad = |pairs: &DevicePairs| {
+                let f = upload::<2, burn::tensor::Float, _>(
+                    TensorData::new(
+                        (0..points.len() * 2)
+                            .map(|i| i as f32 * 0.01)
+                            .collect::<Vec<_>>(),
+                        [points.len(), 2],
+                    ),
+                    &autodiff,
+                )
+                .require_grad();
+                let mut loss = Tensor::<1>::zeros([1], &autodiff);
+                for c in 0..pairs.chunks.len() {
+                    let g = gather_rows(f.clone(), &pairs.chunk_index(c));
+                    let ch = pairs.chunks[c];
+                    loss = loss + (g * pairs.real.clone().narrow(0, ch.start, ch.len())).sum();
+                }
+                floats(f.grad(&loss.backward()).expect("gradient"))
+            };
+            let (a, b) = (grad(&moved), grad(&found));
+            assert!(a.iter().any(|&v| v != 0.0));
+            assert_eq!(a, b, "the same gradient");
+        }
+    }
+    // a row that is not ascending is refused
+    let mut bad = NeighborGrid::new(&points, r).pairs(&points, r, true);
+    let q = (0..points.len())
+        .find(|&q| bad.offsets[q + 1] - bad.offsets[q] > 1)
+        .expect("a query with two pairs");
+    bad.indices.swap(bad.offsets[q], bad.offsets[q] + 1);
+    let refused = device_pairs_from_host(&device, &bad, points.len(), true, 1 << 20)
+        .expect("a GPU device")
+        .expect_err("a row out of order");
+    assert!(refused.contains(&format!("query {q}")), "{refused}");
 }

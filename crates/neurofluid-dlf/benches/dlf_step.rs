@@ -7,9 +7,11 @@
 //! (`neurofluid_core::transfer`: reads and uploads, count and bytes, the closing read-back that
 //! ends each timed step included).
 //!
-//! `--search device` finds the pairs on the GPU (`neighbour_search = "device"`:
-//! `neurofluid_core::device_pairs`, the mapping one kernel, `neurofluid_dlf::device_cells`, on the cubecl
-//! backends); the phases then time that search and the mapping.
+//! On a GPU the step's geometry is made in slots there (`ConvGeometry::on_device`, as `DlfNet`
+//! makes it without viscosity): the pairs by the host's grid and uploaded, or with `--search
+//! device` found on the GPU (`neighbour_search = "device"`, `neurofluid_core::device_pairs`); the
+//! mapping one kernel (`neurofluid_dlf::device_cells`). The phases then time the pairs and the
+//! mapping.
 //!
 //! `cargo bench --profile dev -p neurofluid-dlf --bench dlf_step -- [--repeats 5] [--sizes 2000 8000 32000] [--device wgpu] [--search device]`
 //! (the dev profile builds every dependency at opt-level 3; `cargo bench` alone uses release).
@@ -20,8 +22,9 @@ use std::time::Instant;
 use burn::prelude::*;
 use neurofluid_core::choice::Choice;
 use neurofluid_core::cpu_time::process_cpu_seconds;
-use neurofluid_core::device_pairs::device_pairs;
+use neurofluid_core::device_pairs::{device_pairs, device_pairs_from_host};
 use neurofluid_core::device_search::{NeighbourSearch, neighbour_search, set_neighbour_search};
+use neurofluid_core::neighbors::NeighborGrid;
 use neurofluid_core::transfer::{self, Counts};
 use neurofluid_dlf::geometry::{ConvGeometry, build_host_geometry, chunk_slots, search_radius};
 use neurofluid_dlf::net::{points_tensor, tensor_points};
@@ -220,19 +223,23 @@ fn main() {
     let boundary = net.boundary(&scene.box_points, &scene.box_normals, &device);
     let pos = points_tensor(&scene.pos, &device);
     let x = tensor_points(&pos);
-    let (fluid, solid) = if neighbour_search() == NeighbourSearch::Device
-        && !neurofluid_core::device::is_host(&device)
-    {
+    let (fluid, solid) = if !neurofluid_core::device::is_host(&device) {
+        // as a GPU step makes them (`DlfNet`, without viscosity): the pairs, then the mapping of
+        // every chunk, each closed by a read of one value
         let (r, slots) = (search_radius(0.225), chunk_slots(&device));
-        // the search, then the mapping of every chunk, each closed by a read of one value
-        let (pairs, t_search) = time(|| {
-            device_pairs(&device, &x, &x, r, true, true, slots)
-                .expect("a GPU device")
-                .expect("the search runs")
-        });
-        let pairs_b = device_pairs(&device, &boundary.points, &x, r, true, false, slots)
+        let on_gpu = neighbour_search() == NeighbourSearch::Device;
+        let search = |points: &[[f32; 3]], symmetric: bool| {
+            if on_gpu {
+                device_pairs(&device, points, &x, r, true, symmetric, slots)
+            } else {
+                let pairs = NeighborGrid::new(points, r).pairs(&x, r, true);
+                device_pairs_from_host(&device, &pairs, points.len(), symmetric, slots)
+            }
             .expect("a GPU device")
-            .expect("the search runs");
+            .expect("the pairs in slots")
+        };
+        let (pairs, t_search) = time(|| search(&x, true));
+        let pairs_b = search(&boundary.points, false);
         let (fluid, t_map) = time(|| {
             let g = ConvGeometry::on_device(pairs, pos.clone(), pos.clone(), 0.225);
             for ch in g.chunks() {
@@ -241,7 +248,12 @@ fn main() {
             g
         });
         println!(
-            "\nphases at N = {n}: fluid pairs on the GPU {t_search:.3} s ({} pairs, {} chunks), their mapping {t_map:.3} s",
+            "\nphases at N = {n}: fluid pairs {} {t_search:.3} s ({} pairs, {} chunks), their mapping {t_map:.3} s",
+            if on_gpu {
+                "found on the GPU"
+            } else {
+                "found on the host, uploaded in slots"
+            },
             fluid.num_pairs(),
             fluid.chunks().len()
         );

@@ -10,8 +10,9 @@ use crate::diff_geometry::differentiable_weights;
 use crate::energy_cap::cap_particle_energy;
 use crate::geometry::{ConvGeometry, build_host_geometry, chunk_slots, search_radius};
 use crate::viscosity::smooth_velocities;
-use neurofluid_core::device_pairs::device_pairs;
+use neurofluid_core::device_pairs::{device_pairs, device_pairs_from_host};
 use neurofluid_core::device_search::{NeighbourSearch, neighbour_search};
+use neurofluid_core::neighbors::NeighborGrid;
 use neurofluid_core::scene::Aabb;
 
 /// Channel widths of the published model: layer 0 branches, layers 1, 2, 3.
@@ -235,29 +236,43 @@ impl DlfNet {
         }
     }
 
-    /// The fluid and box geometries found on the GPU ([`ConvGeometry::on_device`]), where the
-    /// process searches there (`neighbour_search = "device"`), `pos_pred` lives on a GPU and no
-    /// step after the convs needs the pairs on the host (viscosity does); `None` otherwise, or
-    /// (with a warning) where the device fails to search.
+    /// The fluid and box geometries in slots on the GPU ([`ConvGeometry::on_device`]: the
+    /// mapping there too), where `pos_pred` lives on a GPU and no step after the convs needs the
+    /// pairs on the host (viscosity does): the pairs found there (`neighbour_search =
+    /// "device"`) or by the host's grid and uploaded; `None` otherwise, or (with a warning)
+    /// where the device fails to search.
     fn device_geometries(
         &self,
         x: &[[f32; 3]],
         pos_pred: &Tensor<2>,
         boundary: &Boundary,
     ) -> Option<(ConvGeometry, ConvGeometry)> {
-        if neighbour_search() != NeighbourSearch::Device || self.config.viscosity > 0.0 {
+        let device = pos_pred.device();
+        if self.config.viscosity > 0.0 || neurofluid_core::device::is_host(&device) {
             return None;
         }
-        let device = pos_pred.device();
         let extent = self.config.extent;
         let radius = search_radius(extent);
         let slots = chunk_slots(&device);
-        let fluid = device_pairs(&device, x, x, radius, true, true, slots)?;
-        let solid = device_pairs(&device, &boundary.points, x, radius, true, false, slots)?;
+        let box_points = &boundary.points;
+        let (fluid, solid) = if neighbour_search() == NeighbourSearch::Device {
+            (
+                device_pairs(&device, x, x, radius, true, true, slots)?,
+                device_pairs(&device, box_points, x, radius, true, false, slots)?,
+            )
+        } else {
+            let pairs =
+                |points: &[[f32; 3]]| NeighborGrid::new(points, radius).pairs(x, radius, true);
+            let (fluid, solid) = rayon::join(|| pairs(x), || pairs(box_points));
+            (
+                device_pairs_from_host(&device, &fluid, x.len(), true, slots)?,
+                device_pairs_from_host(&device, &solid, box_points.len(), false, slots)?,
+            )
+        };
         let (fluid, solid) = match (fluid, solid) {
             (Ok(f), Ok(s)) => (f, s),
             (Err(e), _) | (_, Err(e)) => {
-                tracing::warn!("DLF's search on the GPU failed ({e}); searching on the host");
+                tracing::warn!("DLF's pairs on the GPU failed ({e}); the geometry on the host");
                 return None;
             }
         };

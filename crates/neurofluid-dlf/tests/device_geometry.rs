@@ -1,10 +1,12 @@
-//! DLF's geometry found on the GPU (`neighbour_search = "device"`: the pairs by
-//! `neurofluid_core::device_pairs`, the mapping as tensor ops with its branches found from the
-//! values) against the host's: the mapping's kernel-cell weights on any device (the CPU in CI),
-//! and a whole step on the test device (`NEUROFLUID_TEST_DEVICE=wgpu`: lavapipe without a GPU):
-//! the positions, the neighbour counts, conv1's kernel gradient and, with the differentiable
-//! geometry, the positions' gradient. On a CPU backend the device search declines and the step
-//! is the host's to the bit.
+//! DLF's geometry in slots on the GPU (`ConvGeometry::on_device`, every GPU step without
+//! viscosity): the pairs found there (`neighbour_search = "device"`, `neurofluid_core::device_pairs`)
+//! or by the host's grid and uploaded, the mapping one kernel (`device_cells`) or, off the
+//! cubecl backends, tensor ops with its branches found from the values. Against the host: the
+//! mapping's kernel-cell weights on any device (the CPU in CI), the kernel against the tensor
+//! ops, and a whole step on the test device (`NEUROFLUID_TEST_DEVICE=wgpu`: lavapipe without a
+//! GPU) with the pairs from either search: the positions, the neighbour counts, conv1's kernel
+//! gradient and, with the differentiable geometry, the positions' gradient. On a CPU backend
+//! the step is the host's to the bit whatever the setting.
 
 mod common;
 
