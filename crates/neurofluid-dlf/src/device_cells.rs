@@ -1,5 +1,6 @@
 //! The kernel-cell weights of a chunk's neighbour slots as one GPU kernel (the cubecl backends:
-//! wgpu, CUDA), with a kernel of its own for the gradient in the relative positions.
+//! wgpu, CUDA), with its own backward pass (the same kernel compiled for the gradient in the
+//! relative positions).
 //!
 //! The same function as [`crate::diff_geometry::pair_weights`] with its branches found from the
 //! values, followed by [`crate::geometry::cell_weights`] of the corners times the slots' `real`
