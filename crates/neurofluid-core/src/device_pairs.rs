@@ -16,6 +16,10 @@
 //! sums, over `i`'s own neighbours `q` in ascending order, the slot of `q` that holds `i` (a
 //! binary search in `q`'s sorted slots), in a fixed order and with no atomic adds. The padding
 //! slots' rows are left out: their weights are zero, so their gradients are.
+//!
+//! Pairs found by the host's grid go into the same slots ([`device_pairs_from_host`]: the host
+//! writes the layout and uploads it), so that a GPU step's geometry has one form whichever
+//! search found its pairs.
 
 use std::sync::Arc;
 

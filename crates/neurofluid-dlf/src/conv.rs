@@ -75,7 +75,7 @@ impl ContinuousConv {
         let dtype = features.dtype();
         let weights = || geometry.weights_tensor(dtype);
         let Some(host) = geometry.host.as_ref() else {
-            // found on the GPU: the chunks only
+            // in slots on the GPU: the chunks only
             return self.forward_composed(features, geometry) + bias;
         };
         if let Some(out) = fused::try_fused_conv(host, &features, weights, &kernel) {

@@ -1,7 +1,7 @@
 //! The geometry as tensor ops: the pair-corner weights computed from position tensors with Burn
 //! ops, so gradients flow through positions into the mapping, the trilinear weights and the
 //! window. The discrete choices (mapping branches, cells) come from the host geometry, or are
-//! found from the values on their device (the geometry found on the GPU); either way they are
+//! found from the values on their device (the geometry in slots on the GPU); either way they are
 //! piecewise constant in the positions.
 
 use burn::prelude::*;

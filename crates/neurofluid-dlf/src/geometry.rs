@@ -177,7 +177,7 @@ pub struct GeometryChunk {
 
 /// A geometry ready for [`crate::ContinuousConv`]: the host arrays (used directly by the
 /// inference path) and, built on first use, the per-chunk index and weight tensors of the
-/// autodiff path; or, found on the GPU ([`ConvGeometry::on_device`]), the chunks alone.
+/// autodiff path; or, in slots on the GPU ([`ConvGeometry::on_device`]), the chunks alone.
 #[derive(Debug, Clone)]
 pub struct ConvGeometry {
     /// The host arrays it was built from (shared with the backward passes that need them);
@@ -215,14 +215,15 @@ impl ConvGeometry {
         }
     }
 
-    /// The geometry of `pairs` found on the GPU ([`neurofluid_core::device_pairs`]), with the
-    /// input and output positions `[N_in, 3]`, `[M, 3]` on that device: each chunk's slots
-    /// gathered, their relative positions mapped to kernel-cell weights with the branches found
-    /// from the values, the padding's weights zeroed: one kernel with its own backward on the
-    /// cubecl backends ([`slot_cell_weights`]), else the tensor ops ([`pair_weights`]). Differentiable in the positions where
-    /// they are tracked (the gathers' gradients by the pairs' symmetric kernel for the fluid's
-    /// pairs; the box's points are constant). Without pairs it has no chunks (a conv over it
-    /// gives its bias, and a padding slot could name a row of an empty point set).
+    /// The geometry of `pairs` in slots on the GPU ([`neurofluid_core::device_pairs`]: found
+    /// there or by the host's grid), with the input and output positions `[N_in, 3]`, `[M, 3]` on
+    /// that device: each chunk's slots gathered, their relative positions mapped to kernel-cell
+    /// weights with the branches found from the values, the padding's weights zeroed — one kernel
+    /// with its own backward on the cubecl backends ([`slot_cell_weights`]), else the tensor ops
+    /// ([`pair_weights`]). Differentiable in the positions where they are tracked (the gathers'
+    /// gradients by the pairs' symmetric kernel for the fluid's pairs; the box's points are
+    /// constant). Without pairs it has no chunks (a conv over it gives its bias, and a padding
+    /// slot could name a row of an empty point set).
     pub fn on_device(
         pairs: DevicePairs,
         inputs: Tensor<2>,
