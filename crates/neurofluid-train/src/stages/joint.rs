@@ -616,11 +616,7 @@ impl Trainer for JointTrainer {
             &pred_host,
             &device,
         )?;
-        let jitter: Option<&mut dyn rand::RngCore> = if self.physnerf.config.stratified {
-            Some(&mut self.rng)
-        } else {
-            None
-        };
+        let jitter = super::warmup::jitter(&self.physnerf, &mut self.rng);
         let split = split_on_device(
             &self.physnerf,
             &pred.pos,
@@ -1031,11 +1027,7 @@ pub(super) fn replay_loss(
     let view = &replay.views[(step % replay.views.len() as u64) as usize];
     let pixels = rng.sample_pixels(rays, view.camera.width, view.camera.height, None)?;
     let (rays, colours) = view.batch(&pixels, &device);
-    let jitter: Option<&mut dyn rand::RngCore> = if physnerf.config.stratified {
-        Some(rng as &mut dyn rand::RngCore)
-    } else {
-        None
-    };
+    let jitter = super::warmup::jitter(physnerf, rng);
     let out = physnerf.render_rays_with_host(particles, &replay.particles, &rays, jitter)?;
     Ok(physnerf.loss(&out, colours).total)
 }

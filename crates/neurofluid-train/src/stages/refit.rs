@@ -158,11 +158,7 @@ impl RefitTrainer {
         let device = fit.physnerf.device();
         let particles = &rollout[t];
         let (rays, colours) = training_rays(cfg, data, &mut fit.rng, i, t, particles, &device)?;
-        let jitter: Option<&mut dyn rand::RngCore> = if fit.physnerf.config.stratified {
-            Some(&mut fit.rng)
-        } else {
-            None
-        };
+        let jitter = super::warmup::jitter(&fit.physnerf, &mut fit.rng);
         let positions = points_tensor(particles, &device);
         let out = fit
             .physnerf

@@ -1,7 +1,9 @@
 //! Warm-up (spec §4.1): PhysNeRF alone on the first frame, seen from the warm-up views. Every
 //! step draws `rays` pixels per view (from the central window during the precrop iterations),
 //! sums the views' coarse + fine MSE and takes one Adam step with the learning rate
-//! lr0·0.1^(s/decay_steps).
+//! lr0·0.1^(s/decay_steps). On an accelerator the views' rays go through the renderer in one
+//! pass (one read of the coarse weights and one set of kernel launches a step, not one per
+//! view); on the CPU each view has its pass, as when the published figures were measured.
 
 use std::path::Path;
 
@@ -10,10 +12,10 @@ use burn::optim::GradientsParams;
 use burn::prelude::*;
 use neurofluid_core::scene::{Role, Scene};
 use neurofluid_core::transfer::read_vec;
-use neurofluid_physnerf::PhysNerf;
+use neurofluid_physnerf::{Loss, PhysNerf, RayBatch};
 
 use super::run_folder::Run;
-use super::views::{ViewFrame, load_particles, points_tensor, render_beside_truth};
+use super::views::{ViewFrame, batch_of, load_particles, points_tensor, render_beside_truth};
 use crate::config::Cadenced;
 use crate::config::WarmupSection;
 use crate::metrics_log::{MetricsLog, psnr_from_mse};
@@ -70,6 +72,7 @@ pub struct WarmupTrainer {
     rng: Rng,
     data: WarmupData,
     particles: Tensor<2>,
+    one_pass: bool,
 }
 
 impl WarmupTrainer {
@@ -80,10 +83,20 @@ impl WarmupTrainer {
             opt: cfg.optim.group(),
             rng: Rng::stream(seed, STAGE.folder()),
             particles: points_tensor(&data.particles, &device),
+            one_pass: !neurofluid_core::device::is_host(&device),
             cfg: cfg.clone(),
             physnerf,
             data,
         }
+    }
+
+    /// Renders every view's rays of a step in one pass (`true`, the default on an accelerator:
+    /// one read of the coarse weights and one set of kernel launches instead of one per view) or
+    /// each view in a pass of its own (the default on the CPU, whose figures were measured so).
+    /// The loss is the same sum of the views' MSEs either way.
+    pub fn with_one_pass(mut self, one_pass: bool) -> Self {
+        self.one_pass = one_pass;
+        self
     }
 
     /// The trained PhysNeRF.
@@ -94,6 +107,76 @@ impl WarmupTrainer {
     /// PhysNeRF now.
     pub fn physnerf(&self) -> &PhysNerf {
         &self.physnerf
+    }
+
+    /// The renderer's loss on `rays` (target colours `target`) through the warm-up's particles.
+    fn loss_of(&mut self, rays: &RayBatch, target: Tensor<2>) -> anyhow::Result<Loss> {
+        let jitter = jitter(&self.physnerf, &mut self.rng);
+        let out = self.physnerf.render_rays_with_host(
+            &self.particles,
+            &self.data.particles,
+            rays,
+            jitter,
+        )?;
+        Ok(self.physnerf.loss(&out, target))
+    }
+
+    /// A step's loss (the views' coarse + fine MSEs summed) and fine MSEs, one pass per view.
+    fn view_by_view(&mut self, step: u64) -> anyhow::Result<(Tensor<1>, Vec<Tensor<1>>)> {
+        let device = self.particles.device();
+        let mut total: Option<Tensor<1>> = None;
+        let mut fine = Vec::with_capacity(self.data.views.len());
+        for v in 0..self.data.views.len() {
+            let view = &self.data.views[v];
+            let (w, h) = (view.camera.width, view.camera.height);
+            let pixels = self
+                .rng
+                .sample_pixels(self.cfg.rays, w, h, self.cfg.precrop_at(step))?;
+            let (rays, target) = view.batch(&pixels, &device);
+            let loss = self.loss_of(&rays, target)?;
+            fine.push(loss.fine);
+            total = Some(match total {
+                None => loss.total,
+                Some(t) => t + loss.total,
+            });
+        }
+        Ok((total.context("the warm-up has no views")?, fine))
+    }
+
+    /// The same loss with every view's rays in one pass: the batch's MSEs are the means over all
+    /// views' rays, each view `rays` of them, so their sum over the views is the batch's times
+    /// the number of views.
+    fn views_in_one_pass(&mut self, step: u64) -> anyhow::Result<(Tensor<1>, Vec<Tensor<1>>)> {
+        let device = self.particles.device();
+        let precrop = self.cfg.precrop_at(step);
+        let views = &self.data.views;
+        anyhow::ensure!(!views.is_empty(), "the warm-up has no views");
+        let mut pixels = Vec::with_capacity(views.len());
+        for view in views {
+            let (w, h) = (view.camera.width, view.camera.height);
+            pixels.push(self.rng.sample_pixels(self.cfg.rays, w, h, precrop)?);
+        }
+        let parts: Vec<(&ViewFrame, &[u32])> = views
+            .iter()
+            .zip(&pixels)
+            .map(|(v, p)| (v, p.as_slice()))
+            .collect();
+        let (rays, target) = batch_of(&parts, &device);
+        let n = parts.len() as f64;
+        let loss = self.loss_of(&rays, target)?;
+        Ok((loss.total * n, vec![loss.fine]))
+    }
+}
+
+/// The stream the renderer jitters its depths from, where it does (`physnerf.stratified`).
+pub(crate) fn jitter<'a>(
+    physnerf: &PhysNerf,
+    rng: &'a mut Rng,
+) -> Option<&'a mut dyn rand::RngCore> {
+    if physnerf.config.stratified {
+        Some(rng)
+    } else {
+        None
     }
 }
 
@@ -159,34 +242,11 @@ impl Trainer for WarmupTrainer {
 
     fn step(&mut self, step: u64) -> anyhow::Result<StepStats> {
         let lr = self.opt.lr();
-        let device = self.particles.device();
-        let mut total: Option<Tensor<1>> = None;
-        let mut fine = Vec::with_capacity(self.data.views.len());
-        for view in &self.data.views {
-            let (w, h) = (view.camera.width, view.camera.height);
-            let pixels = self
-                .rng
-                .sample_pixels(self.cfg.rays, w, h, self.cfg.precrop_at(step))?;
-            let (rays, target) = view.batch(&pixels, &device);
-            let jitter: Option<&mut dyn rand::RngCore> = if self.physnerf.config.stratified {
-                Some(&mut self.rng)
-            } else {
-                None
-            };
-            let out = self.physnerf.render_rays_with_host(
-                &self.particles,
-                &self.data.particles,
-                &rays,
-                jitter,
-            )?;
-            let loss = self.physnerf.loss(&out, target);
-            fine.push(loss.fine);
-            total = Some(match total {
-                None => loss.total,
-                Some(t) => t + loss.total,
-            });
-        }
-        let total = total.context("the warm-up has no views")?;
+        let (total, fine) = if self.one_pass {
+            self.views_in_one_pass(step)?
+        } else {
+            self.view_by_view(step)?
+        };
         let update = renderer_update(&self.physnerf, &mut self.opt, fine, total)?;
         if let Some(updated) = update.physnerf {
             self.physnerf = updated;
