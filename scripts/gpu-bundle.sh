@@ -28,7 +28,7 @@ features=${GPU_BUNDLE_FEATURES:-neurofluid-train/wgpu-base,neurofluid-train/vulk
 tests="dense_layer half_matmul posenc indexed_rows backends conv_geometry fused_conv parity_forward
 parity_backward parity_rollout parity_e2e_f32 parity_stages options_and_weights nerf_fit
 supervised_dlf pipeline_resume pretrain_on_scene learning transfers device_search
-device_search_render device_pairs device_geometry row_sum_scale"
+device_search_render device_pairs device_geometry row_sum_scale warmup_passes"
 mkdir -p "$out"
 rm -f "$out"/part-*.tar.xz
 json=$(mktemp)
@@ -92,7 +92,7 @@ parts=(
     "conv_geometry fused_conv parity_forward parity_backward"
     "parity_rollout supervised_dlf parity_e2e_f32 parity_stages"
     "options_and_weights nerf_fit pipeline_resume transfers device_search_render"
-    "pretrain_on_scene learning device_search device_pairs device_geometry row_sum_scale"
+    "pretrain_on_scene learning device_search device_pairs device_geometry row_sum_scale warmup_passes"
 )
 [ "$only_first" = 1 ] && parts=("${parts[0]}")
 pack() {

@@ -282,7 +282,7 @@ PY
         for t in dense_layer half_matmul posenc indexed_rows backends conv_geometry fused_conv parity_forward \
             parity_backward parity_rollout parity_e2e_f32 parity_stages options_and_weights \
             nerf_fit supervised_dlf pipeline_resume pretrain_on_scene learning transfers \
-            device_search device_search_render device_pairs device_geometry row_sum_scale; do
+            device_search device_search_render device_pairs device_geometry row_sum_scale warmup_passes; do
             NEUROFLUID_TEST_DEVICE=wgpu timed "test $t" 600 "$results/tests.log" "$bin/$t"
             [ -x "$bin/$t" ] && grep '^test result' "$results/tests.log" | tail -1 |
                 sed 's/^/    /' | tee -a "$summary"
