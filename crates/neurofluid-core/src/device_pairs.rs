@@ -269,6 +269,7 @@ mod kernel {
     use cubecl::prelude::*;
     use cubecl::server::Handle;
     use cubecl::std::tensor::TensorHandle;
+    use rayon::prelude::*;
 
     use super::{DevicePairs, Grid, RowSumOfChunk, SlotChunk, plan_chunks};
     use crate::cube_tensor;
@@ -756,24 +757,32 @@ mod kernel {
         let num_slots = chunks.last().map_or(0, |c| c.start + c.len());
         let mut slots = vec![0i32; num_slots.max(1)];
         let mut real = vec![0f32; num_slots.max(1)];
+        // each query's slots in parallel: its `width` slots follow the previous query's
         for ch in &chunks {
-            for q in ch.q0..ch.q1 {
-                let row = &pairs.indices[pairs.offsets[q]..pairs.offsets[q + 1]];
-                if row.windows(2).any(|w| w[0] >= w[1]) || row.iter().any(|&i| i as usize >= num_in)
-                {
-                    return Err(format!(
-                        "query {q}'s pairs are not ascending inputs below {num_in}"
-                    ));
-                }
-                let s0 = ch.start + (q - ch.q0) * ch.width;
-                for k in 0..ch.width {
-                    slots[s0 + k] = match row.len() {
-                        0 => ((q + k) % num_in.max(1)) as i32,
-                        n => row[k % n] as i32,
-                    };
-                    real[s0 + k] = f32::from(u8::from(k < row.len()));
-                }
-            }
+            let span = ch.start..ch.start + ch.len();
+            slots[span.clone()]
+                .par_chunks_mut(ch.width)
+                .zip(real[span].par_chunks_mut(ch.width))
+                .enumerate()
+                .try_for_each(|(i, (slots, real))| {
+                    let q = ch.q0 + i;
+                    let row = &pairs.indices[pairs.offsets[q]..pairs.offsets[q + 1]];
+                    if row.windows(2).any(|w| w[0] >= w[1])
+                        || row.iter().any(|&i| i as usize >= num_in)
+                    {
+                        return Err(format!(
+                            "query {q}'s pairs are not ascending inputs below {num_in}"
+                        ));
+                    }
+                    for (k, (slot, real)) in slots.iter_mut().zip(real).enumerate() {
+                        *slot = match row.len() {
+                            0 => ((q + k) % num_in.max(1)) as i32,
+                            n => row[k % n] as i32,
+                        };
+                        *real = f32::from(u8::from(k < row.len()));
+                    }
+                    Ok(())
+                })?;
         }
         let slots_h = upload(device, &slots);
         let real_h = upload(device, &real);
