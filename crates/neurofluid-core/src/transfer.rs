@@ -93,16 +93,23 @@ fn add(f: impl FnOnce(&mut Counts)) {
     });
 }
 
-/// Counts one read of `bytes` made outside Burn's tensors (a cubecl kernel's own buffers).
+/// Counts one read of `bytes` made outside Burn's tensors (a cubecl kernel's own buffers),
+/// logged at `trace` with the caller's place (`RUST_LOG=neurofluid_core::transfer=trace` lists
+/// where a step's copies come from).
+#[track_caller]
 pub(crate) fn count_read(bytes: usize) {
+    tracing::trace!(bytes, at = %std::panic::Location::caller(), "read");
     add(|c| {
         c.reads += 1;
         c.read_bytes += bytes as u64;
     });
 }
 
-/// Counts one upload of `bytes` made outside Burn's tensors (a cubecl kernel's own buffers).
+/// Counts one upload of `bytes` made outside Burn's tensors (a cubecl kernel's own buffers),
+/// logged at `trace` with the caller's place.
+#[track_caller]
 pub(crate) fn count_upload(bytes: usize) {
+    tracing::trace!(bytes, at = %std::panic::Location::caller(), "upload");
     add(|c| {
         c.uploads += 1;
         c.upload_bytes += bytes as u64;
@@ -118,6 +125,7 @@ fn size_of<const D: usize, K: Basic>(t: &Tensor<D, K>) -> usize {
 ///
 /// # Errors
 /// When the backend cannot read the tensor or the values do not convert.
+#[track_caller]
 pub fn read_vec<E: Element, const D: usize, K: Basic>(
     t: Tensor<D, K>,
 ) -> Result<Vec<E>, TensorReadError> {
@@ -129,6 +137,7 @@ pub fn read_vec<E: Element, const D: usize, K: Basic>(
 ///
 /// # Panics
 /// When the backend cannot read the tensor (a device failure).
+#[track_caller]
 pub fn read_data<const D: usize, K: Basic>(t: Tensor<D, K>) -> TensorData {
     count_read(size_of(&t));
     t.into_data()
@@ -139,12 +148,14 @@ pub fn read_data<const D: usize, K: Basic>(t: Tensor<D, K>) -> TensorData {
 ///
 /// # Panics
 /// When the tensor has not exactly one element or cannot be read (a programming error).
+#[track_caller]
 pub fn read_scalar<const D: usize>(t: Tensor<D>) -> f64 {
     count_read(size_of(&t));
     t.into_scalar::<f64>()
 }
 
 /// Host → device: `data` as a tensor on the device (and dtype) `options` say, one upload.
+#[track_caller]
 pub fn upload<const D: usize, K: Basic, O: Into<TensorCreationOptions>>(
     data: impl Into<TensorData>,
     options: O,
