@@ -601,7 +601,6 @@ pub fn ball_query(
     NeighborGrid::new(points, radius).ball_query(queries, radius, k, selection)
 }
 
-/// The lowest and highest coordinate on each axis of `points` (`lo > hi` when there are none).
 /// A stable counting sort of `keys` into `buckets` buckets (`bucket` of a key: its bucket, or
 /// `None` to leave it out): each bucket's first position in the order (`buckets + 1` offsets)
 /// and the keys' indices by bucket, ascending within a bucket.
@@ -628,6 +627,7 @@ pub(crate) fn counting_sort<K: Copy>(
     (starts, order)
 }
 
+/// The lowest and highest coordinate on each axis of `points` (`lo > hi` when there are none).
 pub(crate) fn bounding_box<'a, T: Float + 'a>(
     points: impl IntoIterator<Item = &'a [T; 3]>,
 ) -> ([T; 3], [T; 3]) {
