@@ -88,6 +88,10 @@ pub struct DlfConfig {
     /// With [`DlfConfig::viscosity`], whether the box's particles count among each particle's
     /// neighbours, at rest (no-slip walls). `false`: the fluid's particles alone.
     pub no_slip: bool,
+    /// Whether each cluster of fluid particles out of the walls' reach has its corrections'
+    /// mean set so that its centre of mass moves as a projectile under [`DlfConfig::gravity`]
+    /// ([`crate::free_flight`]). `false` (the reference): the network's corrections as they are.
+    pub ballistic_free_flight: bool,
 }
 
 impl Default for DlfConfig {
@@ -105,6 +109,7 @@ impl Default for DlfConfig {
             gravity_scale: 1.0,
             viscosity: 0.0,
             no_slip: false,
+            ballistic_free_flight: false,
         }
     }
 }

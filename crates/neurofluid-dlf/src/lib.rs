@@ -11,6 +11,7 @@ pub mod conv;
 pub mod device_cells;
 pub mod diff_geometry;
 pub mod energy_cap;
+pub mod free_flight;
 pub mod fused;
 pub mod geometry;
 pub mod loss;

@@ -8,6 +8,7 @@ use crate::config::{DlfConfig, GeometryMode};
 use crate::conv::ContinuousConv;
 use crate::diff_geometry::differentiable_weights;
 use crate::energy_cap::cap_particle_energy;
+use crate::free_flight::{ballistic, free_clusters};
 use crate::geometry::{ConvGeometry, build_host_geometry, chunk_slots, search_radius};
 use crate::viscosity::smooth_velocities;
 use neurofluid_core::device_pairs::{device_pairs, device_pairs_from_host};
@@ -238,7 +239,7 @@ impl DlfNet {
 
     /// The fluid and box geometries in slots on the GPU ([`ConvGeometry::on_device`]: the
     /// mapping there too), where `pos_pred` lives on a GPU and no step after the convs needs the
-    /// pairs on the host (viscosity does): the pairs found there (`neighbour_search =
+    /// pairs on the host (viscosity and the free flight's clusters do): the pairs found there (`neighbour_search =
     /// "device"`) or by the host's grid and uploaded; `None` otherwise, or (with a warning)
     /// where the device fails to search.
     fn device_geometries(
@@ -248,7 +249,10 @@ impl DlfNet {
         boundary: &Boundary,
     ) -> Option<(ConvGeometry, ConvGeometry)> {
         let device = pos_pred.device();
-        if self.config.viscosity > 0.0 || neurofluid_core::device::is_host(&device) {
+        if self.config.viscosity > 0.0
+            || self.config.ballistic_free_flight
+            || neurofluid_core::device::is_host(&device)
+        {
             return None;
         }
         let extent = self.config.extent;
@@ -319,8 +323,8 @@ impl DlfNet {
         (h3, features)
     }
 
-    /// One step (one frame, dt): gravity pre-step, network correction, velocity from the
-    /// position difference; then, where the config asks, viscosity, container, energy cap.
+    /// One step (one frame, dt): gravity pre-step, network correction (where the config asks,
+    /// ballistic in free flight), velocity from the position difference; then, where the config asks, viscosity, container, energy cap.
     /// `pos`, `vel` `[N, 3]` are in the scene frame.
     pub fn step(&self, pos: Tensor<2>, vel: Tensor<2>, boundary: &Boundary) -> StepOutput {
         self.step_traced(pos, vel, boundary).0
@@ -348,7 +352,17 @@ impl DlfNet {
         let (fluid, solid) = self.geometries(&pos_pred, boundary);
         let num_fluid_neighbors = fluid.counts();
         let (raw, features) = self.correction(vel_pred.clone(), boundary, &fluid, &solid);
-        let pos_new = pos_pred.clone() + raw.clone() * cfg.output_scale;
+        let shift = raw.clone() * cfg.output_scale;
+        let shift = if cfg.ballistic_free_flight {
+            let touching: Vec<bool> = solid.counts().iter().map(|&c| c > 0).collect();
+            let clusters = free_clusters(&fluid.host().pairs, &touching);
+            let s = 1.0 - cfg.gravity_scale / 2.0;
+            let mean = cfg.model_gravity().map(|g| s * g * cfg.dt * cfg.dt);
+            ballistic(shift, &clusters, mean)
+        } else {
+            shift
+        };
+        let pos_new = pos_pred.clone() + shift;
         let vel_new = (pos_new.clone() - pos) / cfg.dt;
         let (pos_new, vel_new) = (self.to_scene(pos_new), self.to_scene(vel_new));
         let (pos_new, vel_new) = if cfg.viscosity > 0.0 {

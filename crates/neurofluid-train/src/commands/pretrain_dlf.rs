@@ -420,7 +420,7 @@ mod tests {
         let rules = file(
             "rules.toml",
             "gravity_scale = 1.7\nviscosity = 0.25\nno_slip = true\nenergy_cap = \"particle\"\n\
-             geometry = \"differentiable\"\n",
+             free_flight = \"ballistic\"\ngeometry = \"differentiable\"\n",
         );
         let interior = Aabb {
             min: [-1.0, -1.0, 0.0],
@@ -437,6 +437,7 @@ mod tests {
             viscosity: 0.25,
             no_slip: true,
             cap_particle_energy: true,
+            ballistic_free_flight: true,
             ..DlfConfig::z_up()
         };
         assert_eq!(cfg, want);

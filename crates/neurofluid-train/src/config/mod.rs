@@ -40,9 +40,9 @@ pub(crate) use errors::{from_table, read_text};
 pub use preset::Preset;
 pub use sections::{
     AnchorAlong, BuiltinScene, ColourHead, Containment, DlfSection, EnergyCap, EnergyPer,
-    EvalSection, InitialParticles, InitialSection, JointSection, NerfSection, NerfTImages,
-    NovelViews, PlyEncoding, RefitSection, ReplayOf, SceneScale, SceneSection, SurfaceThreshold,
-    WarmupSection,
+    EvalSection, FreeFlight, InitialParticles, InitialSection, JointSection, NerfSection,
+    NerfTImages, NovelViews, PlyEncoding, RefitSection, ReplayOf, SceneScale, SceneSection,
+    SurfaceThreshold, WarmupSection,
 };
 pub use settings::Settings;
 
@@ -458,6 +458,7 @@ mod tests {
                 "dlf.gravity_scale=1.7",
                 "dlf.viscosity=0.4",
                 "dlf.no_slip=true",
+                "dlf.free_flight=\"ballistic\"",
                 "physnerf.positions=\"relative\"",
                 "refit.enabled=true",
                 "preset=\"paper\"",

@@ -413,6 +413,11 @@ pub struct DlfSection {
     /// With `viscosity`, no-slip walls: the box's particles count among each particle's
     /// neighbours, at rest, so the fluid beside a wall is held by it. `false` (the default).
     pub no_slip: bool,
+    /// `network` (the reference: DLF's corrections as they are) or `ballistic` (each cluster of
+    /// fluid particles out of the walls' reach moves its centre of mass as a projectile under
+    /// the true gravity, as a closed system's internal forces cancel;
+    /// `neurofluid_dlf::free_flight`), in every rollout, the baseline DLF's too.
+    pub free_flight: FreeFlight,
 }
 
 impl Default for DlfSection {
@@ -425,6 +430,7 @@ impl Default for DlfSection {
             gravity_scale: 1.0,
             viscosity: 0.0,
             no_slip: false,
+            free_flight: FreeFlight::Network,
         }
     }
 }
@@ -451,12 +457,20 @@ impl DlfSection {
         cfg.gravity_scale = self.gravity_scale as f32;
         cfg.viscosity = self.viscosity as f32;
         cfg.no_slip = self.no_slip;
+        cfg.ballistic_free_flight = self.free_flight == FreeFlight::Ballistic;
         Ok(cfg)
     }
 
-    /// The rules DLF's steps follow beyond the reference's, as a report names them.
+    /// The rules DLF's steps follow beyond the reference's, as a report names them (in the
+    /// order a step applies them, the free flight's first).
     pub fn rules(&self) -> Vec<String> {
         let mut rules = Vec::new();
+        if self.free_flight == FreeFlight::Ballistic {
+            rules.push(
+                "clusters out of the walls' reach in free flight (`dlf.free_flight = \"ballistic\"`)"
+                    .to_string(),
+            );
+        }
         if self.containment == Containment::Box {
             rules.push("the walls (`dlf.containment = \"box\"`)".to_string());
         }
@@ -493,6 +507,18 @@ pub enum EnergyCap {
     None,
     /// No step raises a particle's ½|v|² − g·x; a step that would is shortened.
     Particle,
+}
+
+/// `dlf.free_flight`: how DLF moves a cluster of fluid particles that no wall reaches.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FreeFlight {
+    /// The reference: the network's corrections as they are.
+    #[default]
+    Network,
+    /// The cluster's centre of mass moves as a projectile; its particles' relative motion is the
+    /// network's.
+    Ballistic,
 }
 
 /// `dlf.containment`: whether the walls of the box are enforced on DLF's predictions.

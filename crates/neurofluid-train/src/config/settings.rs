@@ -52,6 +52,7 @@ const ADDED_KEYS: &[(&str, &str)] = &[
     ("dlf.gravity_scale", "1.0"),
     ("dlf.viscosity", "0.0"),
     ("dlf.no_slip", "false"),
+    ("dlf.free_flight", "\"network\""),
     ("physnerf.positions", "\"world\""),
     ("nerf.t_images", "\"cycle\""),
 ];
