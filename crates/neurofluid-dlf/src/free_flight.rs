@@ -152,9 +152,9 @@ mod tests {
             comp[s] = next;
             let mut queue = vec![s];
             while let Some(a) = queue.pop() {
-                for b in 0..n {
-                    if comp[b] == usize::MAX && near(a, b) {
-                        comp[b] = next;
+                for (b, c) in comp.iter_mut().enumerate() {
+                    if *c == usize::MAX && near(a, b) {
+                        *c = next;
                         queue.push(b);
                     }
                 }
@@ -216,7 +216,7 @@ mod tests {
                 .require_grad();
         let mean = [0.1, -0.2, 0.3];
         let out = ballistic(c.clone(), &clusters, mean);
-        let got: Vec<f32> = out.clone().into_data().to_vec().unwrap();
+        let got: Vec<f32> = out.clone().into_data().try_to_vec::<f32>().unwrap();
         let row = |v: &[f32], i: usize| [v[3 * i], v[3 * i + 1], v[3 * i + 2]];
         for k in 0..3 {
             let m: f32 = [0, 3, 4].iter().map(|&i| got[3 * i + k]).sum::<f32>() / 3.0;
@@ -234,7 +234,12 @@ mod tests {
         let wt: Tensor<2> =
             upload::<2, burn::tensor::Float, _>(TensorData::new(w.clone(), [6, 3]), &device);
         let grads = (out * wt).sum().backward();
-        let g: Vec<f32> = c.grad(&grads).unwrap().into_data().to_vec().unwrap();
+        let g: Vec<f32> = c
+            .grad(&grads)
+            .unwrap()
+            .into_data()
+            .try_to_vec::<f32>()
+            .unwrap();
         for k in 0..3 {
             let wm: f32 = [0, 3, 4].iter().map(|&i| w[3 * i + k]).sum::<f32>() / 3.0;
             for i in [0, 3, 4] {
