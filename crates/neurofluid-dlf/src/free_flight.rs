@@ -9,18 +9,22 @@
 //! falling clump accelerates at about 6.3 m/s² of 9.81 (`tests/free_fall.rs`), and grounding
 //! from images can slow a fall further (a honey's pile held up over the truth).
 //!
-//! The rule sets the mean of each free cluster's corrections to the one that makes its centre of
-//! mass move ballistically and leaves the corrections' differences (the cluster's own motion) as
-//! the network made them. With DLF's integrator (spec/dlf.md §4), `x_{t+1} − x_t − dt·v_t =
-//! ½·s·g·dt² + Δx` for the pre-step's gravity scale s, and a projectile's second difference is
-//! `g·dt²`, so the cluster's mean Δx becomes `(1 − s/2)·g·dt²`. Clusters within the walls' reach
-//! are left as the network made them. The clusters are constants of the step; gradients flow
-//! through the corrections (the rule is linear in them).
+//! The rule moves each free cluster's centre of mass as a projectile from the state's velocity,
+//! read as the instantaneous velocity (the data's, and the one DLF's pre-step assumes: x* = x +
+//! dt·v + ½·dt²·g), and leaves the particles' motion relative to it as the network made it: the
+//! cluster's mean correction becomes `½·(1 − s)·g·dt²` for the pre-step's gravity scale s, so the
+//! centre moves by `dt·v + ½·g·dt²`, and its particles' new velocities gain `½·g·dt` over the
+//! step's mean velocity (x_{t+1} − x_t)/dt, which is the projectile's velocity at the step's end
+//! (DLF's own rule, the mean velocity, lags it by `½·g·dt` and would let a free clump fall at
+//! g/2). Clusters within the walls' reach are left as the network made them. The clusters are
+//! constants of the step; gradients flow through the corrections (the rule is linear in them).
 
 use burn::prelude::*;
 use neurofluid_core::neighbors::PairList;
 use neurofluid_core::rows::{RowIndex, add_rows, gather_rows};
 use neurofluid_core::transfer::upload;
+
+use crate::config::DlfConfig;
 
 /// The clusters in free flight of one step.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -83,6 +87,41 @@ pub fn free_clusters(fluid: &PairList, touching: &[bool]) -> FreeClusters {
         })
         .collect();
     FreeClusters { of_particle, sizes }
+}
+
+/// The rule on one step under `cfg` (model frame): `correction [N, 3]` (metres) with each free
+/// cluster's mean the projectile's, and the closure that turns the step's mean velocities
+/// `[N, 3]` into the new state's (the projectile's velocity at the step's end for the free
+/// clusters' particles).
+pub fn projectile_step(
+    correction: Tensor<2>,
+    clusters: &FreeClusters,
+    cfg: DlfConfig,
+) -> (Tensor<2>, impl FnOnce(Tensor<2>) -> Tensor<2> + '_) {
+    let g = cfg.model_gravity();
+    let (dt, s) = (cfg.dt, cfg.gravity_scale);
+    let mean = g.map(|g| 0.5 * (1.0 - s) * g * dt * dt);
+    let lift = g.map(|g| 0.5 * g * dt);
+    let correction = ballistic(correction, clusters, mean);
+    let velocity = move |v: Tensor<2>| lift_rows(v, clusters, lift);
+    (correction, velocity)
+}
+
+/// `v [N, 3]` with `lift` added to the rows of every free cluster's particles.
+fn lift_rows(v: Tensor<2>, clusters: &FreeClusters, lift: [f32; 3]) -> Tensor<2> {
+    if clusters.sizes.is_empty() {
+        return v;
+    }
+    let n = clusters.of_particle.len();
+    let member: Vec<f32> = clusters
+        .of_particle
+        .iter()
+        .map(|k| if k.is_some() { 1.0 } else { 0.0 })
+        .collect();
+    let (device, dtype) = (v.device(), v.dtype());
+    let member: Tensor<2> = upload(TensorData::new(member, [n, 1]), (&device, dtype));
+    let lift: Tensor<2> = upload(TensorData::new(lift.to_vec(), [1, 3]), (&device, dtype));
+    v + member * lift
 }
 
 /// `correction [N, 3]` with each free cluster's mean replaced by `mean` (model frame, metres);

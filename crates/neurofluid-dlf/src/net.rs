@@ -8,7 +8,7 @@ use crate::config::{DlfConfig, GeometryMode};
 use crate::conv::ContinuousConv;
 use crate::diff_geometry::differentiable_weights;
 use crate::energy_cap::cap_particle_energy;
-use crate::free_flight::{ballistic, free_clusters};
+use crate::free_flight::{free_clusters, projectile_step};
 use crate::geometry::{ConvGeometry, build_host_geometry, chunk_slots, search_radius};
 use crate::viscosity::smooth_velocities;
 use neurofluid_core::device_pairs::{device_pairs, device_pairs_from_host};
@@ -353,17 +353,18 @@ impl DlfNet {
         let num_fluid_neighbors = fluid.counts();
         let (raw, features) = self.correction(vel_pred.clone(), boundary, &fluid, &solid);
         let shift = raw.clone() * cfg.output_scale;
-        let shift = if cfg.ballistic_free_flight {
+        let (pos_new, vel_new) = if cfg.ballistic_free_flight {
             let touching: Vec<bool> = solid.counts().iter().map(|&c| c > 0).collect();
             let clusters = free_clusters(&fluid.host().pairs, &touching);
-            let s = 1.0 - cfg.gravity_scale / 2.0;
-            let mean = cfg.model_gravity().map(|g| s * g * cfg.dt * cfg.dt);
-            ballistic(shift, &clusters, mean)
+            let (shift, velocity) = projectile_step(shift, &clusters, cfg);
+            let pos_new = pos_pred.clone() + shift;
+            let vel_new = velocity((pos_new.clone() - pos) / cfg.dt);
+            (pos_new, vel_new)
         } else {
-            shift
+            let pos_new = pos_pred.clone() + shift;
+            let vel_new = (pos_new.clone() - pos) / cfg.dt;
+            (pos_new, vel_new)
         };
-        let pos_new = pos_pred.clone() + shift;
-        let vel_new = (pos_new.clone() - pos) / cfg.dt;
         let (pos_new, vel_new) = (self.to_scene(pos_new), self.to_scene(vel_new));
         let (pos_new, vel_new) = if cfg.viscosity > 0.0 {
             let radius = search_radius(cfg.extent);
