@@ -238,10 +238,10 @@ impl DlfNet {
     }
 
     /// The fluid and box geometries in slots on the GPU ([`ConvGeometry::on_device`]: the
-    /// mapping there too), where `pos_pred` lives on a GPU and no step after the convs needs the
-    /// pairs on the host (viscosity and the free flight's clusters do): the pairs found there (`neighbour_search =
-    /// "device"`) or by the host's grid and uploaded; `None` otherwise, or (with a warning)
-    /// where the device fails to search.
+    /// mapping there too), where `pos_pred` lives on a GPU and no part of the step needs the
+    /// pairs on the host (viscosity and the free flight's clusters do): the pairs found there
+    /// (`neighbour_search = "device"`) or by the host's grid and uploaded; `None` otherwise, or
+    /// (with a warning) where the device fails to search.
     fn device_geometries(
         &self,
         x: &[[f32; 3]],
@@ -323,8 +323,9 @@ impl DlfNet {
         (h3, features)
     }
 
-    /// One step (one frame, dt): gravity pre-step, network correction (where the config asks,
-    /// ballistic in free flight), velocity from the position difference; then, where the config asks, viscosity, container, energy cap.
+    /// One step (one frame, dt): gravity pre-step, network correction, velocity from the position
+    /// difference (where the config asks, free clusters as projectiles); then, where the config
+    /// asks, viscosity, container, energy cap.
     /// `pos`, `vel` `[N, 3]` are in the scene frame.
     pub fn step(&self, pos: Tensor<2>, vel: Tensor<2>, boundary: &Boundary) -> StepOutput {
         self.step_traced(pos, vel, boundary).0
@@ -353,17 +354,22 @@ impl DlfNet {
         let num_fluid_neighbors = fluid.counts();
         let (raw, features) = self.correction(vel_pred.clone(), boundary, &fluid, &solid);
         let shift = raw.clone() * cfg.output_scale;
-        let (pos_new, vel_new) = if cfg.ballistic_free_flight {
+        let clusters = cfg.ballistic_free_flight.then(|| {
             let touching: Vec<bool> = solid.counts().iter().map(|&c| c > 0).collect();
-            let clusters = free_clusters(&fluid.host().pairs, &touching);
-            let (shift, velocity) = projectile_step(shift, &clusters, cfg);
-            let pos_new = pos_pred.clone() + shift;
-            let vel_new = velocity((pos_new.clone() - pos) / cfg.dt);
-            (pos_new, vel_new)
-        } else {
-            let pos_new = pos_pred.clone() + shift;
-            let vel_new = (pos_new.clone() - pos) / cfg.dt;
-            (pos_new, vel_new)
+            free_clusters(&fluid.host().pairs, &touching)
+        });
+        let (shift, velocity) = match &clusters {
+            Some(clusters) => {
+                let (shift, velocity) = projectile_step(shift, clusters, cfg);
+                (shift, Some(velocity))
+            }
+            None => (shift, None),
+        };
+        let pos_new = pos_pred.clone() + shift;
+        let vel_new = (pos_new.clone() - pos) / cfg.dt;
+        let vel_new = match velocity {
+            Some(velocity) => velocity(vel_new),
+            None => vel_new,
         };
         let (pos_new, vel_new) = (self.to_scene(pos_new), self.to_scene(vel_new));
         let (pos_new, vel_new) = if cfg.viscosity > 0.0 {
