@@ -131,40 +131,31 @@ pub fn ballistic(correction: Tensor<2>, clusters: &FreeClusters, mean: [f32; 3])
     if c == 0 {
         return correction;
     }
-    let device = correction.device();
-    let dtype = correction.dtype();
-    let members: Vec<usize> = (0..clusters.of_particle.len())
-        .filter(|&i| clusters.of_particle[i].is_some())
-        .collect();
-    let cluster_of_member = RowIndex::new(
-        members
-            .iter()
-            .map(|&i| clusters.of_particle[i].unwrap_or_default() as usize),
-        &device,
-    );
-    let rows = gather_rows(correction.clone(), &RowIndex::new(members, &device));
-    let sums = add_rows(
-        Tensor::zeros([c, 3], (&device, dtype)),
-        &cluster_of_member,
-        rows,
-    );
-    let sizes: Vec<f32> = clusters.sizes.iter().map(|&s| s as f32).collect();
-    let sizes: Tensor<2> = upload(TensorData::new(sizes, [c, 1]), (&device, dtype));
-    let target: Tensor<2> = upload(TensorData::new(mean.to_vec(), [1, 3]), (&device, dtype));
-    // per cluster, what its rows gain; one zero row more for the particles of no free cluster
-    let shift = Tensor::cat(
-        vec![
-            target.expand([c, 3]) - sums / sizes,
-            Tensor::zeros([1, 3], (&device, dtype)),
-        ],
-        0,
-    );
+    let (device, dtype) = (correction.device(), correction.dtype());
+    // each particle's free cluster; the particles of none share one row more, left out
     let of_row = RowIndex::new(
         clusters
             .of_particle
             .iter()
             .map(|k| k.map_or(c, |k| k as usize)),
         &device,
+    );
+    let sums = add_rows(
+        Tensor::zeros([c + 1, 3], (&device, dtype)),
+        &of_row,
+        correction.clone(),
+    )
+    .slice([0..c, 0..3]);
+    let sizes: Vec<f32> = clusters.sizes.iter().map(|&s| s as f32).collect();
+    let sizes: Tensor<2> = upload(TensorData::new(sizes, [c, 1]), (&device, dtype));
+    let target: Tensor<2> = upload(TensorData::new(mean.to_vec(), [1, 3]), (&device, dtype));
+    // per cluster, what its rows gain; a zero row for the particles of no free cluster
+    let shift = Tensor::cat(
+        vec![
+            target.expand([c, 3]) - sums / sizes,
+            Tensor::zeros([1, 3], (&device, dtype)),
+        ],
+        0,
     );
     correction + gather_rows(shift, &of_row)
 }
