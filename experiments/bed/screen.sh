@@ -4,21 +4,23 @@
 # here first when A_RUN is not given), both evaluated without renders and without the refit (d and
 # d′ are the joint stage's; the joint stage's terms and DLF's rules do not touch the warm-up). A run
 # already evaluated is not run again; a stopped one resumes from its checkpoints.
-# Variants: ballistic (rule 22), ballistic-viscous (rule 23), anchor-0 and anchor-depth (rule 24).
+# Variants: ballistic (rule 22), ballistic-viscous (rule 23), anchor-0 and anchor-depth (rule 24),
+# silhouette (rule 25).
 # Usage: VARIANT=name experiments/bed/screen.sh SCENE [A_RUN] [SEED=10] [OUT=runs/r22]
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 scene=$1 a=${2:-} seed=${3:-10} out=${4:-runs/r22}
 bin=${NEUROFLUID_TRAIN:-target/debug/neurofluid-train}
 quick=(--set seed="$seed" --set refit.enabled=false --set eval.render=false)
-variant=${VARIANT:?VARIANT: ballistic, ballistic-viscous, anchor-0 or anchor-depth}
+variant=${VARIANT:?VARIANT: ballistic, ballistic-viscous, anchor-0, anchor-depth or silhouette}
 case $variant in
   ballistic) rules=(--set 'dlf.free_flight="ballistic"') ;;
   ballistic-viscous)
     rules=(--set 'dlf.free_flight="ballistic"' --set dlf.viscosity=0.4 --set dlf.no_slip=true) ;;
   anchor-0) rules=(--set joint.anchor_weight=0) ;;
   anchor-depth) rules=(--set 'joint.anchor_along="depth"') ;;
-  *) echo "VARIANT: ballistic, ballistic-viscous, anchor-0 or anchor-depth, not $variant" >&2
+  silhouette) rules=(--set joint.silhouette_weight=30) ;;
+  *) echo "VARIANT: ballistic, ballistic-viscous, anchor-0, anchor-depth or silhouette, not $variant" >&2
      exit 2 ;;
 esac
 if [[ -z $a ]]; then
