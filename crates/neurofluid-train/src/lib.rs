@@ -13,6 +13,7 @@ pub mod metrics_log;
 pub mod optim;
 pub mod pictures;
 pub mod report;
+pub mod rest_density;
 pub mod sampler;
 pub mod silhouette;
 pub mod stage;

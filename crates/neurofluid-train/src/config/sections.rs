@@ -672,6 +672,10 @@ pub struct JointSection {
     /// back to the neighbourhood a fluid particle has, where the renderer's gate cannot see it.
     /// 0 = the reference's image loss alone.
     pub density_weight: f64,
+    /// Weight of the rest-density prior ([`crate::rest_density`]): the predicted fluid's mean
+    /// density may not fall below the first training state's (one view does not see a pile's
+    /// particles spread thinner). 0 = the reference's image loss alone.
+    pub rest_density_weight: f64,
     /// Weight of the energy prior ([`crate::energy_prior`]): no DLF step may add mechanical
     /// energy (kinetic + potential) to the fluid, which in a closed box only loses it; each
     /// step's gain is penalised in units of lifting every particle by one radius.
@@ -732,6 +736,7 @@ impl Default for JointSection {
             silhouette_weight: 0.0,
             silhouette_cover: true,
             density_weight: 0.0,
+            rest_density_weight: 0.0,
             energy_weight: 0.0,
             energy_per: EnergyPer::Fluid,
             anchor_weight: 0.0,

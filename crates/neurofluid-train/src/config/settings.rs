@@ -53,6 +53,7 @@ const ADDED_KEYS: &[(&str, &str)] = &[
     ("dlf.viscosity", "0.0"),
     ("dlf.no_slip", "false"),
     ("dlf.free_flight", "\"network\""),
+    ("joint.rest_density_weight", "0.0"),
     ("physnerf.positions", "\"world\""),
     ("nerf.t_images", "\"cycle\""),
 ];

@@ -46,6 +46,7 @@ use crate::energy_prior::{energy_gain, energy_gains};
 use crate::focus::{image_foreground, mark_particles, sample_focused};
 use crate::metrics_log::{MetricsLog, psnr_from_mse};
 use crate::optim::{Group, JointDlfGroup, JointPhysNerfGroup};
+use crate::rest_density::RestDensity;
 use crate::sampler::Rng;
 use crate::silhouette::{projected_radius, silhouette_loss};
 use crate::stage::{Stage, files};
@@ -493,6 +494,8 @@ pub struct JointTrainer {
     last_target: usize,
     /// `joint.density_weight` > 0: the density prior.
     density: Option<DensityPrior>,
+    /// `joint.rest_density_weight` > 0: the rest-density prior.
+    rest_density: Option<RestDensity>,
     /// `joint.anchor_weight` > 0: the pretrained DLF (frozen), whose step anchors DLF's.
     anchor: Option<DlfNet>,
     /// `joint.anchor_horizon` > 0: where the horizon's rollouts start: the grounded rollout's last
@@ -521,6 +524,9 @@ impl JointTrainer {
         // the gate's count: a particle with fewer close neighbours renders as nothing
         let density = (cfg.density_weight > 0.0)
             .then(|| DensityPrior::new(&data.initial.pos, physnerf.config.k, cfg.density_weight))
+            .transpose()?;
+        let rest_density = (cfg.rest_density_weight > 0.0)
+            .then(|| RestDensity::new(&data.initial.pos, data.radius, cfg.rest_density_weight))
             .transpose()?;
         // `dlf` is the pretrained model here (a resumed run loads its own weights later)
         let anchor = (cfg.anchor_weight > 0.0).then(|| dlf.clone().no_grad());
@@ -561,6 +567,7 @@ impl JointTrainer {
             seed,
             last_target: 1,
             density,
+            rest_density,
             anchor,
             horizon_start,
             replay_particles,
@@ -681,6 +688,12 @@ impl Trainer for JointTrainer {
             surrogate = surrogate + term;
         }
         if let Some(prior) = &self.density
+            && let (Some(term), _) = prior.loss(&pred.pos, &pred_host)
+        {
+            extra = extra + term.clone().detach();
+            surrogate = surrogate + term;
+        }
+        if let Some(prior) = &self.rest_density
             && let (Some(term), _) = prior.loss(&pred.pos, &pred_host)
         {
             extra = extra + term.clone().detach();
