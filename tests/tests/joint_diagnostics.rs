@@ -4,7 +4,7 @@
 //! gradient alignment and PSNR on the true particles reach the metrics log, and the rollout d
 //! is the one an independent rollout of the grounded DLF gives; rays drawn mostly from the
 //! fluid's pixels train as the uniform ones do; the silhouette term adds its value to the loss
-//! and its gradient to DLF's.
+//! and its gradient to DLF's; so does the rest-density prior, and the rollout's density is logged.
 
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::GradientsParams;
@@ -16,6 +16,7 @@ use neurofluid_physnerf::PhysNerf;
 use neurofluid_tests::{params, seeded_turn, tiny_experiment};
 use neurofluid_train::config::Experiment;
 use neurofluid_train::metrics_log::{MetricsLog, MetricsRow, read_jsonl};
+use neurofluid_train::rest_density::{SUPPORT_RADII, mean_density};
 use neurofluid_train::sampler::Rng;
 use neurofluid_train::silhouette::{projected_radius, silhouette_loss};
 use neurofluid_train::stage::Stage;
@@ -631,6 +632,87 @@ fn energy_prior_adds_each_steps_energy_gain_to_the_loss() {
                 (b - a - expected).abs() < 1e-3 * expected.max(1.0),
                 "{per}, step {step}: the loss rose by {} where the prior adds {expected}",
                 b - a
+            );
+        }
+    }
+}
+
+/// With DLF held, the rest-density prior adds w·max(0, 1 − ρ̄/ρ̄₀)² of each step's prediction to
+/// the loss (ρ̄₀ the first state's), computed here by hand from an independent rollout; the
+/// diagnostics log the rollout's mean ρ̄/ρ̄₀ over the training frames, with or without the prior.
+#[test]
+fn rest_density_prior_adds_the_deficit_of_each_step() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let weight = 50.0;
+    let runs = ground_each(
+        tmp.path(),
+        "rest",
+        &[0.0, weight].map(|w| {
+            vec![
+                format!("joint.rest_density_weight={w}"),
+                "joint.dlf_optim.lr=0.0".into(),
+                "joint.epochs=2".into(),
+                "joint.preview_every=3".into(),
+            ]
+        }),
+    );
+    let run = &runs[0].run;
+    let data = JointData::load(&run.scene, &run.exp.joint).unwrap();
+    let dlf = run.load_dlf(&run.exp.dlf.weights).unwrap();
+    let device = dlf.device();
+    let boundary = dlf.boundary(&data.walls.0, &data.walls.1, &device);
+    let support = SUPPORT_RADII * data.radius;
+    let rest = mean_density(&data.initial.pos, support);
+    let (mut pos, mut vel) = (data.initial.pos.clone(), data.initial.vel.clone());
+    let mut ratios = Vec::new();
+    for _ in 0..data.transitions() {
+        let next = dlf.step(
+            points_tensor(&pos, &device),
+            points_tensor(&vel, &device),
+            &boundary,
+        );
+        (pos, vel) = (tensor_points(&next.pos), tensor_points(&next.vel));
+        ratios.push(mean_density(&pos, support) / rest);
+    }
+    let terms: Vec<f64> = ratios
+        .iter()
+        .map(|r| weight * (1.0 - r).max(0.0).powi(2))
+        .collect();
+    assert!(
+        terms.iter().any(|&t| t > 1e-4),
+        "the rollout never falls below its first state's density: the test would see nothing \
+         ({ratios:?})"
+    );
+    let losses = |g: &Grounding| -> Vec<(u64, f64)> {
+        rows_of(&g.jsonl, "joint")
+            .iter()
+            .filter(|r| r.loss.is_finite())
+            .map(|r| (r.step, r.loss))
+            .collect()
+    };
+    let (free, held) = (losses(&runs[0]), losses(&runs[1]));
+    assert!(!free.is_empty());
+    assert_eq!(free.len(), held.len());
+    for ((step, a), (_, b)) in free.iter().zip(&held) {
+        let expected = terms[(*step as usize - 1) % terms.len()];
+        assert!(
+            (b - a - expected).abs() < 1e-3 * expected.max(1e-2),
+            "step {step}: the loss rose by {} where the prior adds {expected}",
+            b - a
+        );
+    }
+    let expected = ratios.iter().sum::<f64>() / ratios.len() as f64;
+    for g in &runs {
+        let logged: Vec<f64> = rows_of(&g.jsonl, "joint-preview")
+            .iter()
+            .filter_map(|r| r.get("rollout_density"))
+            .collect();
+        assert!(!logged.is_empty(), "no rollout_density logged");
+        for v in logged {
+            assert!(
+                (v - expected).abs() < 1e-6,
+                "logged {v}, by hand {expected}"
             );
         }
     }

@@ -294,7 +294,12 @@ pub struct EvalReport {
     /// Per rollout and the truth, the share of particles alone over each window
     /// ([`neurofluid_core::metrics::alone_share`] at [`ALONE_REACH_RADII`] radii).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub alone: Vec<AloneShare>,
+    pub alone: Vec<WindowMean>,
+    /// Per rollout and the truth, the mean kernel density relative to the truth's at the first
+    /// test frame over each window ([`crate::rest_density::mean_density`]): a fluid that keeps
+    /// its density stays near 1; below it, spread thinner than the truth.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub density: Vec<WindowMean>,
     /// Per rollout, where its far particles lie over each window
     /// ([`neurofluid_core::metrics::far_split`] at [`FAR_REACH_RADII`] radii).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
@@ -321,13 +326,13 @@ pub struct FarShare {
     pub prediction: FarSplit,
 }
 
-/// The share of a sequence's particles alone (no other within [`ALONE_REACH_RADII`] radii),
-/// the mean over each window's frames.
+/// A per-frame statistic of one sequence (the share of its particles alone, its density
+/// relative to the truth's first frame), the mean over each window's frames.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct AloneShare {
+pub struct WindowMean {
     /// The rollout's table label, or `truth`.
     pub model: String,
-    /// Over the grounding window (a fraction, 0–1).
+    /// Over the grounding window.
     pub grounding: f64,
     /// Over the prediction window.
     pub prediction: f64,
@@ -443,6 +448,7 @@ impl EvalReport {
             interpolation: Vec::new(),
             energy: Vec::new(),
             alone: Vec::new(),
+            density: Vec::new(),
             far: Vec::new(),
             windows,
             frames: Vec::new(),
@@ -599,6 +605,7 @@ impl EvalReport {
         md.push_str(&self.reverse_markdown());
         md.push_str(&self.energy_markdown());
         md.push_str(&self.alone_markdown());
+        md.push_str(&self.density_markdown());
         md.push_str(&self.far_markdown());
         if !self.escaped.is_empty() {
             let counts: Vec<String> = self
@@ -686,6 +693,34 @@ impl EvalReport {
              energy; a rollout that gains it throws fluid where the truth has none \
              (`joint.energy_weight` penalises it; `joint.energy_per = \"particle\"` each \
              particle's, which in a viscous fluid none gains).\n",
+        );
+        md
+    }
+
+    /// The table of densities, empty when they were not evaluated.
+    pub fn density_markdown(&self) -> String {
+        if self.density.is_empty() {
+            return String::new();
+        }
+        let (g, p) = (self.windows.grounding, self.windows.prediction);
+        let mut md = format!(
+            "\n| sequence | density / first frame's, t = {}–{} | t = {}–{} |\n|---|---:|---:|\n",
+            g.0, g.1, p.0, p.1
+        );
+        for a in &self.density {
+            let _ = writeln!(
+                md,
+                "| {} | {:.3} | {:.3} |",
+                a.model, a.grounding, a.prediction
+            );
+        }
+        let _ = writeln!(
+            md,
+            "\nDensity: each particle's kernel density within {} radii, the fluid's mean, \
+             relative to the truth's at the first test frame, the mean over the window's \
+             frames. A viscous truth keeps it near 1; a rollout below its truth has spread its \
+             particles thinner (fluid beside the truth, which d′ counts), above it pressed them.",
+            crate::rest_density::SUPPORT_RADII
         );
         md
     }
@@ -1122,12 +1157,12 @@ mod tests {
         let mut r = sample_report();
         assert!(!r.markdown().contains("particles alone"));
         r.alone = vec![
-            AloneShare {
+            WindowMean {
                 model: "truth".into(),
                 grounding: 0.0,
                 prediction: 0.0,
             },
-            AloneShare {
+            WindowMean {
                 model: "NeuroFluid".into(),
                 grounding: 0.0125,
                 prediction: 0.034_81,
@@ -1146,6 +1181,39 @@ mod tests {
         old.as_object_mut().unwrap().remove("alone");
         let back: EvalReport = serde_json::from_value(old).unwrap();
         assert!(back.alone.is_empty());
+    }
+
+    /// The density table lists each sequence's ratio per window, and a report without it
+    /// (written before it existed) still reads.
+    #[test]
+    fn density_table_lists_each_sequence() {
+        let mut r = sample_report();
+        assert!(!r.markdown().contains("density / first frame's"));
+        r.density = vec![
+            WindowMean {
+                model: "truth".into(),
+                grounding: 1.054,
+                prediction: 1.071,
+            },
+            WindowMean {
+                model: "NeuroFluid".into(),
+                grounding: 0.8412,
+                prediction: 0.9,
+            },
+        ];
+        let md = r.markdown();
+        assert!(
+            md.contains("| sequence | density / first frame's, t = 1–49 | t = 50–59 |"),
+            "{md}"
+        );
+        assert!(md.contains("| truth | 1.054 | 1.071 |"), "{md}");
+        assert!(md.contains("| NeuroFluid | 0.841 | 0.900 |"), "{md}");
+        let back: EvalReport = serde_json::from_str(&serde_json::to_string(&r).unwrap()).unwrap();
+        assert_eq!(back.density, r.density);
+        let mut old = serde_json::to_value(&r).unwrap();
+        old.as_object_mut().unwrap().remove("density");
+        let back: EvalReport = serde_json::from_value(old).unwrap();
+        assert!(back.density.is_empty());
     }
 
     /// The far table gives each rollout's shares in percent, both windows, and a report without

@@ -46,7 +46,7 @@ use crate::energy_prior::{energy_gain, energy_gains};
 use crate::focus::{image_foreground, mark_particles, sample_focused};
 use crate::metrics_log::{MetricsLog, psnr_from_mse};
 use crate::optim::{Group, JointDlfGroup, JointPhysNerfGroup};
-use crate::rest_density::RestDensity;
+use crate::rest_density::{RestDensity, SUPPORT_RADII, mean_density};
 use crate::sampler::Rng;
 use crate::silhouette::{projected_radius, silhouette_loss};
 use crate::stage::{Stage, files};
@@ -209,7 +209,7 @@ type State = (Tensor<2>, Tensor<2>);
 
 /// What the joint stage measures besides its loss, at every evaluation (metrics columns
 /// `rollout_d`, `rollout_d_prime`, `rollout_energy_gain`, `rollout_particle_energy_gain`,
-/// `grad_alignment`, `psnr_true`, `psnr_held_out`).
+/// `rollout_density`, `grad_alignment`, `psnr_true`, `psnr_held_out`).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Diagnostics {
     /// d (× 1000) of DLF's rollout from the first true frame over the training frames
@@ -225,6 +225,10 @@ pub struct Diagnostics {
     /// The same per particle: the sum over steps of the mean of each particle's own gain (in a
     /// viscous fluid no particle gains any; water passes energy between particles).
     pub rollout_particle_energy_gain: Option<f64>,
+    /// The same rollout's mean kernel density relative to the first training state's, the mean
+    /// over the training frames ([`crate::rest_density::mean_density`]): below 1, the fluid
+    /// spread thinner than it started. Needs no true particles.
+    pub rollout_density: Option<f64>,
     /// The mean, over the transitions since the last evaluation, of the cosine between the image
     /// loss's descent direction at the prediction, −∂L/∂x_{t+1}, and the true error
     /// x_true − x_pred (particles matched by index): does the image signal point at the truth?
@@ -252,6 +256,7 @@ impl Diagnostics {
                 "rollout_particle_energy_gain",
                 self.rollout_particle_energy_gain,
             ),
+            ("rollout_density", self.rollout_density),
         ]
         .into_iter()
         .filter_map(|(k, v)| v.map(|v| (k, v)))
@@ -989,6 +994,14 @@ impl JointTrainer {
         let gains = energy_gains(&rollout.pos, config.dt, config.gravity);
         d.rollout_energy_gain = Some(gains.fluid.iter().sum());
         d.rollout_particle_energy_gain = Some(gains.particle.iter().sum());
+        let support = SUPPORT_RADII * self.data.radius;
+        let rest = mean_density(&self.data.initial.pos, support);
+        d.rollout_density = (rest > 0.0).then(|| {
+            (1..=steps)
+                .map(|t| mean_density(&rollout.pos[t], support) / rest)
+                .sum::<f64>()
+                / steps.max(1) as f64
+        });
         if let (Some((view, _)), Some(particles)) = (&self.data.held_out, &self.held_out_particles)
         {
             d.psnr_held_out = render_beside_truth(&self.physnerf, view, particles)?.psnr;

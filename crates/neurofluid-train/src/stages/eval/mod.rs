@@ -67,6 +67,7 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
     let manifest = scene.manifest();
     report.escaped = rollouts.escaped(&manifest.box_interior, manifest.particle_radius);
     report.alone = rollouts.alone_shares(&report.windows, manifest.particle_radius);
+    report.density = rollouts.density_ratios(&report.windows, manifest.particle_radius);
     let mut up = [0.0; 3];
     up[manifest.up_axis.index()] = 1.0;
     report.far = rollouts.far_shares(&report.windows, manifest.particle_radius, up);

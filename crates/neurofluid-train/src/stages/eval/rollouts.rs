@@ -3,6 +3,7 @@
 //! DLF† roll out without feedback; what they are measured by (d per frame both ways, particles
 //! through the walls, alone and far).
 
+use crate::rest_density::{SUPPORT_RADII, mean_density};
 use anyhow::Context;
 use burn::module::Module;
 use neurofluid_core::metrics::{FarSplit, alone_share, far_split, gt_to_pred_distance};
@@ -12,8 +13,8 @@ use neurofluid_dlf::rollout::rollout;
 
 use crate::energy_prior::energy_gains;
 use crate::report::{
-    ALONE_REACH_RADII, AloneShare, EnergyGain, EvalReport, FAR_REACH_RADII, FarShare,
-    FrameDistance, InterpolationPoint, Reverse, Rollout, Windows, count_outside,
+    ALONE_REACH_RADII, EnergyGain, EvalReport, FAR_REACH_RADII, FarShare, FrameDistance,
+    InterpolationPoint, Reverse, Rollout, WindowMean, Windows, count_outside,
 };
 use crate::stages::initial::starting_particles;
 use crate::stages::joint::Grounded;
@@ -196,23 +197,23 @@ impl Rollouts {
     /// [`ALONE_REACH_RADII`] particle radii of `radius`) of the truth and of every rollout, the
     /// mean over each of `windows`' frames (a frame with a non-finite particle counts as all
     /// alone).
-    pub fn alone_shares(&self, windows: &Windows, radius: f32) -> Vec<AloneShare> {
+    pub fn alone_shares(&self, windows: &Windows, radius: f32) -> Vec<WindowMean> {
         let reach = ALONE_REACH_RADII * f64::from(radius);
         self.per_sequence(|model, frames| {
-            let mean = |(a, b): (usize, usize)| -> f64 {
-                let shares: Vec<f64> = frames
-                    .iter()
-                    .take(b + 1)
-                    .skip(a)
-                    .map(|p| alone_share(p, reach).unwrap_or(1.0))
-                    .collect();
-                shares.iter().sum::<f64>() / shares.len().max(1) as f64
-            };
-            AloneShare {
-                model: model.to_string(),
-                grounding: mean(windows.grounding),
-                prediction: mean(windows.prediction),
-            }
+            window_mean(model, frames, windows, |p| {
+                alone_share(p, reach).unwrap_or(1.0)
+            })
+        })
+    }
+
+    /// The mean kernel density ([`mean_density`], support [`SUPPORT_RADII`] radii of `radius`)
+    /// of the truth and of every rollout relative to the truth's at the first test frame, the
+    /// mean over each of `windows`' frames: a fluid that keeps its density stays near 1.
+    pub fn density_ratios(&self, windows: &Windows, radius: f32) -> Vec<WindowMean> {
+        let support = SUPPORT_RADII * radius;
+        let rest = mean_density(&self.truth[0].pos, support);
+        self.per_sequence(|model, frames| {
+            window_mean(model, frames, windows, |p| mean_density(p, support) / rest)
         })
     }
 
@@ -330,6 +331,29 @@ fn positions(
     Ok(out.pos)
 }
 
+/// `model`'s `per_frame` statistic, the mean over each of `windows`' own frames.
+fn window_mean(
+    model: &str,
+    frames: &Positions,
+    windows: &Windows,
+    per_frame: impl Fn(&[[f32; 3]]) -> f64,
+) -> WindowMean {
+    let mean = |(a, b): (usize, usize)| -> f64 {
+        let values: Vec<f64> = frames
+            .iter()
+            .take(b + 1)
+            .skip(a)
+            .map(|p| per_frame(p))
+            .collect();
+        values.iter().sum::<f64>() / values.len().max(1) as f64
+    };
+    WindowMean {
+        model: model.to_string(),
+        grounding: mean(windows.grounding),
+        prediction: mean(windows.prediction),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -361,6 +385,45 @@ mod tests {
             supervised: None,
             interpolated: Vec::new(),
         }
+    }
+
+    /// The truth keeps its first frame's density; a rollout spread thinner from t = 50 is below
+    /// it in the prediction window only, and one pressed tighter is above it in both, each by
+    /// the ratio of the host sums.
+    #[test]
+    fn density_ratios_compare_every_sequence_with_the_first_true_frame() {
+        let scaled =
+            |s: f32| -> Vec<[f32; 3]> { block().iter().map(|p| p.map(|c| c * s)).collect() };
+        let grounded: Positions = (0..60)
+            .map(|t| if t >= 50 { scaled(1.2) } else { block() })
+            .collect();
+        let rollouts = over_still_block(grounded, vec![scaled(0.9); 60]);
+        let ratios = rollouts.density_ratios(&Windows::paper(), 0.025);
+        let labels: Vec<&str> = ratios.iter().map(|s| s.model.as_str()).collect();
+        assert_eq!(labels, ["truth", "DLF", "NeuroFluid"]);
+        let h = SUPPORT_RADII * 0.025;
+        let rest = mean_density(&block(), h);
+        assert_eq!((ratios[0].grounding, ratios[0].prediction), (1.0, 1.0));
+        let pressed = mean_density(&scaled(0.9), h) / rest;
+        assert!(pressed > 1.0, "{pressed}");
+        assert!(
+            (ratios[1].grounding - pressed).abs() < 1e-12,
+            "{:?}",
+            ratios[1]
+        );
+        assert!(
+            (ratios[1].prediction - pressed).abs() < 1e-12,
+            "{:?}",
+            ratios[1]
+        );
+        let thinner = mean_density(&scaled(1.2), h) / rest;
+        assert!(thinner < 0.9, "{thinner}");
+        assert_eq!(ratios[2].grounding, 1.0);
+        assert!(
+            (ratios[2].prediction - thinner).abs() < 1e-12,
+            "{:?}",
+            ratios[2]
+        );
     }
 
     /// Each window's share is the mean over its own frames only: a stray that NeuroFluid throws
