@@ -6,7 +6,8 @@
 The runs file lists `scene seed run_folder` per line (`#` starts a comment). Each run folder's
 `eval/report.md` gives d and d′ over t = 1–49 and t = 50–59, (d + d′)/2, PSNR/SSIM/LPIPS, the
 DLF (and, where evaluated with `eval.supervised_dlf`, DLF†) rows, the particles through the
-walls and, where present, the share of particles alone, where the far particles lie and the
+walls and, where present, the share of particles alone, where the far particles lie, the
+fluid's density relative to the first true frame (the truth's and NeuroFluid's) and the
 novel-view table; its `metrics.csv` gives the warm-up's and the joint stage's seconds (the
 largest `time_s` of each; a run whose warm-up was shared with the other variants of its sweep
 shows that warm-up's) and the last `psnr_true` (the renderer on the true
@@ -31,7 +32,7 @@ def cells(line):
 def report_rows(path):
     """{label: [floats or None]} of the report's tables (d, d′, novel views, particles alone and
     far particles in percent), and the walls line."""
-    first, second, views, alone, far = {}, {}, {}, {}, {}
+    first, second, views, alone, far, density = {}, {}, {}, {}, {}, {}
     table = None
     walls = None
     for line in open(path, encoding="utf-8"):
@@ -39,6 +40,9 @@ def report_rows(path):
             walls = line.split("NeuroFluid")[1].strip(" .\n")
         if line.startswith("| sequence | particles alone"):
             table = alone
+            continue
+        if line.startswith("| sequence | density"):
+            table = density
             continue
         if line.startswith("| rollout | far"):
             table = far
@@ -66,7 +70,7 @@ def report_rows(path):
             continue
         label = c[0].split(" (")[0]
         table[label] = vals
-    return first, second, views, alone, far, walls
+    return first, second, views, alone, far, density, walls
 
 
 def stage_log(path):
@@ -97,7 +101,7 @@ def load(runs_file):
         if not os.path.exists(report):
             print(f"<!-- {scene} seed {seed}: no {report} yet -->")
             continue
-        first, second, views, alone, far, walls = report_rows(report)
+        first, second, views, alone, far, density, walls = report_rows(report)
         warm, joint, psnr_true = stage_log(os.path.join(folder, "metrics.csv"))
         runs.append(
             dict(
@@ -108,6 +112,7 @@ def load(runs_file):
                 views=views,
                 alone=alone,
                 far=far,
+                density=density,
                 walls=walls,
                 warm=warm,
                 joint=joint,
@@ -123,6 +128,10 @@ def f1(v):
 
 def f2(v):
     return "–" if v is None else f"{v:.2f}"
+
+
+def f3(v):
+    return "–" if v is None else f"{v:.3f}"
 
 
 def f4(v):
@@ -145,17 +154,18 @@ def msd(vs):
 def main():
     runs_file = sys.argv[1] if len(sys.argv) > 1 else "experiments/bed/table-runs.txt"
     runs = load(runs_file)
-    print("| scene | seed | d (t<50 / t≥50) | d′ (t<50 / t≥50) | (d+d′)/2 (t<50 / t≥50) | PSNR / SSIM / LPIPS | through walls | alone % (t<50 / t≥50) | far % beside / above / within (t<50) | renderer on the truth, training view (dB) | warm-up / joint s |")
-    print("|---|---:|---|---|---|---|---:|---|---|---:|---|")
+    print("| scene | seed | d (t<50 / t≥50) | d′ (t<50 / t≥50) | (d+d′)/2 (t<50 / t≥50) | PSNR / SSIM / LPIPS | through walls | alone % (t<50 / t≥50) | far % beside / above / within (t<50) | density, truth / NF (t<50) | renderer on the truth, training view (dB) | warm-up / joint s |")
+    print("|---|---:|---|---|---|---|---:|---|---|---|---:|---|")
     for r in runs:
         nf, nfp = r["first"]["NeuroFluid"], r["second"]["NeuroFluid"]
         al = r["alone"].get("NeuroFluid", [None, None])
         fa = r["far"].get("NeuroFluid", [None] * 8)
+        de = [r["density"].get(m, [None])[0] for m in ("truth", "NeuroFluid")]
         print(
             f"| {r['scene']} | {r['seed']} | {f2(nf[0])} / {f2(nf[2])} | {f2(nfp[0])} / {f2(nfp[2])} | "
             f"{f2(nfp[4])} / {f2(nfp[5])} | {f2(nf[4])} / {f4(nf[5])} / {f4(nf[6])} | "
             f"{r['walls'] or '–'} | {f2(al[0])} / {f2(al[1])} | {f1(fa[1])} / {f1(fa[2])} / {f1(fa[3])} | "
-            f"{f2(r['psnr_true'])} | {f0(r['warm'])} / {f0(r['joint'])} |"
+            f"{f3(de[0])} / {f3(de[1])} | {f2(r['psnr_true'])} | {f0(r['warm'])} / {f0(r['joint'])} |"
         )
     print()
     print("| scene | model | seeds | d (t<50) | d (t≥50) | d′ (t<50) | d′ (t≥50) | targets (d, d′ per window) |")
