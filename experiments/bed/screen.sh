@@ -5,14 +5,14 @@
 # d′ are the joint stage's; the joint stage's terms and DLF's rules do not touch the warm-up). A run
 # already evaluated is not run again; a stopped one resumes from its checkpoints.
 # Variants: ballistic (rule 22), ballistic-viscous (rule 23), anchor-0 and anchor-depth (rule 24),
-# silhouette (rule 25), rest-density (rule 26).
+# silhouette (rule 25), rest-density (rule 26), rays-1024 (rule 27).
 # Usage: VARIANT=name experiments/bed/screen.sh SCENE [A_RUN] [SEED=10] [OUT=runs/r22]
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 scene=$1 a=${2:-} seed=${3:-10} out=${4:-runs/r22}
 bin=${NEUROFLUID_TRAIN:-target/debug/neurofluid-train}
 quick=(--set seed="$seed" --set refit.enabled=false --set eval.render=false)
-variant=${VARIANT:?VARIANT: ballistic, ballistic-viscous, anchor-0, anchor-depth, silhouette or rest-density}
+variant=${VARIANT:?VARIANT: ballistic, ballistic-viscous, anchor-0, anchor-depth, silhouette, rest-density or rays-1024}
 case $variant in
   ballistic) rules=(--set 'dlf.free_flight="ballistic"') ;;
   ballistic-viscous)
@@ -21,7 +21,8 @@ case $variant in
   anchor-depth) rules=(--set 'joint.anchor_along="depth"') ;;
   silhouette) rules=(--set joint.silhouette_weight=30) ;;
   rest-density) rules=(--set joint.rest_density_weight=1) ;;
-  *) echo "VARIANT: ballistic, ballistic-viscous, anchor-0, anchor-depth, silhouette or rest-density, not $variant" >&2
+  rays-1024) rules=(--set joint.rays=1024) ;;
+  *) echo "VARIANT: ballistic, ballistic-viscous, anchor-0, anchor-depth, silhouette, rest-density or rays-1024, not $variant" >&2
      exit 2 ;;
 esac
 if [[ -z $a ]]; then
