@@ -101,6 +101,15 @@ fn ground_each(tmp: &std::path::Path, name: &str, variants: &[Vec<String>]) -> V
         .collect()
 }
 
+/// (step, loss) of every joint-stage row with a finite loss.
+fn finite_losses(g: &Grounding) -> Vec<(u64, f64)> {
+    rows_of(&g.jsonl, "joint")
+        .iter()
+        .filter(|r| r.loss.is_finite())
+        .map(|r| (r.step, r.loss))
+        .collect()
+}
+
 /// The metrics rows of `stage`.
 fn rows_of(jsonl: &std::path::Path, stage: &str) -> Vec<MetricsRow> {
     read_jsonl(jsonl)
@@ -593,14 +602,7 @@ fn energy_prior_adds_each_steps_energy_gain_to_the_loss() {
         "the fluid's and each particle's gains agree at every step: the test would not tell \
          them apart ({fluid:?}, {particle:?})"
     );
-    let losses = |g: &Grounding| -> Vec<(u64, f64)> {
-        rows_of(&g.jsonl, "joint")
-            .iter()
-            .filter(|r| r.loss.is_finite())
-            .map(|r| (r.step, r.loss))
-            .collect()
-    };
-    let free = losses(&runs[0]);
+    let free = finite_losses(&runs[0]);
     assert!(!free.is_empty());
     // the joint diagnostics log the same rollout's gains in both forms (its DLF held): from
     // positions alone, the steps from t = 2 on, which are the transitions after the first
@@ -623,7 +625,7 @@ fn energy_prior_adds_each_steps_energy_gain_to_the_loss() {
         (&runs[1], &fluid, "fluid"),
         (&runs[2], &particle, "particle"),
     ] {
-        let held = losses(held);
+        let held = finite_losses(held);
         assert_eq!(free.len(), held.len());
         for ((step, a), (_, b)) in free.iter().zip(&held) {
             let t = (*step as usize - 1) % gains.len();
@@ -684,14 +686,7 @@ fn rest_density_prior_adds_the_deficit_of_each_step() {
         "the rollout never falls below its first state's density: the test would see nothing \
          ({ratios:?})"
     );
-    let losses = |g: &Grounding| -> Vec<(u64, f64)> {
-        rows_of(&g.jsonl, "joint")
-            .iter()
-            .filter(|r| r.loss.is_finite())
-            .map(|r| (r.step, r.loss))
-            .collect()
-    };
-    let (free, held) = (losses(&runs[0]), losses(&runs[1]));
+    let (free, held) = (finite_losses(&runs[0]), finite_losses(&runs[1]));
     assert!(!free.is_empty());
     assert_eq!(free.len(), held.len());
     for ((step, a), (_, b)) in free.iter().zip(&held) {

@@ -111,8 +111,9 @@ impl DensityPrior {
     }
 }
 
-fn int_tensor(ids: impl Iterator<Item = usize>, device: &Device) -> Tensor<1, Int> {
-    let v: Vec<i64> = ids.map(|i| i as i64).collect();
+/// The particle indices `ids` on `device` (the priors' gathers).
+pub(crate) fn int_tensor(ids: impl IntoIterator<Item = usize>, device: &Device) -> Tensor<1, Int> {
+    let v: Vec<i64> = ids.into_iter().map(|i| i as i64).collect();
     let n = v.len();
     neurofluid_core::transfer::upload(TensorData::new(v, [n]), device)
 }

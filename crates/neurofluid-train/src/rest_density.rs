@@ -19,7 +19,9 @@
 //! contracts as a whole. L is dimensionless, so the weight does not depend on the scene's scale.
 
 use burn::prelude::*;
-use neurofluid_core::neighbors::fixed_radius_pairs;
+use neurofluid_core::neighbors::{PairList, fixed_radius_pairs};
+
+use crate::density_prior::int_tensor;
 
 /// Kernel support in particle radii.
 pub const SUPPORT_RADII: f32 = 4.0;
@@ -41,15 +43,18 @@ fn kernel(r2: f64, h: f64) -> f64 {
     if q > 0.0 { q * q * q } else { 0.0 }
 }
 
+/// Σ_i ρ_i over the pairs `pairs` (each counted from both ends) with support `h`.
+fn density_sum(pairs: &PairList, h: f32) -> f64 {
+    let h = f64::from(h);
+    pairs.dist2.iter().map(|&r2| kernel(f64::from(r2), h)).sum()
+}
+
 /// ρ̄ of `points` with support `h`, on the host (every pair within h, each counted from both ends).
 pub fn mean_density(points: &[[f32; 3]], h: f32) -> f64 {
     if points.is_empty() {
         return 0.0;
     }
-    let pairs = fixed_radius_pairs(points, points, h, true);
-    let h = f64::from(h);
-    let sum: f64 = pairs.dist2.iter().map(|&r2| kernel(f64::from(r2), h)).sum();
-    sum / points.len() as f64
+    density_sum(&fixed_radius_pairs(points, points, h, true), h) / points.len() as f64
 }
 
 impl RestDensity {
@@ -82,15 +87,15 @@ impl RestDensity {
     pub fn loss(&self, pos: &Tensor<2>, points: &[[f32; 3]]) -> (Option<Tensor<1>>, f64) {
         let pairs = fixed_radius_pairs(points, points, self.support, true);
         let h = f64::from(self.support);
-        let host: f64 = pairs.dist2.iter().map(|&r2| kernel(f64::from(r2), h)).sum();
         let n = points.len().max(1) as f64;
-        let ratio = host / n / self.rest;
+        let ratio = density_sum(&pairs, self.support) / n / self.rest;
         if ratio >= 1.0 || pairs.num_pairs() == 0 {
             return (None, ratio);
         }
         let device = pos.device();
-        let own = int_tensor(pairs.query_of_pair(), &device);
-        let other = int_tensor(pairs.indices.iter().copied(), &device);
+        let index = |ids: &[u32]| int_tensor(ids.iter().map(|&i| i as usize), &device);
+        let own = index(&pairs.query_of_pair());
+        let other = index(&pairs.indices);
         let d = pos.clone().select(0, own) - pos.clone().select(0, other);
         let q = d
             .powi_scalar(2)
@@ -102,12 +107,6 @@ impl RestDensity {
         let deficit = density.neg().add_scalar(1.0);
         (Some(deficit.powi_scalar(2).mul_scalar(self.weight)), ratio)
     }
-}
-
-fn int_tensor(ids: impl IntoIterator<Item = u32>, device: &Device) -> Tensor<1, Int> {
-    let v: Vec<i64> = ids.into_iter().map(i64::from).collect();
-    let n = v.len();
-    neurofluid_core::transfer::upload(TensorData::new(v, [n]), device)
 }
 
 #[cfg(test)]

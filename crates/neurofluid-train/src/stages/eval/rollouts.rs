@@ -3,7 +3,6 @@
 //! DLF† roll out without feedback; what they are measured by (d per frame both ways, particles
 //! through the walls, alone and far).
 
-use crate::rest_density::{SUPPORT_RADII, mean_density};
 use anyhow::Context;
 use burn::module::Module;
 use neurofluid_core::metrics::{FarSplit, alone_share, far_split, gt_to_pred_distance};
@@ -16,6 +15,7 @@ use crate::report::{
     ALONE_REACH_RADII, EnergyGain, EvalReport, FAR_REACH_RADII, FarShare, FrameDistance,
     InterpolationPoint, Reverse, Rollout, WindowMean, Windows, count_outside,
 };
+use crate::rest_density::{SUPPORT_RADII, mean_density};
 use crate::stages::initial::starting_particles;
 use crate::stages::joint::Grounded;
 use crate::stages::run_folder::Run;
