@@ -208,10 +208,14 @@ impl Rollouts {
 
     /// The mean kernel density ([`mean_density`], support [`SUPPORT_RADII`] radii of `radius`)
     /// of the truth and of every rollout relative to the truth's at the first test frame, the
-    /// mean over each of `windows`' frames: a fluid that keeps its density stays near 1.
+    /// mean over each of `windows`' frames: a fluid that keeps its density stays near 1. None
+    /// (no table) when no two true particles of that frame are within the support.
     pub fn density_ratios(&self, windows: &Windows, radius: f32) -> Vec<WindowMean> {
         let support = SUPPORT_RADII * radius;
         let rest = mean_density(&self.truth[0].pos, support);
+        if rest.is_nan() || rest <= 0.0 {
+            return Vec::new();
+        }
         self.per_sequence(|model, frames| {
             window_mean(model, frames, windows, |p| mean_density(p, support) / rest)
         })
@@ -419,6 +423,8 @@ mod tests {
         let thinner = mean_density(&scaled(1.2), h) / rest;
         assert!(thinner < 0.9, "{thinner}");
         assert_eq!(ratios[2].grounding, 1.0);
+        // a truth whose particles lie farther apart than the support has no density to compare
+        assert!(rollouts.density_ratios(&Windows::paper(), 0.001).is_empty());
         assert!(
             (ratios[2].prediction - thinner).abs() < 1e-12,
             "{:?}",
