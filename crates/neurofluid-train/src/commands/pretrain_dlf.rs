@@ -3,6 +3,8 @@
 //! and validation errors. It checkpoints into `<output stem>.pretrain/` (locked while it runs)
 //! and resumes from there; the weights file is written once the training has finished, so a
 //! diverged run never replaces it (fine-tuning in place, `--init X --output X`, is safe).
+//! `--keep-checkpoints` also keeps the weights of every checkpoint beside it, to score a
+//! supervised reference over its training.
 //!
 //! On a scene folder only the frames DLF† may see are used: the training split (t < 50), so the
 //! prediction window stays unseen.
@@ -38,9 +40,14 @@ pub struct Args {
     #[arg(long)]
     #[serde(skip_serializing_if = "Option::is_none")]
     pub init: Option<PathBuf>,
-    /// Output weights (burnpack `.bpk`); also written at every checkpoint.
+    /// Output weights (burnpack `.bpk`), written once the training has finished.
     #[arg(long)]
     pub output: PathBuf,
+    /// Also write the weights of every checkpoint to `<output stem>-<step>.bpk` (e.g.
+    /// `dagger-100.bpk`), to score the model over its training.
+    #[arg(long)]
+    #[serde(skip)]
+    pub keep_checkpoints: bool,
     /// Train under the `[dlf]` rules of this experiment file (walls, energy cap, gravity scale,
     /// viscosity and no-slip walls), the rules the run that evaluates this DLF† rolls it out
     /// under. Its geometry mode is not taken: DLF trains with a constant geometry. Under walls
@@ -129,25 +136,41 @@ pub fn checkpoint_dir(output: &Path) -> PathBuf {
 
 /// Copies the final checkpoint's weights to the output file when the training has finished,
 /// so the output (possibly the `--init` file itself) is never replaced by an unfinished or
-/// diverged run.
+/// diverged run; with `keep`, every checkpoint's weights to [`kept_checkpoint`] as it is made.
 struct ExportWeights<'a> {
     checkpoints: &'a Path,
     output: &'a Path,
+    keep: bool,
+}
+
+/// Where `--keep-checkpoints` writes the weights of the checkpoint after `step` steps.
+pub fn kept_checkpoint(output: &Path, step: u64) -> PathBuf {
+    let stem = output.file_stem().unwrap_or_default().to_string_lossy();
+    output.with_file_name(format!("{stem}-{step}.bpk"))
+}
+
+/// Copies a checkpoint's weights, checked against its checksums, to `target` in one write.
+fn copy_weights(checkpoint: &Path, target: &Path) -> anyhow::Result<()> {
+    let source = checkpoint.join("dlf.bpk");
+    crate::trainer::checksums::verify_file(&source)?;
+    let bytes = std::fs::read(&source).with_context(|| format!("reading {}", source.display()))?;
+    neurofluid_core::atomic::write_bytes(target, &bytes)
+        .with_context(|| format!("writing {}", target.display()))
 }
 
 impl EventSink for ExportWeights<'_> {
     fn on_event(&mut self, event: &Event<'_>) -> anyhow::Result<()> {
-        if let Event::Finished { .. } = event {
-            let dir = crate::trainer::checkpoint::latest(self.checkpoints)
-                .with_context(|| format!("no checkpoint in {}", self.checkpoints.display()))?;
-            let source = dir.join("dlf.bpk");
-            crate::trainer::checksums::verify_file(&source)?;
-            let bytes =
-                std::fs::read(&source).with_context(|| format!("reading {}", source.display()))?;
-            neurofluid_core::atomic::write_bytes(self.output, &bytes)
-                .with_context(|| format!("writing {}", self.output.display()))?;
+        match event {
+            Event::Checkpointed { done, dir, .. } if self.keep => {
+                copy_weights(dir, &kept_checkpoint(self.output, *done))
+            }
+            Event::Finished { .. } => {
+                let dir = crate::trainer::checkpoint::latest(self.checkpoints)
+                    .with_context(|| format!("no checkpoint in {}", self.checkpoints.display()))?;
+                copy_weights(&dir, self.output)
+            }
+            _ => Ok(()),
         }
-        Ok(())
     }
 }
 
@@ -252,6 +275,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut export = ExportWeights {
         checkpoints: &dir,
         output: &args.output,
+        keep: args.keep_checkpoints,
     };
     Driver::new(&dir, cadence, Settings::of(&args))
         .with_sink(&mut bars)
@@ -298,6 +322,7 @@ mod tests {
             },
             device: "cpu".into(),
             fresh: false,
+            keep_checkpoints: false,
         };
         // the data is missing too, but the output is named first
         let err = format!("{:#}", run(args).unwrap_err());
@@ -346,9 +371,11 @@ mod tests {
             },
             device: "cpu".into(),
             fresh: false,
+            keep_checkpoints: false,
         };
         run(args(Some(weights.clone()), &output, 2, 1, 1e-5)).unwrap();
         load_dlf(&output, DlfConfig::default(), &device).unwrap();
+        assert!(!kept_checkpoint(&output, 1).exists());
         // its training curve and validation errors are in the checkpoints' folder, once each,
         // also when it starts over
         let rows = || {
@@ -382,6 +409,21 @@ mod tests {
                 .join("checkpoint/state.json")
                 .is_file()
         );
+
+        // --keep-checkpoints: the weights after each checkpointed step beside the output, the
+        // last one the output's, the first another model (one step of training apart)
+        let kept = dir.path().join("kept.bpk");
+        let mut keep = args(Some(weights.clone()), &kept, 2, 1, 1e-3);
+        keep.keep_checkpoints = true;
+        run(keep).unwrap();
+        let (first, last) = (kept_checkpoint(&kept, 1), kept_checkpoint(&kept, 2));
+        assert_eq!(first, dir.path().join("kept-1.bpk"));
+        assert_eq!(std::fs::read(&last).unwrap(), std::fs::read(&kept).unwrap());
+        assert_ne!(
+            std::fs::read(&first).unwrap(),
+            std::fs::read(&kept).unwrap()
+        );
+        load_dlf(&first, DlfConfig::default(), &device).unwrap();
 
         // a batch larger than the data is refused at once, naming the flag
         let big = dir.path().join("big.bpk");
