@@ -642,6 +642,80 @@ fn energy_prior_adds_each_steps_energy_gain_to_the_loss() {
 /// With DLF held, the rest-density prior adds w·max(0, 1 − ρ̄/ρ̄₀)² of each step's prediction to
 /// the loss (ρ̄₀ the first state's), computed here by hand from an independent rollout; the
 /// diagnostics log the rollout's mean ρ̄/ρ̄₀ over the training frames, with or without the prior.
+/// `joint.truth_weight`: with DLF held (lr 0) each step's loss rises by exactly w times the
+/// mean squared distance, in particle radii², from the step's prediction to the true particles
+/// of its frame, computed here by hand from an independent rollout and the scene's truth; a
+/// scene whose truth is not the predicted particles is refused naming the key.
+#[test]
+fn the_truth_term_adds_each_steps_squared_error() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let weight = 3.0;
+    let runs = ground_each(
+        tmp.path(),
+        "truth",
+        &[0.0, weight].map(|w| {
+            vec![
+                format!("joint.truth_weight={w}"),
+                "joint.dlf_optim.lr=0.0".into(),
+                "joint.epochs=2".into(),
+            ]
+        }),
+    );
+    let run = &runs[0].run;
+    let data = JointData::load(&run.scene, &run.exp.joint).unwrap();
+    let truth = data
+        .truth
+        .clone()
+        .expect("the tiny scene has its true particles");
+    let dlf = run.load_dlf(&run.exp.dlf.weights).unwrap();
+    let device = dlf.device();
+    let boundary = dlf.boundary(&data.walls.0, &data.walls.1, &device);
+    let r2 = f64::from(data.radius).powi(2);
+    let (mut pos, mut vel) = (data.initial.pos.clone(), data.initial.vel.clone());
+    let mut terms = Vec::new();
+    for t in 0..data.transitions() as usize {
+        let next = dlf.step(
+            points_tensor(&pos, &device),
+            points_tensor(&vel, &device),
+            &boundary,
+        );
+        (pos, vel) = (tensor_points(&next.pos), tensor_points(&next.vel));
+        let squared: f64 = pos
+            .iter()
+            .zip(&truth[t + 1])
+            .map(|(p, q)| (0..3).map(|k| f64::from(p[k] - q[k]).powi(2)).sum::<f64>())
+            .sum();
+        terms.push(weight * squared / pos.len() as f64 / r2);
+    }
+    assert!(terms.iter().all(|&t| t > 1e-4), "{terms:?}");
+    let (free, held) = (finite_losses(&runs[0]), finite_losses(&runs[1]));
+    assert!(!free.is_empty());
+    assert_eq!(free.len(), held.len());
+    for ((step, a), (_, b)) in free.iter().zip(&held) {
+        let expected = terms[(*step as usize - 1) % terms.len()];
+        assert!(
+            (b - a - expected).abs() < 1e-3 * expected.max(1e-2),
+            "step {step}: the loss rose by {} where the truth term adds {expected}",
+            b - a
+        );
+    }
+    // initial particles that are not the truth's (another count) are refused, naming the key
+    let mut other = data;
+    other.initial.pos.pop();
+    other.initial.vel.pop();
+    let physnerf = PhysNerf::new(run.physnerf_config(), &run.device).unwrap();
+    let cfg = neurofluid_train::config::JointSection {
+        truth_weight: 1.0,
+        ..run.exp.joint.clone()
+    };
+    let err = joint::JointTrainer::new(&cfg, physnerf, dlf, other, 0)
+        .err()
+        .expect("refused")
+        .to_string();
+    assert!(err.contains("joint.truth_weight"), "{err}");
+}
+
 #[test]
 fn rest_density_prior_adds_the_deficit_of_each_step() {
     let _turn = seeded_turn();

@@ -199,6 +199,9 @@ impl Section for JointSection {
         if !(self.rest_density_weight.is_finite() && self.rest_density_weight >= 0.0) {
             return problem("rest_density_weight", "expected a finite weight ≥ 0");
         }
+        if !(self.truth_weight.is_finite() && self.truth_weight >= 0.0) {
+            return problem("truth_weight", "expected a finite weight ≥ 0");
+        }
         if !(self.energy_weight.is_finite() && self.energy_weight >= 0.0) {
             return problem("energy_weight", "expected a finite weight ≥ 0");
         }

@@ -493,11 +493,12 @@ mod tests {
                 j.silhouette_weight,
                 j.density_weight,
                 j.rest_density_weight,
+                j.truth_weight,
                 j.energy_weight,
                 j.anchor_weight,
                 j.replay_rays as f64
             ),
-            (1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+            (1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         );
         assert!(j.extra_views.is_empty());
         assert_eq!((j.colour_head, j.replay_of), (r.colour_head, r.replay_of));

@@ -66,6 +66,7 @@ pub fn apply(exp: &mut Experiment) -> Vec<Change> {
     j.silhouette_weight = paper.silhouette_weight;
     j.density_weight = paper.density_weight;
     j.rest_density_weight = paper.rest_density_weight;
+    j.truth_weight = paper.truth_weight;
     j.energy_weight = paper.energy_weight;
     j.energy_per = paper.energy_per;
     j.anchor_weight = paper.anchor_weight;

@@ -676,6 +676,12 @@ pub struct JointSection {
     /// density may not fall below the first training state's (one view does not see a pile's
     /// particles spread thinner). 0 = the reference's image loss alone.
     pub rest_density_weight: f64,
+    /// Weight of the true particles as a loss: each step's predicted positions held to the
+    /// truth's of the same frame (matched by index), in particle radii². A diagnostic, never a
+    /// method (the images are all NeuroFluid may see): with it, grounding at the same budget and
+    /// rules has every particle's truth, an upper reference for what the images can teach DLF.
+    /// Needs the scene's true particles of every training frame. 0 = the reference's.
+    pub truth_weight: f64,
     /// Weight of the energy prior ([`crate::energy_prior`]): no DLF step may add mechanical
     /// energy (kinetic + potential) to the fluid, which in a closed box only loses it; each
     /// step's gain is penalised in units of lifting every particle by one radius.
@@ -737,6 +743,7 @@ impl Default for JointSection {
             silhouette_cover: true,
             density_weight: 0.0,
             rest_density_weight: 0.0,
+            truth_weight: 0.0,
             energy_weight: 0.0,
             energy_per: EnergyPer::Fluid,
             anchor_weight: 0.0,

@@ -54,6 +54,7 @@ const ADDED_KEYS: &[(&str, &str)] = &[
     ("dlf.no_slip", "false"),
     ("dlf.free_flight", "\"network\""),
     ("joint.rest_density_weight", "0.0"),
+    ("joint.truth_weight", "0.0"),
     ("physnerf.positions", "\"world\""),
     ("nerf.t_images", "\"cycle\""),
 ];

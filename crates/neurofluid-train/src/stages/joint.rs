@@ -78,6 +78,27 @@ pub fn boundary_penalty(pos: Tensor<2>, interior: &Aabb) -> Tensor<1> {
     (below + above).mean()
 }
 
+/// `joint.truth_weight`: every training frame's true particles on the device, refused with the
+/// key named where the scene has none or they are not the predicted particles (another count:
+/// initial particles from images).
+fn true_frames(data: &JointData, device: &Device) -> anyhow::Result<Vec<Tensor<2>>> {
+    let truth = data.truth.as_ref().with_context(|| {
+        "joint.truth_weight > 0 needs the scene's true particles of every training frame; \
+         this scene has none"
+    })?;
+    anyhow::ensure!(
+        truth.len() as u64 > data.transitions() && truth[0].len() == data.initial.pos.len(),
+        "joint.truth_weight > 0 needs the true particles of every training frame matched to the \
+         predicted ones by index: the truth has {} frames of {} particles, the joint stage {} \
+         transitions from {} particles",
+        truth.len(),
+        truth.first().map_or(0, Vec::len),
+        data.transitions(),
+        data.initial.pos.len()
+    );
+    Ok(truth.iter().map(|p| points_tensor(p, device)).collect())
+}
+
 /// The anchor term (`joint.anchor_weight`): the mean over particles of the squared distance
 /// between the grounded step's positions `pred` and the pretrained DLF's step `anchor` from the
 /// same state (a constant), in particle radii². With `eye` (`joint.anchor_along = "depth"`)
@@ -503,6 +524,8 @@ pub struct JointTrainer {
     rest_density: Option<RestDensity>,
     /// `joint.anchor_weight` > 0: the pretrained DLF (frozen), whose step anchors DLF's.
     anchor: Option<DlfNet>,
+    /// `joint.truth_weight` > 0: every training frame's true particles on the device.
+    truth: Option<Vec<Tensor<2>>>,
     /// `joint.anchor_horizon` > 0: where the horizon's rollouts start: the grounded rollout's last
     /// prediction of the latest finished epoch (before the first ends, the pretrained DLF's state
     /// at the end of the training window, rolled from the true first state; no images).
@@ -532,6 +555,9 @@ impl JointTrainer {
             .transpose()?;
         let rest_density = (cfg.rest_density_weight > 0.0)
             .then(|| RestDensity::new(&data.initial.pos, data.radius, cfg.rest_density_weight))
+            .transpose()?;
+        let truth = (cfg.truth_weight > 0.0)
+            .then(|| true_frames(&data, &device))
             .transpose()?;
         // `dlf` is the pretrained model here (a resumed run loads its own weights later)
         let anchor = (cfg.anchor_weight > 0.0).then(|| dlf.clone().no_grad());
@@ -574,6 +600,7 @@ impl JointTrainer {
             density,
             rest_density,
             anchor,
+            truth,
             horizon_start,
             replay_particles,
             held_out_particles,
@@ -701,6 +728,17 @@ impl Trainer for JointTrainer {
         if let Some(prior) = &self.rest_density
             && let (Some(term), _) = prior.loss(&pred.pos, &pred_host)
         {
+            extra = extra + term.clone().detach();
+            surrogate = surrogate + term;
+        }
+        if let Some(truth) = &self.truth {
+            let term = anchor_penalty(
+                pred.pos.clone(),
+                truth[t + 1].clone(),
+                self.data.radius,
+                None,
+            )
+            .mul_scalar(self.cfg.truth_weight);
             extra = extra + term.clone().detach();
             surrogate = surrogate + term;
         }
