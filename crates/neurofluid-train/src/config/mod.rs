@@ -265,11 +265,27 @@ impl Experiment {
             .or_else(|| checks::problem_of(&self.nerf))
             .or_else(|| checks::problem_of(&self.initial))
             .or_else(|| checks::problem_of(&self.eval))
-            .or_else(|| self.refit_problem());
+            .or_else(|| self.refit_problem())
+            .or_else(|| self.truth_problem());
         match problem {
             Some((key, msg)) => Err(ConfigError::invalid(origin, &key, &msg)),
             None => Ok(()),
         }
+    }
+
+    /// `joint.truth_weight` matches predicted and true particles by index: the joint stage must
+    /// start from the true first state.
+    fn truth_problem(&self) -> checks::Problem {
+        (self.joint.truth_weight > 0.0 && self.scene.initial == InitialParticles::FromImages).then(
+            || {
+                (
+                "joint.truth_weight".into(),
+                "expected 0 with scene.initial = \"from_images\": the truth term matches predicted \
+                 and true particles by index, which only a start from the true first state has"
+                    .into(),
+            )
+            },
+        )
     }
 
     /// The refitted renderer's `[physnerf]` (the first renderer's with `refit.positions`).
@@ -562,6 +578,18 @@ mod tests {
         let world = format!("{MINIMAL}{no_particle_terms}enabled = true\npositions = \"world\"\n");
         assert!(parse(&world).is_ok());
         assert!(parse(&format!("{MINIMAL}{no_particle_terms}")).is_ok());
+    }
+
+    /// The truth term matches particles by index, so it is refused with initial particles from
+    /// images, naming its key; with the true first state it is accepted.
+    #[test]
+    fn the_truth_term_needs_the_true_first_state() {
+        let text = format!("{MINIMAL}initial = \"from_images\"\n[joint]\ntruth_weight = 1.0\n");
+        let err = parse(&text).unwrap_err();
+        assert_eq!(err.key(), "joint.truth_weight");
+        assert!(err.to_string().contains("from_images"), "{err}");
+        assert!(parse(&format!("{MINIMAL}[joint]\ntruth_weight = 1.0\n")).is_ok());
+        assert!(parse(&format!("{MINIMAL}initial = \"from_images\"\n")).is_ok());
     }
 
     #[test]
