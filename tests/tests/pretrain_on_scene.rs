@@ -39,6 +39,7 @@ fn fine_tunes_on_a_generated_scene() {
         },
         device: neurofluid_core::device::test_device_name(),
         fresh: false,
+        keep_checkpoints: false,
     })
     .unwrap();
     load_dlf(
