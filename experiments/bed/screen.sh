@@ -7,14 +7,14 @@
 # already evaluated is not run again; a stopped one resumes from its checkpoints.
 # Variants: ballistic (rule 22), ballistic-viscous (rule 23), anchor-0 and anchor-depth (rule 24),
 # silhouette (rule 25), rest-density (rule 26), rays-1024 (rule 27), epochs-12 (rule 28), truth
-# (rule 29, a probe).
+# and truth-free (rule 29, probes).
 # Usage: VARIANT=name experiments/bed/screen.sh SCENE [A_RUN] [SEED=10] [OUT=runs/r22]
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 scene=$1 a=${2:-} seed=${3:-10} out=${4:-runs/r22}
 bin=${NEUROFLUID_TRAIN:-target/debug/neurofluid-train}
 quick=(--set seed="$seed" --set refit.enabled=false --set eval.render=false)
-variant=${VARIANT:?VARIANT: ballistic, ballistic-viscous, anchor-0, anchor-depth, silhouette, rest-density, rays-1024, epochs-12 or truth}
+variant=${VARIANT:?VARIANT: ballistic, ballistic-viscous, anchor-0, anchor-depth, silhouette, rest-density, rays-1024, epochs-12, truth or truth-free}
 case $variant in
   ballistic) rules=(--set 'dlf.free_flight="ballistic"') ;;
   ballistic-viscous)
@@ -26,7 +26,8 @@ case $variant in
   rays-1024) rules=(--set joint.rays=1024) ;;
   epochs-12) rules=(--set joint.epochs=12) resume=1 ;;
   truth) rules=(--set joint.truth_weight=1) ;;
-  *) echo "VARIANT: ballistic, ballistic-viscous, anchor-0, anchor-depth, silhouette, rest-density, rays-1024, epochs-12 or truth, not $variant" >&2
+  truth-free) rules=(--set joint.truth_weight=1 --set joint.anchor_weight=0 --set joint.energy_weight=0) ;;
+  *) echo "VARIANT: ballistic, ballistic-viscous, anchor-0, anchor-depth, silhouette, rest-density, rays-1024, epochs-12, truth or truth-free, not $variant" >&2
      exit 2 ;;
 esac
 if [[ -z $a ]]; then
