@@ -276,16 +276,16 @@ impl Experiment {
     /// `joint.truth_weight` matches predicted and true particles by index: the joint stage must
     /// start from the true first state.
     fn truth_problem(&self) -> checks::Problem {
-        (self.joint.truth_weight > 0.0 && self.scene.initial == InitialParticles::FromImages).then(
-            || {
-                (
+        if self.joint.truth_weight > 0.0 && self.scene.initial == InitialParticles::FromImages {
+            return Some((
                 "joint.truth_weight".into(),
-                "expected 0 with scene.initial = \"from_images\": the truth term matches predicted \
-                 and true particles by index, which only a start from the true first state has"
+                "expected 0 with scene.initial = \"from_images\": the truth term matches \
+                 predicted and true particles by index, which only a start from the true first \
+                 state has"
                     .into(),
-            )
-            },
-        )
+            ));
+        }
+        None
     }
 
     /// The refitted renderer's `[physnerf]` (the first renderer's with `refit.positions`).
