@@ -110,6 +110,47 @@ fn finite_losses(g: &Grounding) -> Vec<(u64, f64)> {
         .collect()
 }
 
+/// Positions and velocities of every particle.
+type HostState = (Vec<[f32; 3]>, Vec<[f32; 3]>);
+
+/// The run's pretrained DLF rolled out by hand from the joint stage's first state (what a joint
+/// stage with `joint.dlf_optim.lr = 0` steps through): the stage's data and every state, the
+/// first one's included.
+fn held_rollout(run: &Run) -> (JointData, Vec<HostState>) {
+    let data = JointData::load(&run.scene, &run.exp.joint).unwrap();
+    let dlf = run.load_dlf(&run.exp.dlf.weights).unwrap();
+    let device = dlf.device();
+    let boundary = dlf.boundary(&data.walls.0, &data.walls.1, &device);
+    let mut states = vec![(data.initial.pos.clone(), data.initial.vel.clone())];
+    for _ in 0..data.transitions() {
+        let (pos, vel) = states.last().unwrap();
+        let next = dlf.step(
+            points_tensor(pos, &device),
+            points_tensor(vel, &device),
+            &boundary,
+        );
+        states.push((tensor_points(&next.pos), tensor_points(&next.vel)));
+    }
+    (data, states)
+}
+
+/// With DLF held, `held`'s loss is above `free`'s at every logged step by exactly the term a
+/// prior adds there (`terms` per transition, the same in every epoch), to 1e-3 of the larger of
+/// the term and `floor`.
+fn assert_loss_rises_by(free: &Grounding, held: &Grounding, terms: &[f64], floor: f64, what: &str) {
+    let (free, held) = (finite_losses(free), finite_losses(held));
+    assert!(!free.is_empty());
+    assert_eq!(free.len(), held.len());
+    for ((step, a), (_, b)) in free.iter().zip(&held) {
+        let expected = terms[(*step as usize - 1) % terms.len()];
+        assert!(
+            (b - a - expected).abs() < 1e-3 * expected.max(floor),
+            "{what}, step {step}: the loss rose by {} where the term adds {expected}",
+            b - a
+        );
+    }
+}
+
 /// The metrics rows of `stage`.
 fn rows_of(jsonl: &std::path::Path, stage: &str) -> Vec<MetricsRow> {
     read_jsonl(jsonl)
@@ -562,33 +603,23 @@ fn energy_prior_adds_each_steps_energy_gain_to_the_loss() {
         }),
     );
     let run = &runs[0].run;
-    let data = JointData::load(&run.scene, &run.exp.joint).unwrap();
-    let dlf = run.load_dlf(&run.exp.dlf.weights).unwrap();
-    let device = dlf.device();
-    let boundary = dlf.boundary(&data.walls.0, &data.walls.1, &device);
-    let gravity = dlf.config.gravity;
+    let (data, states) = held_rollout(run);
+    let gravity = run.load_dlf(&run.exp.dlf.weights).unwrap().config.gravity;
     let unit = 9.81 * f64::from(data.radius);
-    let (mut pos, mut vel) = (data.initial.pos.clone(), data.initial.vel.clone());
     let (mut fluid, mut particle) = (Vec::new(), Vec::new());
-    for _ in 0..data.transitions() {
-        let next = dlf.step(
-            points_tensor(&pos, &device),
-            points_tensor(&vel, &device),
-            &boundary,
-        );
-        let (p, v) = (tensor_points(&next.pos), tensor_points(&next.vel));
-        let gain = energy_by_hand(&p, &v, gravity) - energy_by_hand(&pos, &vel, gravity);
+    for pair in states.windows(2) {
+        let ((pos, vel), (p, v)) = (&pair[0], &pair[1]);
+        let gain = energy_by_hand(p, v, gravity) - energy_by_hand(pos, vel, gravity);
         fluid.push(weight * gain.max(0.0) / unit);
         let each = (0..p.len())
             .map(|i| {
                 let one =
                     |x: &[[f32; 3]], u: &[[f32; 3]]| energy_by_hand(&x[i..=i], &u[i..=i], gravity);
-                (one(&p, &v) - one(&pos, &vel)).max(0.0)
+                (one(p, v) - one(pos, vel)).max(0.0)
             })
             .sum::<f64>()
             / p.len() as f64;
         particle.push(weight * each / unit);
-        (pos, vel) = (p, v);
     }
     assert!(
         fluid.iter().any(|&g| g > 1e-3),
@@ -602,8 +633,6 @@ fn energy_prior_adds_each_steps_energy_gain_to_the_loss() {
         "the fluid's and each particle's gains agree at every step: the test would not tell \
          them apart ({fluid:?}, {particle:?})"
     );
-    let free = finite_losses(&runs[0]);
-    assert!(!free.is_empty());
     // the joint diagnostics log the same rollout's gains in both forms (its DLF held): from
     // positions alone, the steps from t = 2 on, which are the transitions after the first
     let logged = rows_of(&runs[0].jsonl, "joint-preview");
@@ -621,22 +650,8 @@ fn energy_prior_adds_each_steps_energy_gain_to_the_loss() {
             );
         }
     }
-    for (held, gains, per) in [
-        (&runs[1], &fluid, "fluid"),
-        (&runs[2], &particle, "particle"),
-    ] {
-        let held = finite_losses(held);
-        assert_eq!(free.len(), held.len());
-        for ((step, a), (_, b)) in free.iter().zip(&held) {
-            let t = (*step as usize - 1) % gains.len();
-            let expected = gains[t];
-            assert!(
-                (b - a - expected).abs() < 1e-3 * expected.max(1.0),
-                "{per}, step {step}: the loss rose by {} where the prior adds {expected}",
-                b - a
-            );
-        }
-    }
+    assert_loss_rises_by(&runs[0], &runs[1], &fluid, 1.0, "fluid");
+    assert_loss_rises_by(&runs[0], &runs[2], &particle, 1.0, "particle");
 }
 
 /// With DLF held, the rest-density prior adds w·max(0, 1 − ρ̄/ρ̄₀)² of each step's prediction to
@@ -663,43 +678,28 @@ fn the_truth_term_adds_each_steps_squared_error() {
         }),
     );
     let run = &runs[0].run;
-    let data = JointData::load(&run.scene, &run.exp.joint).unwrap();
+    let (data, states) = held_rollout(run);
     let truth = data
         .truth
         .clone()
         .expect("the tiny scene has its true particles");
-    let dlf = run.load_dlf(&run.exp.dlf.weights).unwrap();
-    let device = dlf.device();
-    let boundary = dlf.boundary(&data.walls.0, &data.walls.1, &device);
     let r2 = f64::from(data.radius).powi(2);
-    let (mut pos, mut vel) = (data.initial.pos.clone(), data.initial.vel.clone());
-    let mut terms = Vec::new();
-    for t in 0..data.transitions() as usize {
-        let next = dlf.step(
-            points_tensor(&pos, &device),
-            points_tensor(&vel, &device),
-            &boundary,
-        );
-        (pos, vel) = (tensor_points(&next.pos), tensor_points(&next.vel));
-        let squared: f64 = pos
-            .iter()
-            .zip(&truth[t + 1])
-            .map(|(p, q)| (0..3).map(|k| f64::from(p[k] - q[k]).powi(2)).sum::<f64>())
-            .sum();
-        terms.push(weight * squared / pos.len() as f64 / r2);
-    }
+    let terms: Vec<f64> = states[1..]
+        .iter()
+        .zip(&truth[1..])
+        .map(|((pos, _), true_pos)| {
+            let squared: f64 = pos
+                .iter()
+                .zip(true_pos)
+                .map(|(p, q)| (0..3).map(|k| f64::from(p[k] - q[k]).powi(2)).sum::<f64>())
+                .sum();
+            weight * squared / pos.len() as f64 / r2
+        })
+        .collect();
+    assert_eq!(terms.len() as u64, data.transitions());
     assert!(terms.iter().all(|&t| t > 1e-4), "{terms:?}");
-    let (free, held) = (finite_losses(&runs[0]), finite_losses(&runs[1]));
-    assert!(!free.is_empty());
-    assert_eq!(free.len(), held.len());
-    for ((step, a), (_, b)) in free.iter().zip(&held) {
-        let expected = terms[(*step as usize - 1) % terms.len()];
-        assert!(
-            (b - a - expected).abs() < 1e-3 * expected.max(1e-2),
-            "step {step}: the loss rose by {} where the truth term adds {expected}",
-            b - a
-        );
-    }
+    assert_loss_rises_by(&runs[0], &runs[1], &terms, 1e-2, "truth");
+    let dlf = run.load_dlf(&run.exp.dlf.weights).unwrap();
     // initial particles that are not the truth's (another count) are refused, naming the key
     let mut other = data;
     other.initial.pos.pop();
@@ -733,24 +733,13 @@ fn rest_density_prior_adds_the_deficit_of_each_step() {
             ]
         }),
     );
-    let run = &runs[0].run;
-    let data = JointData::load(&run.scene, &run.exp.joint).unwrap();
-    let dlf = run.load_dlf(&run.exp.dlf.weights).unwrap();
-    let device = dlf.device();
-    let boundary = dlf.boundary(&data.walls.0, &data.walls.1, &device);
+    let (data, states) = held_rollout(&runs[0].run);
     let support = SUPPORT_RADII * data.radius;
     let rest = mean_density(&data.initial.pos, support);
-    let (mut pos, mut vel) = (data.initial.pos.clone(), data.initial.vel.clone());
-    let mut ratios = Vec::new();
-    for _ in 0..data.transitions() {
-        let next = dlf.step(
-            points_tensor(&pos, &device),
-            points_tensor(&vel, &device),
-            &boundary,
-        );
-        (pos, vel) = (tensor_points(&next.pos), tensor_points(&next.vel));
-        ratios.push(mean_density(&pos, support) / rest);
-    }
+    let ratios: Vec<f64> = states[1..]
+        .iter()
+        .map(|(pos, _)| mean_density(pos, support) / rest)
+        .collect();
     let terms: Vec<f64> = ratios
         .iter()
         .map(|r| weight * (1.0 - r).max(0.0).powi(2))
@@ -760,17 +749,7 @@ fn rest_density_prior_adds_the_deficit_of_each_step() {
         "the rollout never falls below its first state's density: the test would see nothing \
          ({ratios:?})"
     );
-    let (free, held) = (finite_losses(&runs[0]), finite_losses(&runs[1]));
-    assert!(!free.is_empty());
-    assert_eq!(free.len(), held.len());
-    for ((step, a), (_, b)) in free.iter().zip(&held) {
-        let expected = terms[(*step as usize - 1) % terms.len()];
-        assert!(
-            (b - a - expected).abs() < 1e-3 * expected.max(1e-2),
-            "step {step}: the loss rose by {} where the prior adds {expected}",
-            b - a
-        );
-    }
+    assert_loss_rises_by(&runs[0], &runs[1], &terms, 1e-2, "rest density");
     let expected = ratios.iter().sum::<f64>() / ratios.len() as f64;
     for g in &runs {
         let logged: Vec<f64> = rows_of(&g.jsonl, "joint-preview")
