@@ -110,6 +110,7 @@ fn every_copy_between_host_and_device_goes_through_the_counting_door() {
         "::from_data(",
         "::from_floats(",
         "::from_ints(",
+        "Transaction",
     ];
     let allowed = ["transfer.rs", "flex_host.rs", "dense.rs"];
     let mut files = Vec::new();

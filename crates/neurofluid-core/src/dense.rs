@@ -385,6 +385,53 @@ pub fn linear_of_cat(layer: &Linear, xs: Vec<Tensor<2>>, act: Activation) -> Ten
     act.apply(layer.forward(x))
 }
 
+/// The inputs of a network of dense layers (the same `m` rows each) with zero rows added up to
+/// a whole number of [`linear_in_row_blocks`]' blocks where an accelerator cuts the layers' rows
+/// into blocks, and `m`: every layer then runs on whole blocks and pads nothing (a padding is a
+/// fill and a concatenation per layer, forward and backward, on a GPU), and the network's outputs
+/// are cut back to `m` rows with [`first_rows`]. The real rows' values and gradients are those of
+/// the unpadded network: a row's output depends on its own input alone, and the padding rows,
+/// cut from the outputs, receive an exactly zero gradient, so their terms in the weights'
+/// gradients are zeros.
+pub fn pad_to_row_blocks(xs: Vec<Tensor<2>>) -> (Vec<Tensor<2>>, usize) {
+    let on_host = xs
+        .first()
+        .is_none_or(|x| crate::device::is_host(&x.device()));
+    pad_rows(xs, if on_host { 0 } else { split_rows() })
+}
+
+/// `xs` (the same `m` rows each) with zero rows added up to a multiple of `block` (none when
+/// `block` is 0 or `m ≤ block`: one block, unpadded), and `m`; see [`pad_to_row_blocks`].
+pub fn pad_rows(xs: Vec<Tensor<2>>, block: usize) -> (Vec<Tensor<2>>, usize) {
+    let Some(first) = xs.first() else {
+        return (xs, 0);
+    };
+    let (m, device) = (first.dims()[0], first.device());
+    if block == 0 || m <= block || m % block == 0 {
+        return (xs, m);
+    }
+    let padded = m.div_ceil(block) * block;
+    let xs = xs
+        .into_iter()
+        .map(|x| {
+            let pad = Tensor::<2>::zeros([padded - m, x.dims()[1]], (&device, x.dtype()));
+            Tensor::cat(vec![x, pad], 0)
+        })
+        .collect();
+    (xs, m)
+}
+
+/// The first `m` rows of `x` (the output of a network whose inputs [`pad_to_row_blocks`]
+/// padded); `x` itself when it has `m`.
+pub fn first_rows(x: Tensor<2>, m: usize) -> Tensor<2> {
+    let [rows, cols] = x.dims();
+    if rows == m {
+        x
+    } else {
+        x.slice([0..m, 0..cols])
+    }
+}
+
 /// Rows per block of [`linear_in_row_blocks`] on an accelerator (0: off); see [`set_split_rows`].
 static SPLIT_ROWS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(4096);
 

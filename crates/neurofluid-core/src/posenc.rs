@@ -7,7 +7,9 @@
 //! sine and cosine evaluated once, the encodings of all inputs written into one output, and the
 //! backward pass reading the sines and cosines back from the output (Burn's composed ops run on
 //! one thread, evaluate them again for the gradient and copy every part into the
-//! concatenation). Elsewhere it is built from Burn's ops ([`posenc_composed`]).
+//! concatenation). Elsewhere it is built from Burn's ops ([`posenc_composed`]): each input's
+//! encoding one broadcast expression that a fusing backend runs as one kernel, not a
+//! concatenation of `1 + 2L` pieces (a slice-assign kernel each on a GPU).
 
 use burn::prelude::*;
 use rayon::prelude::*;
@@ -43,37 +45,101 @@ pub fn posenc(v: Tensor<2>, freqs: usize) -> Tensor<2> {
 /// # Panics
 /// When `inputs` is empty.
 pub fn posenc_cat(inputs: Vec<(Tensor<2>, usize)>) -> Tensor<2> {
-    let (vs, blocks): (Vec<Tensor<2>>, Vec<Block>) = inputs
-        .into_iter()
-        .map(|(v, freqs)| {
-            let channels = v.dims()[1];
-            (v, Block { channels, freqs })
+    let blocks: Vec<Block> = inputs
+        .iter()
+        .map(|(v, freqs)| Block {
+            channels: v.dims()[1],
+            freqs: *freqs,
         })
-        .unzip();
-    let v = if vs.len() == 1 {
-        vs.into_iter().next().expect("one input")
-    } else {
-        // narrow inputs (a few columns each): cheap beside the encoding
-        Tensor::cat(vs, 1)
-    };
-    try_host_posenc(&v, &blocks).unwrap_or_else(|| posenc_composed(v, &blocks))
+        .collect();
+    if !inputs.first().is_some_and(|(v, _)| on_flex(v)) {
+        return posenc_composed(inputs);
+    }
+    let vs: Vec<Tensor<2>> = inputs.into_iter().map(|(v, _)| v).collect();
+    // narrow inputs (a few columns each): cheap beside the encoding
+    let v = Tensor::cat(vs.clone(), 1);
+    try_host_posenc(&v, &blocks).unwrap_or_else(|| {
+        posenc_composed(vs.into_iter().zip(blocks.iter().map(|b| b.freqs)).collect())
+    })
 }
 
-/// [`posenc_cat`] built from Burn's ops (any backend) on the concatenated inputs `v`.
-pub fn posenc_composed(v: Tensor<2>, blocks: &[Block]) -> Tensor<2> {
-    let mut out = Vec::new();
-    let mut at = 0;
-    for b in blocks {
-        let part = v.clone().narrow(1, at, b.channels);
-        at += b.channels;
-        out.push(part.clone());
-        for i in 0..b.freqs {
-            let fv = part.clone().mul_scalar((1u64 << i) as f64);
-            out.push(fv.clone().sin());
-            out.push(fv.cos());
-        }
+/// Whether `v` lives on the flex backend (with or without autodiff), where the host operation
+/// runs.
+fn on_flex(v: &Tensor<2>) -> bool {
+    #[cfg(feature = "flex")]
+    return v.device() == Device::flex();
+    #[cfg(not(feature = "flex"))]
+    return false;
+}
+
+/// [`posenc_cat`] built from Burn's ops (any backend): per input `v [Q, C]` the broadcast
+/// `a = v·s [Q, 1 + 2L, C]` with the scales `s = (1, 1, 1, 2, 2, …, 2^{L−1}, 2^{L−1})` (exact:
+/// powers of two), then `a·[slot is v] + sin(a)·[slot is a sine] + cos(a)·[slot is a cosine]`
+/// (exact: the selectors are 0 and 1), reshaped to `[Q, C·(1 + 2L)]`; the inputs' encodings
+/// side by side. The scales and selectors are uploaded once per device, precision and L.
+///
+/// # Panics
+/// When `inputs` is empty.
+pub fn posenc_composed(inputs: Vec<(Tensor<2>, usize)>) -> Tensor<2> {
+    let mut parts: Vec<Tensor<2>> = inputs
+        .into_iter()
+        .map(|(v, freqs)| encode_block(v, freqs))
+        .collect();
+    assert!(!parts.is_empty(), "posenc of no input");
+    if parts.len() == 1 {
+        parts.pop().expect("one part")
+    } else {
+        Tensor::cat(parts, 1)
     }
-    Tensor::cat(out, 1)
+}
+
+/// `γ_L(v)` of one input as one broadcast expression (see [`posenc_composed`]).
+fn encode_block(v: Tensor<2>, freqs: usize) -> Tensor<2> {
+    if freqs == 0 {
+        return v;
+    }
+    let [q, c] = v.dims();
+    let [scale, is_v, is_sin, is_cos] = slot_constants(&v.device(), v.dtype(), freqs);
+    let a = v.reshape([q, 1, c]) * scale;
+    (a.clone() * is_v + a.clone().sin() * is_sin + a.cos() * is_cos)
+        .reshape([q, c * (1 + 2 * freqs)])
+}
+
+/// The `[1, 1 + 2L, 1]` scales and the three slot selectors of [`encode_block`] on `device`,
+/// uploaded on first use and kept for the process (a few numbers per device, precision and L).
+fn slot_constants(device: &Device, dtype: burn::tensor::DType, freqs: usize) -> [Tensor<3>; 4] {
+    type Entry = (Device, bool, burn::tensor::DType, usize, [Tensor<3>; 4]);
+    static CACHE: std::sync::Mutex<Vec<Entry>> = std::sync::Mutex::new(Vec::new());
+    // devices compare equal with and without autodiff; a tensor of one cannot meet the other's
+    let tracked = device.is_autodiff();
+    let mut cache = CACHE
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    if let Some(hit) = cache
+        .iter()
+        .find(|e| &e.0 == device && e.1 == tracked && e.2 == dtype && e.3 == freqs)
+    {
+        return hit.4.clone();
+    }
+    let slots = 1 + 2 * freqs;
+    let column = |f: &dyn Fn(usize) -> f64| -> Tensor<3> {
+        let values: Vec<f64> = (0..slots).map(f).collect();
+        crate::transfer::upload(TensorData::new(values, [1, slots, 1]), (device, dtype))
+    };
+    let constants = [
+        column(&|m| {
+            if m == 0 {
+                1.0
+            } else {
+                (1u64 << ((m - 1) / 2)) as f64
+            }
+        }),
+        column(&|m| f64::from(m == 0)),
+        column(&|m| f64::from(m > 0 && m % 2 == 1)),
+        column(&|m| f64::from(m > 0 && m % 2 == 0)),
+    ];
+    cache.push((device.clone(), tracked, dtype, freqs, constants.clone()));
+    constants
 }
 
 /// The total input and output columns of `blocks`.

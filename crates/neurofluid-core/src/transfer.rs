@@ -133,6 +133,29 @@ pub fn read_vec<E: Element, const D: usize, K: Basic>(
     t.try_into_vec_as::<E>()
 }
 
+/// Device → host: the values of every tensor of `parts` as f64, one tensor after the other, in
+/// one read (Burn's `Transaction`: one wait for the queue however many tensors; on a GPU no
+/// kernel gathers them into one tensor first, which a concatenation of `n` parts costs `n`
+/// launches).
+///
+/// # Errors
+/// When the backend cannot read a tensor or the values do not convert.
+#[track_caller]
+pub fn read_together<const D: usize>(parts: Vec<Tensor<D>>) -> Result<Vec<f64>, TensorReadError> {
+    count_read(parts.iter().map(size_of).sum());
+    let transaction = parts
+        .into_iter()
+        // a transaction reads one backend's tensors: the graph's are read as their plain values
+        .fold(burn::tensor::Transaction::default(), |t, p| {
+            t.register(p.without_autodiff())
+        });
+    let mut values = Vec::new();
+    for data in transaction.try_execute()? {
+        values.extend(data.try_cast_as::<f64>()?.try_into_vec::<f64>()?);
+    }
+    Ok(values)
+}
+
 /// Device → host: the tensor's data in its own dtype, one read.
 ///
 /// # Panics
@@ -202,6 +225,30 @@ mod tests {
             "{}",
             all.describe()
         );
+    }
+
+    /// Several tensors of different sizes and float types, with and without autodiff, read in one
+    /// go: their values in order, one read of their bytes.
+    #[test]
+    fn tensors_read_together_are_one_read_in_order() {
+        let device = crate::device::cpu();
+        let f32s: Tensor<1> = upload(TensorData::new(vec![1.5f32, -2.0], [2]), &device);
+        // a tensor of the autodiff graph among plain ones (a step's loss beside its gradients)
+        let one: Tensor<1> = upload(
+            TensorData::new(vec![0.25f32], [1]),
+            &device.clone().autodiff(),
+        );
+        let one = one.require_grad() * 1.0;
+        let f64s: Tensor<1> = upload(
+            TensorData::new(vec![1e-300f64, 3.0, 4.0], [3]),
+            (&device, burn::tensor::DType::F64),
+        );
+        let before = counts();
+        let values = read_together(vec![f32s, one, f64s]).unwrap();
+        assert_eq!(values, [1.5, -2.0, 0.25, 1e-300, 3.0, 4.0]);
+        let read = counts().since(before);
+        assert_eq!((read.reads, read.read_bytes), (1, 8 + 4 + 24));
+        assert!(read_together(Vec::<Tensor<1>>::new()).unwrap().is_empty());
     }
 
     #[test]

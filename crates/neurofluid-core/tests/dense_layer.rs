@@ -10,7 +10,7 @@ use burn::nn::Linear;
 use burn::prelude::*;
 use burn::tensor::{DType, TensorCreationOptions, TensorData};
 use neurofluid_core::dense::{
-    Activation, linear, linear_in_row_blocks, linear_of_cat, try_host_linear,
+    Activation, first_rows, linear, linear_in_row_blocks, linear_of_cat, pad_rows, try_host_linear,
 };
 use neurofluid_core::device::{test_device, test_device_name};
 use neurofluid_core::half_matmul::MatmulOperands;
@@ -310,6 +310,84 @@ fn plain_tensors_give_burn_s_values() {
     }
 }
 
+/// Two stacked layers' values: input `[m, k]`, parameters `[k, h]`, `[h]`, `[h, out]`, `[out]`
+/// and loss coefficients `[m, out]`.
+struct TwoLayers {
+    m: usize,
+    k: usize,
+    h: usize,
+    out: usize,
+    x: Vec<f64>,
+    params: [Vec<f64>; 4],
+    coeff: Vec<f64>,
+}
+
+impl TwoLayers {
+    fn new([m, k, h, out]: [usize; 4], seed: u64) -> Self {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        Self {
+            m,
+            k,
+            h,
+            out,
+            x: random(m * k, &mut rng),
+            params: [
+                random(k * h, &mut rng),
+                random(h, &mut rng),
+                random(h * out, &mut rng),
+                random(out, &mut rng),
+            ],
+            coeff: random(m * out, &mut rng),
+        }
+    }
+
+    /// The output of `net(layers, x)` and the gradients of x, W1, b1, W2 and b2; the input
+    /// stored as `[k, m]` and transposed (strides `[1, m]`) when `transposed`.
+    fn run(
+        &self,
+        transposed: bool,
+        net: impl Fn(&[Linear; 2], Tensor<2>) -> Tensor<2>,
+    ) -> Vec<Vec<f64>> {
+        let (m, k, h, out) = (self.m, self.k, self.h, self.out);
+        let ad = test_device().autodiff();
+        let (leaf, xin) = if transposed {
+            let xt = tensor(&transpose(&self.x, m, k), [k, m], &ad).require_grad();
+            (xt.clone(), xt.transpose())
+        } else {
+            let x = tensor(&self.x, [m, k], &ad).require_grad();
+            (x.clone(), x)
+        };
+        let w: Vec<Tensor<2>> = [(0, [k, h]), (2, [h, out])]
+            .iter()
+            .map(|&(i, s)| tensor(&self.params[i], s, &ad).require_grad())
+            .collect();
+        let b: Vec<Tensor<1>> = [(1, h), (3, out)]
+            .iter()
+            .map(|&(i, s)| tensor(&self.params[i], [s], &ad).require_grad())
+            .collect();
+        let layers = [0, 1].map(|i| Linear {
+            weight: Param::from_tensor(w[i].clone()),
+            bias: Some(Param::from_tensor(b[i].clone())),
+        });
+        let y = net(&layers, xin);
+        let loss = (y.clone() * tensor(&self.coeff, [m, out], &ad)).sum();
+        let grads = loss.backward();
+        let g2 = |t: &Tensor<2>| t.grad(&grads).map(f64s).expect("a gradient");
+        let g1 = |t: &Tensor<1>| t.grad(&grads).map(f64s).expect("a gradient");
+        vec![
+            f64s(y),
+            g2(&leaf),
+            g2(&w[0]),
+            g1(&b[0]),
+            g2(&w[1]),
+            g1(&b[1]),
+        ]
+    }
+}
+
+/// What [`TwoLayers::run`] returns, by name.
+const TWO_LAYER_VALUES: [&str; 6] = ["output", "x", "W1", "b1", "W2", "b2"];
+
 /// Two layers in a row (the second at a width that takes the narrow heads' path or not), the
 /// input given transposed (non-contiguous): outputs and every gradient against Burn's.
 #[test]
@@ -317,49 +395,21 @@ fn stacked_layers_match_burn() {
     let tol = if dtype() == DType::F64 { 1e-9 } else { 1e-3 };
     let (m, k, h) = (5000, 13, 24);
     for out in [7, 40] {
-        let mut rng = ChaCha8Rng::seed_from_u64(out as u64);
-        let x = random(m * k, &mut rng);
-        let params = [
-            random(k * h, &mut rng),
-            random(h, &mut rng),
-            random(h * out, &mut rng),
-            random(out, &mut rng),
-        ];
-        let coeff = random(m * out, &mut rng);
+        let case = TwoLayers::new([m, k, h, out], out as u64);
         let run = |host: bool| {
-            let ad = test_device().autodiff();
-            // the input stored as [k, m] and transposed: strides [1, m]
-            let xt = tensor(&transpose(&x, m, k), [k, m], &ad).require_grad();
-            let xin = xt.clone().transpose();
-            let p: Vec<Tensor<2>> = [(0, [k, h]), (2, [h, out])]
-                .iter()
-                .map(|&(i, s)| tensor(&params[i], s, &ad).require_grad())
-                .collect();
-            let b: Vec<Tensor<1>> = [(1, h), (3, out)]
-                .iter()
-                .map(|&(i, s)| tensor(&params[i], [s], &ad).require_grad())
-                .collect();
-            let layer = |i: usize| Linear {
-                weight: Param::from_tensor(p[i].clone()),
-                bias: Some(Param::from_tensor(b[i].clone())),
-            };
-            let apply = |i: usize, t: Tensor<2>, act: Activation| {
-                if host {
-                    linear(&layer(i), t, act)
-                } else {
-                    act.apply(layer(i).forward(t))
-                }
-            };
-            let y = apply(1, apply(0, xin, Activation::Relu), Activation::Identity);
-            let loss = (y.clone() * tensor(&coeff, [m, out], &ad)).sum();
-            let grads = loss.backward();
-            let g2 = |t: &Tensor<2>| t.grad(&grads).map(f64s).expect("a gradient");
-            let g1 = |t: &Tensor<1>| t.grad(&grads).map(f64s).expect("a gradient");
-            vec![f64s(y), g2(&xt), g2(&p[0]), g1(&b[0]), g2(&p[1]), g1(&b[1])]
+            case.run(true, |layers, x| {
+                let apply = |i: usize, t: Tensor<2>, act: Activation| {
+                    if host {
+                        linear(&layers[i], t, act)
+                    } else {
+                        act.apply(layers[i].forward(t))
+                    }
+                };
+                apply(1, apply(0, x, Activation::Relu), Activation::Identity)
+            })
         };
         let (got, want) = (run(true), run(false));
-        let names = ["output", "x", "W1", "b1", "W2", "b2"];
-        for ((name, a), b) in names.iter().zip(&got).zip(&want) {
+        for ((name, a), b) in TWO_LAYER_VALUES.iter().zip(&got).zip(&want) {
             assert_eq!(a.len(), b.len(), "{name}");
             let e = max_abs_diff(a, b);
             assert!(
@@ -378,4 +428,33 @@ fn transpose(v: &[f64], rows: usize, cols: usize) -> Vec<f64> {
         }
     }
     t
+}
+
+/// A network's inputs padded once to whole row blocks (`pad_rows`, what the PhysNeRF MLP does on
+/// an accelerator) give the bits of padding each layer's input: the outputs and the gradients of
+/// the input and of every weight and bias, for two layers with the rows in blocks of 64 (a last
+/// block of 15 rows), the second without an activation.
+#[test]
+fn padding_a_networks_inputs_once_is_padding_every_layer() {
+    let (m, block) = (207, 64);
+    let case = TwoLayers::new([m, 9, 16, 5], 31);
+    let run = |once: bool| {
+        case.run(false, |layers, x| {
+            let apply = |i: usize, t: Tensor<2>, act: Activation| {
+                linear_in_row_blocks(&layers[i], t, act, block, MatmulOperands::F32)
+            };
+            if once {
+                let (padded, rows) = pad_rows(vec![x], block);
+                assert_eq!((rows, padded[0].dims()[0]), (m, 256));
+                let h = apply(0, padded[0].clone(), Activation::Relu);
+                first_rows(apply(1, h, Activation::Identity), m)
+            } else {
+                apply(1, apply(0, x, Activation::Relu), Activation::Identity)
+            }
+        })
+    };
+    let (once, every) = (run(true), run(false));
+    for ((name, a), b) in TWO_LAYER_VALUES.iter().zip(&once).zip(&every) {
+        assert_eq!(a, b, "{name}");
+    }
 }

@@ -40,7 +40,7 @@ fn run(
     let out = if host {
         posenc(x.clone(), freqs)
     } else {
-        posenc_composed(x.clone(), &[Block { channels: c, freqs }])
+        posenc_composed(vec![(x.clone(), freqs)])
     };
     let width = c * (1 + 2 * freqs);
     let loss = (out.clone() * tensor(coeff, [rows, width], dtype, &ad)).sum();
@@ -174,16 +174,7 @@ fn concatenated_encodings_match_burns_concatenation() {
             let out = if host {
                 posenc_cat(xs.iter().cloned().zip(blocks.map(|b| b.1)).collect())
             } else {
-                let parts = xs.iter().zip(&blocks).map(|(x, &(c, l))| {
-                    posenc_composed(
-                        x.clone(),
-                        &[Block {
-                            channels: c,
-                            freqs: l,
-                        }],
-                    )
-                });
-                Tensor::cat(parts.collect(), 1)
+                posenc_composed(xs.iter().cloned().zip(blocks.map(|b| b.1)).collect())
             };
             let loss = (out.clone() * tensor(&coeff, [rows, width], dtype, &ad)).sum();
             let grads = loss.backward();
@@ -201,5 +192,24 @@ fn concatenated_encodings_match_burns_concatenation() {
                 "{dtype:?}: gradient of input {i} differs by {e:.2e}"
             );
         }
+    }
+}
+
+/// Off the host path each input's encoding is one broadcast expression over constants (scales,
+/// slot selectors) uploaded once per device, precision and L: a second encoding copies nothing,
+/// with or without autodiff.
+#[test]
+fn the_composed_encodings_constants_are_uploaded_once() {
+    use neurofluid_core::transfer::counts;
+    for device in [test_device(), test_device().autodiff()] {
+        let v = tensor(&[0.1, -0.2, 0.3, 0.4], [2, 2], DType::F32, &device);
+        let encode = || posenc_composed(vec![(v.clone(), 7), (v.clone(), 0), (v.clone(), 3)]);
+        let first = encode();
+        let before = counts();
+        let again = encode();
+        let copies = counts().since(before);
+        assert_eq!(copies.uploads, 0, "{device:?}: {}", copies.describe());
+        assert_eq!(copies.reads, 0, "{device:?}: {}", copies.describe());
+        assert_eq!(f64s(first), f64s(again));
     }
 }

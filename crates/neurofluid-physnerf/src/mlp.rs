@@ -6,7 +6,7 @@
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::sigmoid;
-use neurofluid_core::dense::{Activation, linear, linear_of_cat};
+use neurofluid_core::dense::{Activation, first_rows, linear, linear_of_cat, pad_to_row_blocks};
 
 /// The shape of a NeRF network: trunk depth and width, the skip layer and the input widths.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -161,6 +161,8 @@ impl NerfMlp {
         e_d: Tensor<2>,
         trace: bool,
     ) -> (Tensor<2>, Tensor<2>, Option<MlpTrace>) {
+        let (inputs, m) = pad_to_row_blocks(vec![e_x, e_d]);
+        let [e_x, e_d] = <[Tensor<2>; 2]>::try_from(inputs).expect("two inputs");
         let mut hidden = Vec::new();
         let mut h = e_x.clone();
         for (i, layer) in self.xyz_encoding.iter().enumerate() {
@@ -181,7 +183,11 @@ impl NerfMlp {
             Activation::Relu,
         );
         let rgb = sigmoid(linear(&self.rgb, hd.clone(), Activation::Identity));
-        let t = trace.then(|| MlpTrace { hidden, feat, hd });
-        (rgb, sigma, t)
+        let t = trace.then(|| MlpTrace {
+            hidden: hidden.into_iter().map(|h| first_rows(h, m)).collect(),
+            feat: first_rows(feat, m),
+            hd: first_rows(hd, m),
+        });
+        (first_rows(rgb, m), first_rows(sigma, m), t)
     }
 }

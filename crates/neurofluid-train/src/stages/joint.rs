@@ -29,7 +29,7 @@ use burn::tensor::activation::relu;
 use neurofluid_core::metrics::gt_to_pred_distance;
 use neurofluid_core::npz::{NpzReader, NpzWriter};
 use neurofluid_core::scene::{Aabb, Particles, Role, Scene};
-use neurofluid_core::transfer::read_vec;
+use neurofluid_core::transfer::read_together;
 use neurofluid_dlf::{Boundary, DlfNet};
 use neurofluid_physnerf::{PhysNerf, RayBatch};
 
@@ -326,7 +326,7 @@ pub fn split_image_loss(
     jitter: Option<&mut dyn rand::RngCore>,
 ) -> anyhow::Result<SplitImageLoss> {
     let split = split_on_device(physnerf, pred, None, rays, colours, jitter)?;
-    let [fine, total]: [f64; 2] = read_vec(Tensor::cat(vec![split.fine, split.total], 0))?
+    let [fine, total]: [f64; 2] = read_together(vec![split.fine, split.total])?
         .try_into()
         .expect("two values");
     Ok(SplitImageLoss {
@@ -772,10 +772,9 @@ impl Trainer for JointTrainer {
         let (mut n_physnerf, mut n_dlf) = (0, 0);
         if window_end {
             let g = self.physnerf_grads.grads();
-            if let Some(sums) = guard::grad_square_sums(&g, &self.physnerf) {
-                n_physnerf = sums.dims()[0];
-                parts.push(sums);
-            }
+            let sums = guard::grad_square_sums(&g, &self.physnerf);
+            n_physnerf = sums.len();
+            parts.extend(sums);
             g_physnerf = Some(g);
             if dlf_end {
                 let surrogate = self.pending.take().context("no loss to optimise")?;
@@ -783,14 +782,13 @@ impl Trainer for JointTrainer {
                     Some(mut grads) => GradientsParams::from_module(&mut grads, &self.dlf),
                     None => GradientsParams::new(),
                 };
-                if let Some(sums) = guard::grad_square_sums(&g, &self.dlf) {
-                    n_dlf = sums.dims()[0];
-                    parts.push(sums);
-                }
+                let sums = guard::grad_square_sums(&g, &self.dlf);
+                n_dlf = sums.len();
+                parts.extend(sums);
                 g_dlf = Some(g);
             }
         }
-        let values: Vec<f64> = read_vec(Tensor::cat(parts, 0))?;
+        let values = read_together(parts)?;
         let (fine, image, boundary, extra) = (values[0], values[1], values[2], values[3]);
         self.pending_loss += image + boundary + extra;
         if let Some(loss) = silhouette {

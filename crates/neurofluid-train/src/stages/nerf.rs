@@ -207,13 +207,11 @@ impl Trainer for NerfTrainer {
         // loss is not used to update: the guard stops the run on it)
         let grads =
             guard::backward(loss.total.clone()).map(|g| GradientsParams::from_grads(g, &self.nerf));
-        let sums = grads
-            .as_ref()
-            .and_then(|g| guard::grad_square_sums(g, &self.nerf));
         let mut parts = vec![loss.fine, loss.coarse, loss.total];
-        parts.extend(sums);
-        let values: Vec<f64> =
-            neurofluid_core::transfer::read_vec(burn::tensor::Tensor::cat(parts, 0))?;
+        if let Some(g) = &grads {
+            parts.extend(guard::grad_square_sums(g, &self.nerf));
+        }
+        let values = neurofluid_core::transfer::read_together(parts)?;
         let (fine_mse, coarse_mse, value) = (values[0], values[1], values[2]);
         let mut grad_norm = 0.0;
         if value.is_finite()

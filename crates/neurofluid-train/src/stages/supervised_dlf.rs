@@ -211,7 +211,7 @@ impl Trainer for SupervisedDlfTrainer {
         let n = losses.len();
         let mut parts = losses;
         parts.extend(guard::grad_square_sums(&grads, &self.net));
-        let values: Vec<f64> = neurofluid_core::transfer::read_vec(Tensor::cat(parts, 0))?;
+        let values = neurofluid_core::transfer::read_together(parts)?;
         let batch_loss = values[..n].iter().fold(0.0, |sum, v| sum + v);
         let grad_norm = guard::norm_of(&values[n..]);
         if batch_loss.is_finite() && grad_norm.is_finite() {

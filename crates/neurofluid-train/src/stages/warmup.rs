@@ -11,7 +11,7 @@ use anyhow::Context;
 use burn::optim::GradientsParams;
 use burn::prelude::*;
 use neurofluid_core::scene::{Role, Scene};
-use neurofluid_core::transfer::read_vec;
+use neurofluid_core::transfer::read_together;
 use neurofluid_physnerf::{Loss, PhysNerf, RayBatch};
 
 use super::run_folder::Run;
@@ -203,13 +203,12 @@ pub fn renderer_update<G: crate::optim::OptimDefaults>(
 ) -> anyhow::Result<RendererUpdate> {
     let batches = fine.len();
     let grads = guard::backward(total.clone()).map(|g| GradientsParams::from_grads(g, physnerf));
-    let sums = grads
-        .as_ref()
-        .and_then(|g| guard::grad_square_sums(g, physnerf));
     let mut parts = fine;
     parts.push(total);
-    parts.extend(sums);
-    let values: Vec<f64> = read_vec(Tensor::cat(parts, 0))?;
+    if let Some(g) = &grads {
+        parts.extend(guard::grad_square_sums(g, physnerf));
+    }
+    let values = read_together(parts)?;
     // each term divided first, in the order the warm-up has always logged its PSNR
     let n = batches.max(1) as f64;
     let fine_mse = values[..batches].iter().fold(0.0, |sum, v| sum + v / n);

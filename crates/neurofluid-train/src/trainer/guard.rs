@@ -13,8 +13,7 @@
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::GradientsParams;
 use burn::prelude::*;
-use burn::tensor::Float;
-use neurofluid_core::transfer::read_vec;
+use neurofluid_core::transfer::read_together;
 
 use super::StepStats;
 
@@ -28,16 +27,18 @@ pub const NO_GRADIENT_PATIENCE: u64 = 10;
 /// The global L2 norm of the gradients `grads` holds for `module`'s parameters (0 when it holds
 /// none: the loss did not depend on the module), with one read from the device.
 pub fn grad_norm<M: Module>(grads: &GradientsParams, module: &M) -> f64 {
-    match grad_square_sums(grads, module) {
-        Some(sums) => norm_of(&read_vec::<f64, 1, Float>(sums).expect("float gradients")),
-        None => 0.0,
+    let sums = grad_square_sums(grads, module);
+    if sums.is_empty() {
+        return 0.0;
     }
+    norm_of(&read_together(sums).expect("float gradients"))
 }
 
-/// The sum of the squares of each gradient `grads` holds for `module`'s parameters, `[P]` on the
-/// device in the module's visiting order (`None` when it holds none): read it back together with
-/// whatever else the step reads, then [`norm_of`].
-pub fn grad_square_sums<M: Module>(grads: &GradientsParams, module: &M) -> Option<Tensor<1>> {
+/// The sum of the squares of each gradient `grads` holds for `module`'s parameters, one `[1]`
+/// tensor per parameter on the device in the module's visiting order (none when it holds none):
+/// read them back together with whatever else the step reads (`transfer::read_together`), then
+/// [`norm_of`].
+pub fn grad_square_sums<M: Module>(grads: &GradientsParams, module: &M) -> Vec<Tensor<1>> {
     struct SumSquares<'a> {
         grads: &'a GradientsParams,
         sums: Vec<Tensor<1>>,
@@ -54,7 +55,7 @@ pub fn grad_square_sums<M: Module>(grads: &GradientsParams, module: &M) -> Optio
         sums: Vec::new(),
     };
     module.visit(&mut v);
-    (!v.sums.is_empty()).then(|| Tensor::cat(v.sums, 0))
+    v.sums
 }
 
 /// The L2 norm from [`grad_square_sums`] read back: their sum in order, in f64, and its root.
