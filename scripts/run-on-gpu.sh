@@ -21,6 +21,9 @@
 #             SPLIT_ROWS (default "2048 8192 16384"; the default block is 4,096)
 #   quick     the quick main job on wgpu, GPU utilisation sampled every second (per stage in the
 #             summary)
+#   launches  kernel launches per warm-up and joint step of the quick main job
+#             (scripts/kernel-launches.sh: cubecl's untimed launch log split at the trainer's
+#             step marks; LAUNCHES_JOINT_SECONDS, default 60)
 #   profile   one small PhysNeRF step with CUBECL_DEBUG_OPTION=profile: cubecl's log of every
 #             kernel launch, timed on the device, summed by kernel (scripts/cubecl-profile-summary.py)
 #   dlfprofile  the same for DLF steps at 8k fluid particles (a warm-up, one forward, one
@@ -262,6 +265,15 @@ for name, us in by.items():
 PY
         fi
         ;;
+    launches)
+        timed "kernel launches per step, quick main job" \
+            $((${LAUNCHES_JOINT_SECONDS:-60} + 90)) "$results/launches.out" \
+            env JOINT_SECONDS="${LAUNCHES_JOINT_SECONDS:-60}" scripts/kernel-launches.sh \
+            "$bin/neurofluid-train" experiments/quick-watercube.toml "$results/launches" \
+            --device wgpu
+        grep -E '^[a-z]+: [0-9]+ steps' "$results/launches/launches.txt" 2>/dev/null |
+            sed 's/^/    /' | tee -a "$summary"
+        ;;
     profile)
         log=$results/profile.log
         timed "one small PhysNeRF step, cubecl's kernel profile" 60 "$log" \
@@ -293,7 +305,7 @@ PY
             "${PAPER_SECONDS:-300}" "$results/paper.log" "$bin/neurofluid-train" run \
             experiments/paper-watercube.toml --device wgpu --set name=gpu-paper
         ;;
-    *) say "unknown step $step (physnerf, physnerf-wgpu, half, search, split, dlf, dlf-wgpu, quick, profile, dlfprofile, tests, paper)" ;;
+    *) say "unknown step $step (physnerf, physnerf-wgpu, half, search, split, dlf, dlf-wgpu, quick, launches, profile, dlfprofile, tests, paper)" ;;
     esac
 done
 say "done at $(date -u +%FT%TZ), $SECONDS s"

@@ -213,3 +213,56 @@ fn the_composed_encodings_constants_are_uploaded_once() {
         assert_eq!(f64s(first), f64s(again));
     }
 }
+
+/// The composed encoding on the test device against the host formula (`posenc::forward`, the
+/// standard library's sine and cosine): the same bits on the CPU, within f32 sine accuracy on
+/// a GPU, for inputs whose highest frequency wraps many times, with a block without frequencies.
+#[test]
+fn the_composed_encoding_is_the_host_formula() {
+    use neurofluid_core::posenc::forward;
+    let mut rng = ChaCha8Rng::seed_from_u64(8);
+    let blocks = [(3, 10), (1, 4), (2, 0)];
+    let rows = 300;
+    let inputs: Vec<Vec<f32>> = blocks
+        .iter()
+        .map(|&(c, _)| {
+            random(rows * c, 2.0, &mut rng)
+                .iter()
+                .map(|&v| v as f32)
+                .collect()
+        })
+        .collect();
+    let device = test_device();
+    let out = posenc_composed(
+        inputs
+            .iter()
+            .zip(&blocks)
+            .map(|(v, &(c, l))| {
+                let v64: Vec<f64> = v.iter().map(|&x| f64::from(x)).collect();
+                (tensor(&v64, [rows, c], DType::F32, &device), l)
+            })
+            .collect(),
+    );
+    // the host formula on the inputs side by side, row by row
+    let side_by_side: Vec<f32> = (0..rows)
+        .flat_map(|r| {
+            inputs
+                .iter()
+                .zip(&blocks)
+                .flat_map(move |(v, &(c, _))| v[r * c..(r + 1) * c].to_vec())
+        })
+        .collect();
+    let host_blocks = blocks.map(|(channels, freqs)| Block { channels, freqs });
+    let want: Vec<f64> = forward(&side_by_side, &host_blocks)
+        .into_iter()
+        .map(f64::from)
+        .collect();
+    let got = f64s(out);
+    let tol = if test_device_name() == "cpu" {
+        0.0
+    } else {
+        1e-5
+    };
+    let e = max_abs_diff(&got, &want);
+    assert!(e <= tol, "differs from the host formula by {e:.2e}");
+}

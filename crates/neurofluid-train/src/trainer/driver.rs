@@ -286,6 +286,8 @@ impl<'s> Driver<'s> {
             }
             throughput.steps += 1;
             throughput.transfers = throughput.transfers.plus(transfer::counts().since(copies));
+            // the step's end, for tools that split a log by step (scripts/kernel-launches.sh)
+            tracing::trace!(target: "neurofluid_train::step", stage, done, "step finished");
             if stats.updated && std::mem::take(&mut unconfirmed) {
                 checkpoint::confirm(&self.stage_dir)?;
             }
