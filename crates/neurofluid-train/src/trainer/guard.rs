@@ -46,7 +46,11 @@ pub fn grad_square_sums<M: Module>(grads: &GradientsParams, module: &M) -> Vec<T
     impl ModuleVisitor for SumSquares<'_> {
         fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
             if let Some(g) = self.grads.get::<D>(param.id) {
-                self.sums.push(g.powi_scalar(2).sum());
+                // a sum along a dimension: on a GPU one reduction kernel (the square fused into
+                // it), in a fixed order; a sum of every element is a fill and an accumulation
+                let n = g.shape().num_elements();
+                self.sums
+                    .push(g.reshape([1, n]).powi_scalar(2).sum_dim(1).reshape([1]));
             }
         }
     }
