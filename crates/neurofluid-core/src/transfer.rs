@@ -11,8 +11,8 @@
 //! The counters are per thread (the thread that asked for the copy): a step runs on one thread,
 //! and tests that run in parallel do not see each other's copies. The counts are the same on
 //! every backend for the same code path; on the CPU backends a "read" is a host copy, cheap.
-//! Kernel launches are not counted here: Burn 0.22 does not expose them (cubecl's
-//! `CUBECL_DEBUG_OPTION=profile` logs each kernel on wgpu). Nor is the one move of a module's
+//! Kernel launches are not counted here: Burn 0.22 does not expose them; cubecl's launch log
+//! does, and `scripts/kernel-launches.sh` counts them per step. Nor is the one move of a module's
 //! initial weights from the CPU to the device (`device::init_seeded`), once per run.
 
 use std::cell::Cell;
