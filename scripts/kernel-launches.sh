@@ -10,8 +10,9 @@
 #   scripts/kernel-launches.sh BIN EXPERIMENT OUT [--device wgpu] [--set key=value ...]
 #
 # BIN is a neurofluid-train built with a cubecl backend; OUT a folder for the log and the summary
-# (OUT/launches.txt: per stage the steps counted, the launches per step — median, and the mean
-# over the steps after the first, which compiles the kernels — and the most launched kernels).
+# (OUT/launches.txt: per stage the steps counted, the launches per step — median, the mean over
+# the steps after the first, which compiles the kernels, and each step's — and the most launched
+# kernels).
 set -euo pipefail
 bin=$(realpath "${1:?usage: kernel-launches.sh BIN EXPERIMENT OUT [args...]}")
 experiment=${2:?usage: kernel-launches.sh BIN EXPERIMENT OUT [args...]}
@@ -60,6 +61,8 @@ for stage in dict.fromkeys(s for s, _ in steps):
     later = totals[1:] or totals
     print(f"{stage}: {len(totals)} steps, launches per step median {statistics.median(totals):.0f}, "
           f"mean after the first {statistics.mean(later):.1f} (first {totals[0]})")
+    # the joint stage's steps differ by their place in a BPTT window: each step's count
+    print("    per step: " + " ".join(map(str, totals)))
     kernels = sum(counts[1:] or counts, collections.Counter())
     for name, n in kernels.most_common(12):
         print(f"    {n / len(later):7.1f}  {name}")
