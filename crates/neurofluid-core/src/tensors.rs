@@ -1,4 +1,5 @@
-//! Moving point sets between the host (`[[f32; 3]]`) and Burn tensors (`[N, 3]`).
+//! Moving point sets between the host (`[[f32; 3]]`) and Burn tensors (`[N, 3]`), and sums of
+//! every element that give the same bits on every run.
 
 use burn::prelude::*;
 
@@ -23,6 +24,48 @@ pub fn tensor_points(t: &Tensor<2>) -> Vec<[f32; 3]> {
     );
     let v: Vec<f32> = crate::transfer::read_vec(t.clone()).expect("float tensor data");
     v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()
+}
+
+/// The longest run of elements [`sum_all`] sums along one dimension at once.
+pub const SUM_BLOCK: usize = 1 << 16;
+
+/// The sum of every element of `t` as `[1]`, the same bits on every run on every backend: sums
+/// along one dimension, in blocks of at most [`SUM_BLOCK`] elements (the last padded with zeros)
+/// whose sums are then summed. Burn's whole-tensor `sum` (and `mean`) on the cubecl backends
+/// without autotune adds each workgroup's part into the result with atomic adds, in whatever
+/// order the workgroups finish; and on Mesa's lavapipe a sum along a dimension of a million
+/// elements came out wrong, one of 256,000 right (its loops stop after 65,535 iterations; BENCHMARKS.md,
+/// "Issue 30: kernel launches per step").
+pub fn sum_all<const D: usize>(t: Tensor<D>) -> Tensor<1> {
+    let n = t.shape().num_elements();
+    let flat = t.reshape([1, n]);
+    if n <= SUM_BLOCK {
+        return flat.sum_dim(1).reshape([1]);
+    }
+    let blocks = n.div_ceil(SUM_BLOCK);
+    let padded = blocks * SUM_BLOCK;
+    let flat = if padded > n {
+        let zeros = Tensor::<2>::zeros([1, padded - n], (&flat.device(), flat.dtype()));
+        Tensor::cat(vec![flat, zeros], 1)
+    } else {
+        flat
+    };
+    flat.reshape([blocks, SUM_BLOCK])
+        .sum_dim(1)
+        .reshape([1, blocks])
+        .sum_dim(1)
+        .reshape([1])
+}
+
+/// The mean of every element of `t` as `[1]`, the same bits on every run (see [`sum_all`]).
+pub fn mean_all<const D: usize>(t: Tensor<D>) -> Tensor<1> {
+    let n = t.shape().num_elements();
+    if n <= SUM_BLOCK {
+        return t.reshape([1, n]).mean_dim(1).reshape([1]);
+    }
+    // divided by a tensor: Burn's autodiff rounds a scalar divisor to f32 in the backward pass
+    let sum = sum_all(t);
+    sum.clone() / sum.full_like(n as f64)
 }
 
 #[cfg(test)]

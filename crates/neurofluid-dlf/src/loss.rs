@@ -26,7 +26,7 @@ pub fn dlf_step_loss(pred: Tensor<2>, target: Tensor<2>, num_fluid_neighbors: &[
     .cast(pred.dtype());
     let diff = pred - target;
     let dist = ((diff.clone() * diff).sum_dim(1).squeeze_dim::<1>(1) + 1e-9).sqrt();
-    (importance * dist.powf_scalar(LOSS_GAMMA)).mean()
+    neurofluid_core::tensors::mean_all(importance * dist.powf_scalar(LOSS_GAMMA))
 }
 
 /// DLF's two-step sample loss `128 · (0.5·L1 + 0.5·L2)`.

@@ -150,7 +150,7 @@ pub struct Loss {
 /// `mean((rgb − target)²)` over all entries.
 pub fn mse(rgb: Tensor<2>, target: Tensor<2>) -> Tensor<1> {
     let d = rgb - target;
-    (d.clone() * d).mean()
+    neurofluid_core::tensors::mean_all(d.clone() * d)
 }
 
 impl PhysNerf {

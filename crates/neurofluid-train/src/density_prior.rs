@@ -17,6 +17,7 @@
 
 use burn::prelude::*;
 use neurofluid_core::metrics::nearest_others;
+use neurofluid_core::tensors::sum_all;
 
 /// The prior's settings, fixed for a run.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -107,7 +108,7 @@ impl DensityPrior {
         let tau = f64::from(self.spread);
         let scale = self.weight / (points.len() as f64 * tau * tau);
         let excess = spread.sub_scalar(tau);
-        (Some(excess.powi_scalar(2).sum().mul_scalar(scale)), m)
+        (Some(sum_all(excess.powi_scalar(2)).mul_scalar(scale)), m)
     }
 }
 

@@ -31,6 +31,7 @@
 
 use burn::prelude::*;
 use burn::tensor::activation::relu;
+use neurofluid_core::tensors::mean_all;
 
 use crate::config::EnergyPer;
 
@@ -64,8 +65,8 @@ pub fn energy_gain(
     let start = particle_energies(before.0.detach(), before.1.detach(), gravity);
     let end = particle_energies(after.0, after.1, gravity);
     let gain = match per {
-        EnergyPer::Fluid => relu(end.mean() - start.mean()),
-        EnergyPer::Particle => relu(end - start).mean(),
+        EnergyPer::Fluid => relu(mean_all(end) - mean_all(start)),
+        EnergyPer::Particle => mean_all(relu(end - start)),
     };
     gain.mul_scalar(1.0 / unit)
 }

@@ -20,6 +20,7 @@
 
 use burn::prelude::*;
 use neurofluid_core::neighbors::{PairList, fixed_radius_pairs};
+use neurofluid_core::tensors::sum_all;
 
 use crate::density_prior::int_tensor;
 
@@ -103,7 +104,7 @@ impl RestDensity {
             .mul_scalar(-1.0 / (h * h))
             .add_scalar(1.0)
             .clamp_min(0.0);
-        let density = q.powi_scalar(3).sum().mul_scalar(1.0 / (n * self.rest));
+        let density = sum_all(q.powi_scalar(3)).mul_scalar(1.0 / (n * self.rest));
         let deficit = density.neg().add_scalar(1.0);
         (Some(deficit.powi_scalar(2).mul_scalar(self.weight)), ratio)
     }

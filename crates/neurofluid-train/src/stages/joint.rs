@@ -29,6 +29,7 @@ use burn::tensor::activation::relu;
 use neurofluid_core::metrics::gt_to_pred_distance;
 use neurofluid_core::npz::{NpzReader, NpzWriter};
 use neurofluid_core::scene::{Aabb, Particles, Role, Scene};
+use neurofluid_core::tensors::{mean_all, sum_all};
 use neurofluid_core::transfer::read_together;
 use neurofluid_dlf::{Boundary, DlfNet};
 use neurofluid_physnerf::{PhysNerf, RayBatch};
@@ -75,7 +76,7 @@ pub fn boundary_penalty(pos: Tensor<2>, interior: &Aabb) -> Tensor<1> {
         .unsqueeze_dim::<2>(0);
     let below = relu(lo - pos.clone());
     let above = relu(pos - hi);
-    (below + above).mean()
+    mean_all(below + above)
 }
 
 /// `joint.truth_weight`: every training frame's true particles on the device, refused with the
@@ -136,7 +137,7 @@ pub fn anchor_penalty(
             (diff * (ray / length)).sum_dim(1).powi_scalar(2)
         }
     };
-    squares.sum().mul_scalar(1.0 / (n * r2))
+    sum_all(squares).mul_scalar(1.0 / (n * r2))
 }
 
 /// What the joint stage trains on: the training view at every training frame, the true state of
@@ -382,8 +383,8 @@ fn split_on_device(
 /// Zero without a g.
 pub fn dlf_surrogate(pred: &Tensor<2>, dx: Option<&[[f32; 3]]>) -> Tensor<1> {
     match dx {
-        Some(g) => (pred.clone() * points_tensor(g, &pred.device())).sum(),
-        None => pred.clone().sum().mul_scalar(0.0),
+        Some(g) => sum_all(pred.clone() * points_tensor(g, &pred.device())),
+        None => sum_all(pred.clone()).mul_scalar(0.0),
     }
 }
 
