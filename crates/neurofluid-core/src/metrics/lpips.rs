@@ -153,7 +153,7 @@ impl Lpips {
                 None,
                 ConvOptions::new([1, 1], [0, 0], [1, 1], 1),
             );
-            total += crate::transfer::read_scalar(layer.mean());
+            total += crate::transfer::read_scalar(crate::tensors::mean_all(layer));
         }
         Ok(total)
     }
