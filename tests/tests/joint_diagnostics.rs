@@ -654,9 +654,6 @@ fn energy_prior_adds_each_steps_energy_gain_to_the_loss() {
     assert_loss_rises_by(&runs[0], &runs[2], &particle, 1.0, "particle");
 }
 
-/// With DLF held, the rest-density prior adds w·max(0, 1 − ρ̄/ρ̄₀)² of each step's prediction to
-/// the loss (ρ̄₀ the first state's), computed here by hand from an independent rollout; the
-/// diagnostics log the rollout's mean ρ̄/ρ̄₀ over the training frames, with or without the prior.
 /// `joint.truth_weight`: with DLF held (lr 0) each step's loss rises by exactly w times the
 /// mean squared distance, in particle radii², from the step's prediction to the true particles
 /// of its frame, computed here by hand from an independent rollout and the scene's truth; a
@@ -716,6 +713,9 @@ fn the_truth_term_adds_each_steps_squared_error() {
     assert!(err.contains("joint.truth_weight"), "{err}");
 }
 
+/// With DLF held, the rest-density prior adds w·max(0, 1 − ρ̄/ρ̄₀)² of each step's prediction to
+/// the loss (ρ̄₀ the first state's), computed here by hand from an independent rollout; the
+/// diagnostics log the rollout's mean ρ̄/ρ̄₀ over the training frames, with or without the prior.
 #[test]
 fn rest_density_prior_adds_the_deficit_of_each_step() {
     let _turn = seeded_turn();

@@ -15,6 +15,7 @@ use rayon::prelude::*;
 use crate::half_matmul::{MatmulOperands, half_matmul, matmul_operands};
 use crate::matmul::{Epilogue, Lanes, LayoutA, PackedB, matmul};
 use crate::real::{Real, axpy, dot_in_lanes, par_zeros};
+use crate::tensors::with_zero_rows;
 
 /// Rows of `x` per task of the forward pass and of `dx`.
 const ROWS_PER_TASK: usize = 1024;
@@ -406,19 +407,15 @@ pub fn pad_rows(xs: Vec<Tensor<2>>, block: usize) -> (Vec<Tensor<2>>, usize) {
     let Some(first) = xs.first() else {
         return (xs, 0);
     };
-    let (m, device) = (first.dims()[0], first.device());
+    let m = first.dims()[0];
     if block == 0 || m <= block || m % block == 0 {
         return (xs, m);
     }
     let padded = m.div_ceil(block) * block;
-    let xs = xs
-        .into_iter()
-        .map(|x| {
-            let pad = Tensor::<2>::zeros([padded - m, x.dims()[1]], (&device, x.dtype()));
-            Tensor::cat(vec![x, pad], 0)
-        })
-        .collect();
-    (xs, m)
+    (
+        xs.into_iter().map(|x| with_zero_rows(x, padded)).collect(),
+        m,
+    )
 }
 
 /// The first `m` rows of `x` (the output of a network whose inputs [`pad_to_row_blocks`]
@@ -466,13 +463,7 @@ pub fn linear_in_row_blocks(
     let block = block.max(1);
     let blocks = m.div_ceil(block);
     let padded = blocks * block;
-    let x = if padded > m {
-        let device = x.device();
-        let pad = Tensor::<2>::zeros([padded - m, k], (&device, x.dtype()));
-        Tensor::cat(vec![x, pad], 0)
-    } else {
-        x
-    };
+    let x = with_zero_rows(x, padded);
     let w = layer.weight.val();
     let n = w.dims()[1];
     let x = x.reshape([blocks, block, k]);
@@ -481,7 +472,7 @@ pub fn linear_in_row_blocks(
         Some(half) => half_matmul(x, w, half),
     }
     .reshape([padded, n]);
-    let z = if padded > m { z.slice([0..m, 0..n]) } else { z };
+    let z = first_rows(z, m);
     let z = match &layer.bias {
         Some(b) => z + b.val().unsqueeze_dim::<2>(0),
         None => z,

@@ -45,6 +45,9 @@ pub fn posenc(v: Tensor<2>, freqs: usize) -> Tensor<2> {
 /// # Panics
 /// When `inputs` is empty.
 pub fn posenc_cat(inputs: Vec<(Tensor<2>, usize)>) -> Tensor<2> {
+    if !inputs.first().is_some_and(|(v, _)| on_flex(v)) {
+        return posenc_composed(inputs);
+    }
     let blocks: Vec<Block> = inputs
         .iter()
         .map(|(v, freqs)| Block {
@@ -52,9 +55,6 @@ pub fn posenc_cat(inputs: Vec<(Tensor<2>, usize)>) -> Tensor<2> {
             freqs: *freqs,
         })
         .collect();
-    if !inputs.first().is_some_and(|(v, _)| on_flex(v)) {
-        return posenc_composed(inputs);
-    }
     let vs: Vec<Tensor<2>> = inputs.into_iter().map(|(v, _)| v).collect();
     // narrow inputs (a few columns each): cheap beside the encoding
     let v = Tensor::cat(vs.clone(), 1);

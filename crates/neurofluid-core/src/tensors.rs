@@ -26,6 +26,16 @@ pub fn tensor_points(t: &Tensor<2>) -> Vec<[f32; 3]> {
     v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()
 }
 
+/// `x [m, c]` with zero rows appended up to `rows` (≥ m); `x` itself when it has them.
+pub fn with_zero_rows(x: Tensor<2>, rows: usize) -> Tensor<2> {
+    let [m, c] = x.dims();
+    if rows == m {
+        return x;
+    }
+    let zeros = Tensor::<2>::zeros([rows - m, c], (&x.device(), x.dtype()));
+    Tensor::cat(vec![x, zeros], 0)
+}
+
 /// The longest run of elements [`sum_all`] sums along one dimension at once.
 pub const SUM_BLOCK: usize = 1 << 16;
 
@@ -38,19 +48,12 @@ pub const SUM_BLOCK: usize = 1 << 16;
 /// "Issue 30: kernel launches per step").
 pub fn sum_all<const D: usize>(t: Tensor<D>) -> Tensor<1> {
     let n = t.shape().num_elements();
-    let flat = t.reshape([1, n]);
     if n <= SUM_BLOCK {
-        return flat.sum_dim(1).reshape([1]);
+        return t.reshape([1, n]).sum_dim(1).reshape([1]);
     }
     let blocks = n.div_ceil(SUM_BLOCK);
-    let padded = blocks * SUM_BLOCK;
-    let flat = if padded > n {
-        let zeros = Tensor::<2>::zeros([1, padded - n], (&flat.device(), flat.dtype()));
-        Tensor::cat(vec![flat, zeros], 1)
-    } else {
-        flat
-    };
-    flat.reshape([blocks, SUM_BLOCK])
+    with_zero_rows(t.reshape([n, 1]), blocks * SUM_BLOCK)
+        .reshape([blocks, SUM_BLOCK])
         .sum_dim(1)
         .reshape([1, blocks])
         .sum_dim(1)
