@@ -66,6 +66,13 @@ fn a_training_step_of_each_stage_reads_the_device_a_stated_number_of_times() {
                 r.get("read_bytes_per_step").unwrap(),
                 r.get("upload_bytes_per_step").unwrap()
             );
+            // the training thread's CPU time within a step: some, never more than the step's wall
+            let (wall, host) = (r.get("step_s").unwrap(), r.get("host_s_per_step").unwrap());
+            assert!(
+                host > 0.0 && host <= wall + 1e-3,
+                "{stage} step {}: {host} s on the host in a step of {wall} s",
+                r.step
+            );
             // a step reads its loss at least, and uploads its rays' target colours
             assert!(reads >= 1.0 && uploads >= 1.0, "{stage}: nothing counted");
             assert!(

@@ -11,6 +11,7 @@ use super::stop::{self, Stopped};
 use super::{Event, EventSink, StepStats, Trainer};
 use crate::config::Settings;
 use crate::metrics_log::MetricsRow;
+use neurofluid_core::cpu_time::thread_cpu_seconds;
 use neurofluid_core::transfer::{self, Counts};
 
 /// When the driver logs, evaluates and checkpoints (every this many steps; 0 = never, and
@@ -34,14 +35,27 @@ pub struct Driver<'s> {
     stop: Arc<AtomicBool>,
 }
 
-/// Rays, time and host–device copies since the previous metrics row, for the throughput and
-/// transfer columns.
+/// Rays, time, the training thread's CPU time and host–device copies since the previous metrics
+/// row, for the throughput, host-time and transfer columns.
 struct Throughput {
     started: Instant,
     window: Instant,
     rays: usize,
     steps: u64,
+    /// Wall and training-thread CPU seconds inside the steps (checkpoints, previews and
+    /// evaluations outside them).
+    step_wall: f64,
+    step_cpu: f64,
     transfers: Counts,
+}
+
+/// Means per step over a metrics row's window.
+struct PerStep {
+    /// Wall seconds of a step.
+    wall: f64,
+    /// The training thread's CPU seconds within a step: on an accelerator the host's part.
+    host: f64,
+    transfers: [f64; 4],
 }
 
 impl Throughput {
@@ -51,24 +65,32 @@ impl Throughput {
             window: Instant::now(),
             rays: 0,
             steps: 0,
+            step_wall: 0.0,
+            step_cpu: 0.0,
             transfers: Counts::default(),
         }
     }
 
-    /// The mean copies per step since the previous call (`None` before any step).
-    fn take_transfers(&mut self) -> Option<[f64; 4]> {
-        let (n, c) = (
-            std::mem::take(&mut self.steps),
-            std::mem::take(&mut self.transfers),
+    /// The means per step since the previous call (`None` before any step).
+    fn take_per_step(&mut self) -> Option<PerStep> {
+        let n = std::mem::take(&mut self.steps);
+        let c = std::mem::take(&mut self.transfers);
+        let (wall, cpu) = (
+            std::mem::take(&mut self.step_wall),
+            std::mem::take(&mut self.step_cpu),
         );
         (n > 0).then(|| {
-            let per = |v: u64| v as f64 / n as f64;
-            [
-                per(c.reads),
-                per(c.read_bytes),
-                per(c.uploads),
-                per(c.upload_bytes),
-            ]
+            let per = |v: f64| v / n as f64;
+            PerStep {
+                wall: per(wall),
+                host: per(cpu),
+                transfers: [
+                    per(c.reads as f64),
+                    per(c.read_bytes as f64),
+                    per(c.uploads as f64),
+                    per(c.upload_bytes as f64),
+                ],
+            }
         })
     }
 
@@ -238,7 +260,12 @@ impl<'s> Driver<'s> {
             row.set(&name, v);
         }
         row.set_some("rays_per_s", throughput.take_rate());
-        if let Some([r, rb, u, ub]) = throughput.take_transfers() {
+        if let Some(per) = throughput.take_per_step() {
+            let [r, rb, u, ub] = per.transfers;
+            row.set("step_s", per.wall);
+            if per.host.is_finite() {
+                row.set("host_s_per_step", per.host);
+            }
             row.set("reads_per_step", r);
             row.set("read_bytes_per_step", rb);
             row.set("uploads_per_step", u);
@@ -278,8 +305,10 @@ impl<'s> Driver<'s> {
             return Err(self.stopped(stage, start));
         }
         for step in start..end {
-            let copies = transfer::counts();
+            let (copies, wall, cpu) = (transfer::counts(), Instant::now(), thread_cpu_seconds());
             let stats = trainer.step(step)?;
+            throughput.step_cpu += thread_cpu_seconds() - cpu;
+            throughput.step_wall += wall.elapsed().as_secs_f64();
             let done = step + 1;
             if let Some(what) = guard.check(&stats).or_else(|| trainer.check_state().err()) {
                 return Err(self.diverged(stage, done, what, unconfirmed));
