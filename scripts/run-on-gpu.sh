@@ -24,6 +24,9 @@
 #   launches  kernel launches per warm-up and joint step of the quick main job
 #             (scripts/kernel-launches.sh: cubecl's untimed launch log split at the trainer's
 #             step marks; LAUNCHES_JOINT_SECONDS, default 60)
+#   threads   each thread's CPU time per warm-up and joint step of the quick main job
+#             (scripts/thread-times.py: the training thread, cubecl's device threads; which one
+#             bounds a step; THREADS_WARMUP_ITERS, default 60, THREADS_JOINT_SECONDS, default 60)
 #   profile   one small PhysNeRF step with CUBECL_DEBUG_OPTION=profile: cubecl's log of every
 #             kernel launch, timed on the device, summed by kernel (scripts/cubecl-profile-summary.py)
 #   dlfprofile  the same for DLF steps at 8k fluid particles (a warm-up, one forward, one
@@ -274,6 +277,14 @@ PY
         grep -E '^[a-z]+: [0-9]+ steps' "$results/launches/launches.txt" 2>/dev/null |
             sed 's/^/    /' | tee -a "$summary"
         ;;
+    threads)
+        timed "CPU time per thread per step, quick main job" \
+            $((${THREADS_JOINT_SECONDS:-60} + 120)) "$results/threads.out" \
+            python3 scripts/thread-times.py "$bin/neurofluid-train" experiments/quick-watercube.toml \
+            "$results/threads" --warmup-iters "${THREADS_WARMUP_ITERS:-60}" \
+            --joint-seconds "${THREADS_JOINT_SECONDS:-60}" -- --device wgpu
+        sed 's/^/    /' "$results/threads/threads.txt" 2>/dev/null | tee -a "$summary"
+        ;;
     profile)
         log=$results/profile.log
         timed "one small PhysNeRF step, cubecl's kernel profile" 60 "$log" \
@@ -305,7 +316,7 @@ PY
             "${PAPER_SECONDS:-300}" "$results/paper.log" "$bin/neurofluid-train" run \
             experiments/paper-watercube.toml --device wgpu --set name=gpu-paper
         ;;
-    *) say "unknown step $step (physnerf, physnerf-wgpu, half, search, split, dlf, dlf-wgpu, quick, launches, profile, dlfprofile, tests, paper)" ;;
+    *) say "unknown step $step (physnerf, physnerf-wgpu, half, search, split, dlf, dlf-wgpu, quick, launches, threads, profile, dlfprofile, tests, paper)" ;;
     esac
 done
 say "done at $(date -u +%FT%TZ), $SECONDS s"

@@ -201,7 +201,7 @@ fn split_image_gradient_equals_the_direct_one() {
     let split = split_image_loss(&physnerf, &p2.pos, &rays, colours, None).unwrap();
     let dx = split.dx.expect("the render depends on the positions");
     assert!(dx.iter().flatten().any(|v| *v != 0.0));
-    let mut grads = dlf_surrogate(&p2.pos, Some(&dx)).backward();
+    let mut grads = dlf_surrogate(&p2.pos, Some(points_tensor(&dx, &device))).backward();
     let split_dlf = GradientsParams::from_module(&mut grads, &dlf);
     let split_physnerf = split.physnerf_grads.expect("PhysNeRF's gradients");
 

@@ -20,6 +20,10 @@ fn the_gpu_search_renders_what_the_host_search_renders() {
     let rays = inputs.rays::<f32>();
     let target = Tensor::<2>::full([rays.len(), 3], 0.3, &device);
     let model = model(&inputs, &device, DType::F32);
+    // a first render fills the device's caches (the encodings' constants), so that the two
+    // renders below upload the same but for the search
+    let p = inputs.particles_tensor(&device, DType::F32);
+    model.render_rays(&p, &rays, None).unwrap();
     let mut results = Vec::new();
     for &place in NeighbourSearch::ALL {
         set_neighbour_search(place);

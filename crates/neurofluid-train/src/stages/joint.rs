@@ -286,22 +286,19 @@ impl Diagnostics {
     }
 }
 
-/// The cosine between `a` and `b`, each N×3 flattened; `None` when either is zero or the
-/// counts differ.
-pub fn cosine(a: &[[f32; 3]], b: &[[f32; 3]]) -> Option<f64> {
-    if a.len() != b.len() {
-        return None;
-    }
-    let (mut ab, mut aa, mut bb) = (0.0f64, 0.0f64, 0.0f64);
-    for (p, q) in a.iter().zip(b) {
-        for k in 0..3 {
-            let (x, y) = (f64::from(p[k]), f64::from(q[k]));
-            ab += x * y;
-            aa += x * x;
-            bb += y * y;
-        }
-    }
+/// The cosine `Σab / (√Σa² √Σb²)` from its three sums; `None` when either norm is zero.
+pub fn cosine_of_sums([ab, aa, bb]: [f64; 3]) -> Option<f64> {
     (aa > 0.0 && bb > 0.0).then(|| ab / (aa.sqrt() * bb.sqrt()))
+}
+
+/// `[Σab, Σa², Σb²]` of two `[N, 3]` tensors on their device (`[1]` each, fixed-order sums), for a
+/// cosine read back with a step's other values ([`cosine_of_sums`]).
+pub fn cosine_sums(a: Tensor<2>, b: Tensor<2>) -> [Tensor<1>; 3] {
+    [
+        sum_all(a.clone() * b.clone()),
+        sum_all(a.clone() * a),
+        sum_all(b.clone() * b),
+    ]
 }
 
 /// The image loss of one transition, differentiated at the predicted positions.
@@ -334,7 +331,7 @@ pub fn split_image_loss(
         loss: total,
         psnr: psnr_from_mse(fine),
         physnerf_grads: split.physnerf_grads,
-        dx: split.dx,
+        dx: split.dx.map(|g| tensor_points(&g)),
     })
 }
 
@@ -344,10 +341,11 @@ struct SplitOnDevice {
     fine: Tensor<1>,
     total: Tensor<1>,
     physnerf_grads: Option<GradientsParams>,
-    dx: Option<Vec<[f32; 3]>>,
+    /// ∂L/∂x_{t+1}, left on the device (plain: not tracked).
+    dx: Option<Tensor<2>>,
 }
 
-/// [`split_image_loss`] without reading the losses; `host` is `pred`'s values when the caller
+/// [`split_image_loss`] without reading the losses or the particles' gradient; `host` is `pred`'s values when the caller
 /// holds them (the renderer then reads nothing back for the neighbour search).
 fn split_on_device(
     physnerf: &PhysNerf,
@@ -366,7 +364,7 @@ fn split_on_device(
     let (physnerf_grads, dx) = match guard::backward(image_loss.total.clone()) {
         Some(mut grads) => (
             Some(GradientsParams::from_module(&mut grads, physnerf)),
-            x.grad(&grads).map(|g| tensor_points(&g)),
+            x.grad(&grads),
         ),
         None => (None, None),
     };
@@ -380,10 +378,10 @@ fn split_on_device(
 
 /// Σ x_{t+1}·g with g = ∂L/∂x_{t+1} held constant: its gradient with respect to anything
 /// x_{t+1} depends on (DLF's weights, earlier states) is the image loss's, by the chain rule.
-/// Zero without a g.
-pub fn dlf_surrogate(pred: &Tensor<2>, dx: Option<&[[f32; 3]]>) -> Tensor<1> {
+/// Zero without a g. `g` is a plain tensor (a constant in the product).
+pub fn dlf_surrogate(pred: &Tensor<2>, dx: Option<Tensor<2>>) -> Tensor<1> {
     match dx {
-        Some(g) => sum_all(pred.clone() * points_tensor(g, &pred.device())),
+        Some(g) => sum_all(pred.clone() * g),
         None => sum_all(pred.clone()).mul_scalar(0.0),
     }
 }
@@ -684,16 +682,13 @@ impl Trainer for JointTrainer {
         if self.cfg.silhouette_weight > 0.0 {
             let (loss, g) = self.silhouette_at(t + 1, &pred_host);
             silhouette = Some(loss);
+            let g = points_tensor(&g, &device);
             dx = Some(match dx {
-                Some(d) => d
-                    .iter()
-                    .zip(&g)
-                    .map(|(a, b)| std::array::from_fn(|k| a[k] + b[k]))
-                    .collect(),
+                Some(d) => d + g,
                 None => g,
             });
         }
-        let mut surrogate = dlf_surrogate(&pred.pos, dx.as_deref()) + boundary.clone();
+        let mut surrogate = dlf_surrogate(&pred.pos, dx.clone()) + boundary.clone();
         if let Some(anchor) = &self.anchor {
             let (x, v) = (self.state.0.clone().detach(), self.state.1.clone().detach());
             let target = anchor.step(x, v, &self.boundary).pos.detach();
@@ -756,9 +751,7 @@ impl Trainer for JointTrainer {
             extra = extra + term.clone().detach();
             surrogate = surrogate + term;
         }
-        if let Some(g) = &dx {
-            self.record_alignment(t + 1, &pred_host, g);
-        }
+        let alignment = dx.and_then(|g| self.alignment_sums(t + 1, &pred_host, g));
         self.pending = Some(match self.pending.take() {
             None => surrogate,
             Some(p) => p + surrogate,
@@ -789,7 +782,17 @@ impl Trainer for JointTrainer {
                 g_dlf = Some(g);
             }
         }
+        let n_alignment = alignment.as_ref().map_or(0, |a| a.len());
+        parts.extend(alignment.into_iter().flatten());
         let values = read_together(parts)?;
+        if n_alignment > 0
+            && let Some(c) = cosine_of_sums(std::array::from_fn(|k| {
+                values[values.len() - n_alignment + k]
+            }))
+        {
+            self.alignment.0 += c;
+            self.alignment.1 += 1;
+        }
         let (fine, image, boundary, extra) = (values[0], values[1], values[2], values[3]);
         self.pending_loss += image + boundary + extra;
         if let Some(loss) = silhouette {
@@ -997,25 +1000,26 @@ impl JointTrainer {
         (loss, grad)
     }
 
-    /// Adds the cosine between −`dx` and the true error at training frame `t` to the alignment,
-    /// where the truth is known and has the prediction's particles (matched by index).
-    fn record_alignment(&mut self, t: usize, predicted: &[[f32; 3]], dx: &[[f32; 3]]) {
-        let Some(truth) = self.data.truth.as_ref().map(|truth| &truth[t]) else {
-            return;
-        };
+    /// The sums of the cosine between −`dx` and the true error at training frame `t`, on the
+    /// device (read with the step's values: ∂L/∂x stays there), where the truth is known and has
+    /// the prediction's particles (matched by index).
+    fn alignment_sums(
+        &self,
+        t: usize,
+        predicted: &[[f32; 3]],
+        dx: Tensor<2>,
+    ) -> Option<[Tensor<1>; 3]> {
+        let truth = &self.data.truth.as_ref()?[t];
         if truth.len() != predicted.len() {
-            return;
+            return None;
         }
-        let descent: Vec<[f32; 3]> = dx.iter().map(|v| v.map(|c| -c)).collect();
         let error: Vec<[f32; 3]> = truth
             .iter()
             .zip(predicted)
             .map(|(a, b)| [a[0] - b[0], a[1] - b[1], a[2] - b[2]])
             .collect();
-        if let Some(c) = cosine(&descent, &error) {
-            self.alignment.0 += c;
-            self.alignment.1 += 1;
-        }
+        let error = points_tensor(&error, &dx.device());
+        Some(cosine_sums(dx.neg(), error))
     }
 
     /// The [`Diagnostics`] now (the gradient alignment since the last call).
@@ -1183,6 +1187,45 @@ mod tests {
         let along = [[0.0, 0.0, -2.5], [0.0, 0.0, -3.0]];
         let p = value(anchor_penalty(rows(&along), rows(&anchor), 0.5, eye));
         assert!((p - 0.5).abs() < 1e-6, "{p}");
+    }
+
+    /// The device's cosine sums against the cosine summed in f64 on the host, for an
+    /// anti-parallel pair (−1) and without a norm (`None`).
+    #[test]
+    fn the_cosine_from_device_sums_is_the_hosts() {
+        let a: Vec<[f32; 3]> = (0..2000)
+            .map(|i| {
+                let x = i as f32;
+                [(0.37 * x).sin(), (1.3 * x).cos() * 1e-6, 0.01 * x.sqrt()]
+            })
+            .collect();
+        let b: Vec<[f32; 3]> = (0..2000)
+            .map(|i| {
+                let x = i as f32;
+                [
+                    (0.11 * x).cos(),
+                    (0.7 * x).sin() - 0.2,
+                    (0.05 * x).sin() * 3.0,
+                ]
+            })
+            .collect();
+        let sums = |a: &[[f32; 3]], b: &[[f32; 3]]| {
+            std::array::from_fn(|k| value(cosine_sums(rows(a), rows(b))[k].clone()))
+        };
+        let (mut ab, mut aa, mut bb) = (0.0f64, 0.0f64, 0.0f64);
+        for (p, q) in a.iter().zip(&b) {
+            for k in 0..3 {
+                let (x, y) = (f64::from(p[k]), f64::from(q[k]));
+                (ab, aa, bb) = (ab + x * y, aa + x * x, bb + y * y);
+            }
+        }
+        let want = ab / (aa.sqrt() * bb.sqrt());
+        let got = cosine_of_sums(sums(&a, &b)).unwrap();
+        assert!((got - want).abs() < 1e-6, "{got} against {want}");
+        let neg: Vec<[f32; 3]> = a.iter().map(|v| v.map(|c| -2.0 * c)).collect();
+        let anti = cosine_of_sums(sums(&a, &neg)).unwrap();
+        assert!((anti + 1.0).abs() < 1e-6, "{anti}");
+        assert_eq!(cosine_of_sums(sums(&a, &vec![[0.0; 3]; 2000])), None);
     }
 
     #[test]

@@ -11,7 +11,6 @@ use super::stop::{self, Stopped};
 use super::{Event, EventSink, StepStats, Trainer};
 use crate::config::Settings;
 use crate::metrics_log::MetricsRow;
-use neurofluid_core::cpu_time::thread_cpu_seconds;
 use neurofluid_core::transfer::{self, Counts};
 
 /// When the driver logs, evaluates and checkpoints (every this many steps; 0 = never, and
@@ -35,17 +34,15 @@ pub struct Driver<'s> {
     stop: Arc<AtomicBool>,
 }
 
-/// Rays, time, the training thread's CPU time and host–device copies since the previous metrics
-/// row, for the throughput, host-time and transfer columns.
+/// Rays, time and host–device copies since the previous metrics row, for the throughput, step-time
+/// and transfer columns.
 struct Throughput {
     started: Instant,
     window: Instant,
     rays: usize,
     steps: u64,
-    /// Wall and training-thread CPU seconds inside the steps (checkpoints, previews and
-    /// evaluations outside them).
+    /// Wall seconds inside the steps (checkpoints, previews and evaluations outside them).
     step_wall: f64,
-    step_cpu: f64,
     transfers: Counts,
 }
 
@@ -53,8 +50,6 @@ struct Throughput {
 struct PerStep {
     /// Wall seconds of a step.
     wall: f64,
-    /// The training thread's CPU seconds within a step: on an accelerator the host's part.
-    host: f64,
     transfers: [f64; 4],
 }
 
@@ -66,7 +61,6 @@ impl Throughput {
             rays: 0,
             steps: 0,
             step_wall: 0.0,
-            step_cpu: 0.0,
             transfers: Counts::default(),
         }
     }
@@ -75,15 +69,11 @@ impl Throughput {
     fn take_per_step(&mut self) -> Option<PerStep> {
         let n = std::mem::take(&mut self.steps);
         let c = std::mem::take(&mut self.transfers);
-        let (wall, cpu) = (
-            std::mem::take(&mut self.step_wall),
-            std::mem::take(&mut self.step_cpu),
-        );
+        let wall = std::mem::take(&mut self.step_wall);
         (n > 0).then(|| {
             let per = |v: f64| v / n as f64;
             PerStep {
                 wall: per(wall),
-                host: per(cpu),
                 transfers: [
                     per(c.reads as f64),
                     per(c.read_bytes as f64),
@@ -263,9 +253,6 @@ impl<'s> Driver<'s> {
         if let Some(per) = throughput.take_per_step() {
             let [r, rb, u, ub] = per.transfers;
             row.set("step_s", per.wall);
-            if per.host.is_finite() {
-                row.set("host_s_per_step", per.host);
-            }
             row.set("reads_per_step", r);
             row.set("read_bytes_per_step", rb);
             row.set("uploads_per_step", u);
@@ -305,9 +292,8 @@ impl<'s> Driver<'s> {
             return Err(self.stopped(stage, start));
         }
         for step in start..end {
-            let (copies, wall, cpu) = (transfer::counts(), Instant::now(), thread_cpu_seconds());
+            let (copies, wall) = (transfer::counts(), Instant::now());
             let stats = trainer.step(step)?;
-            throughput.step_cpu += thread_cpu_seconds() - cpu;
             throughput.step_wall += wall.elapsed().as_secs_f64();
             let done = step + 1;
             if let Some(what) = guard.check(&stats).or_else(|| trainer.check_state().err()) {
