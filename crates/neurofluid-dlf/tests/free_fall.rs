@@ -217,5 +217,17 @@ fn ballistic_free_flight_leaves_a_clump_on_the_floor_alone() {
         },
         &landed,
     );
-    assert_eq!(plain, ballistic);
+    if neurofluid_core::device::is_host(&device()) {
+        assert_eq!(plain, ballistic);
+    } else {
+        // on a GPU the rule's step makes its geometry on the host (it needs the pairs there) and
+        // the plain step in slots on the device: the same sums in another order
+        let most = plain
+            .iter()
+            .flatten()
+            .zip(ballistic.iter().flatten())
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        assert!(most < 1e-5, "the rule moved a particle by {most}");
+    }
 }
