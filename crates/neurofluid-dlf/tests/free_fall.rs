@@ -197,7 +197,8 @@ fn ballistic_free_flight_falls_as_a_projectile_and_keeps_the_clump_motion() {
     assert!(err < 1e-5, "{err}");
 }
 
-/// A clump the walls reach (lowered onto the floor) is left as the network moves it, to the bit.
+/// A clump the walls reach (lowered onto the floor) is left as the network moves it, to the bit
+/// (on a GPU within rounding: the rule's step makes its geometry on the host).
 #[test]
 fn ballistic_free_flight_leaves_a_clump_on_the_floor_alone() {
     let scene = Scene::load(CASE);
@@ -222,12 +223,10 @@ fn ballistic_free_flight_leaves_a_clump_on_the_floor_alone() {
     } else {
         // on a GPU the rule's step makes its geometry on the host (it needs the pairs there) and
         // the plain step in slots on the device: the same sums in another order
-        let most = plain
-            .iter()
-            .flatten()
-            .zip(ballistic.iter().flatten())
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0f32, f32::max);
-        assert!(most < 1e-5, "the rule moved a particle by {most}");
+        let err = rel_err(&flat(&ballistic), &flat(&plain));
+        assert!(
+            err < 1e-5,
+            "the rule moved the particles: relative error {err:.2e}"
+        );
     }
 }

@@ -345,8 +345,9 @@ struct SplitOnDevice {
     dx: Option<Tensor<2>>,
 }
 
-/// [`split_image_loss`] without reading the losses or the particles' gradient; `host` is `pred`'s values when the caller
-/// holds them (the renderer then reads nothing back for the neighbour search).
+/// [`split_image_loss`] without reading the losses or the particles' gradient; `host` is
+/// `pred`'s values when the caller holds them (the renderer then reads nothing back for the
+/// neighbour search).
 fn split_on_device(
     physnerf: &PhysNerf,
     pred: &Tensor<2>,
@@ -784,11 +785,11 @@ impl Trainer for JointTrainer {
         }
         let n_alignment = alignment.as_ref().map_or(0, |a| a.len());
         parts.extend(alignment.into_iter().flatten());
-        let values = read_together(parts)?;
-        if n_alignment > 0
-            && let Some(c) = cosine_of_sums(std::array::from_fn(|k| {
-                values[values.len() - n_alignment + k]
-            }))
+        let mut values = read_together(parts)?;
+        // the alignment's sums are the read's last values
+        let sums = values.split_off(values.len() - n_alignment);
+        if let Ok(sums) = <[f64; 3]>::try_from(sums)
+            && let Some(c) = cosine_of_sums(sums)
         {
             self.alignment.0 += c;
             self.alignment.1 += 1;
