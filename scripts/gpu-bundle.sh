@@ -24,11 +24,21 @@ cd "$root"
 # H100: neurofluid-core's Cargo.toml); where a driver cannot take the SPIR-V compiler (Mesa
 # 22.3's lavapipe crashes), GPU_BUNDLE_FEATURES=neurofluid-train/wgpu-base
 features=${GPU_BUNDLE_FEATURES:-neurofluid-train/wgpu-base,neurofluid-train/vulkan}
-# the backend-generic tests that check numbers on the device (the float64 ones are refused on wgpu)
-tests="dense_layer half_matmul posenc indexed_rows backends conv_geometry fused_conv parity_forward
-parity_backward parity_rollout parity_e2e_f32 parity_stages options_and_weights nerf_fit
-supervised_dlf pipeline_resume pretrain_on_scene learning transfers device_search
-device_search_render device_pairs device_geometry row_sum_scale warmup_passes"
+# the binaries, in the parts they travel in: part 1 the trainer and the two step benchmarks, then
+# the backend-generic tests that check numbers on the device (the float64 ones are refused on
+# wgpu). Parts of at most 36 MiB (about six binaries' worth: each binary holds Burn's kernels for
+# flex and cubecl, 60 MB stripped, 6 MB more per binary compressed together), so that each fits
+# beside the repository (26 MB) in a 64 MiB transfer; the parts may arrive one at a time and
+# unpack into the same folder there.
+parts=(
+    "neurofluid-train train_step dlf_step"
+    "dense_layer half_matmul posenc indexed_rows backends square_sums"
+    "conv_geometry fused_conv parity_forward parity_backward"
+    "parity_rollout supervised_dlf parity_e2e_f32 parity_stages"
+    "options_and_weights nerf_fit pipeline_resume transfers device_search_render"
+    "pretrain_on_scene learning device_search device_pairs device_geometry row_sum_scale warmup_passes"
+)
+tests="${parts[*]:1}"
 mkdir -p "$out"
 rm -f "$out"/part-*.tar.xz
 json=$(mktemp)
@@ -72,6 +82,7 @@ for name, exe in sorted(found.items()):
     subprocess.run(["strip", "-o", f"{dest}/{name}", exe], check=True)
 PY
 echo "$root" >"$stage/build-root"
+echo "$tests" >"$stage/tests"
 echo "$profile $features" >"$stage/profile"
 git rev-parse HEAD >"$stage/commit"
 cp scripts/run-on-gpu.sh "$out/run-on-gpu.sh"
@@ -81,19 +92,8 @@ if command -v apt-get >/dev/null; then
     (cd "$out/debs" && apt-get download libvulkan1 2>/dev/null) ||
         echo "libvulkan1 not fetched: put Vulkan's loader in $out/debs if the GPU machine lacks it"
 fi
-cp "$stage/build-root" "$stage/commit" "$stage/profile" "$out/"
-# parts of at most 36 MiB (about six binaries' worth: each binary holds Burn's kernels for flex and
-# cubecl, 60 MB stripped, 6 MB more per binary compressed together), so that each fits beside the
-# repository (26 MB) in a 64 MiB transfer; the parts may arrive one at a time and unpack into the
-# same folder there. Two compress at a time.
-parts=(
-    "neurofluid-train train_step dlf_step"
-    "dense_layer half_matmul posenc indexed_rows backends"
-    "conv_geometry fused_conv parity_forward parity_backward"
-    "parity_rollout supervised_dlf parity_e2e_f32 parity_stages"
-    "options_and_weights nerf_fit pipeline_resume transfers device_search_render"
-    "pretrain_on_scene learning device_search device_pairs device_geometry row_sum_scale warmup_passes"
-)
+cp "$stage/build-root" "$stage/commit" "$stage/profile" "$stage/tests" "$out/"
+# two parts compress at a time
 [ "$only_first" = 1 ] && parts=("${parts[0]}")
 pack() {
     # shellcheck disable=SC2086 # the names are a list

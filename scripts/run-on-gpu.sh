@@ -236,6 +236,22 @@ for step in $steps; do
             experiments/quick-watercube.toml --device wgpu --fresh --set name=gpu-quick
         [ -n "$sampler" ] && kill "$sampler" 2>/dev/null
         report "$log" "^\| NeuroFluid|^\| DLF \(|Maximum resident"
+        # each stage's step times by metrics row (the means over each row's steps): the first
+        # rows hold the kernels' compilation and the first allocations
+        if [ -s runs/gpu-quick/metrics.jsonl ] && command -v python3 >/dev/null; then
+            python3 - runs/gpu-quick/metrics.jsonl <<'PY' | tee -a "$summary"
+import json, statistics, sys
+rows = [json.loads(line) for line in open(sys.argv[1]) if line.strip()]
+for stage in dict.fromkeys(r.get("stage") for r in rows):
+    timed = [(r["step"], r["step_s"]) for r in rows if r.get("stage") == stage and "step_s" in r]
+    if not timed:
+        continue
+    first = ", ".join(f"to step {s} {t:.3f}" for s, t in timed[:4])
+    rest = [t for _, t in timed[4:]]
+    steady = f"; then median {statistics.median(rest):.3f} s over {len(rest)} rows" if rest else ""
+    print(f"    {stage} seconds per step: {first}{steady}")
+PY
+        fi
         # GPU utilisation per stage: the log's stage lines (UTC) split the samples
         if [ -s "$util" ] && command -v python3 >/dev/null; then
             python3 - "$log" "$util" <<'PY' | tee -a "$summary"
@@ -302,10 +318,8 @@ PY
             tee -a "$summary"
         ;;
     tests)
-        for t in dense_layer half_matmul posenc indexed_rows backends conv_geometry fused_conv parity_forward \
-            parity_backward parity_rollout parity_e2e_f32 parity_stages options_and_weights \
-            nerf_fit supervised_dlf pipeline_resume pretrain_on_scene learning transfers \
-            device_search device_search_render device_pairs device_geometry row_sum_scale warmup_passes; do
+        # the test binaries the bundle was built with (gpu-bundle.sh)
+        for t in $(cat "$bundle/tests"); do
             NEUROFLUID_TEST_DEVICE=wgpu timed "test $t" 600 "$results/tests.log" "$bin/$t"
             [ -x "$bin/$t" ] && grep '^test result' "$results/tests.log" | tail -1 |
                 sed 's/^/    /' | tee -a "$summary"

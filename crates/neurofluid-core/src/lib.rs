@@ -31,5 +31,6 @@ pub mod program;
 pub mod real;
 pub mod rows;
 pub mod scene;
+pub mod square_sums;
 pub mod tensors;
 pub mod transfer;

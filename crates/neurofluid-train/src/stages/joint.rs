@@ -29,6 +29,7 @@ use burn::tensor::activation::relu;
 use neurofluid_core::metrics::gt_to_pred_distance;
 use neurofluid_core::npz::{NpzReader, NpzWriter};
 use neurofluid_core::scene::{Aabb, Particles, Role, Scene};
+use neurofluid_core::square_sums;
 use neurofluid_core::tensors::{mean_all, sum_all};
 use neurofluid_core::transfer::read_together;
 use neurofluid_dlf::{Boundary, DlfNet};
@@ -768,7 +769,7 @@ impl Trainer for JointTrainer {
         if window_end {
             let g = self.physnerf_grads.grads();
             let sums = guard::grad_square_sums(&g, &self.physnerf);
-            n_physnerf = sums.len();
+            n_physnerf = square_sums::count(&sums);
             parts.extend(sums);
             g_physnerf = Some(g);
             if dlf_end {
@@ -778,7 +779,7 @@ impl Trainer for JointTrainer {
                     None => GradientsParams::new(),
                 };
                 let sums = guard::grad_square_sums(&g, &self.dlf);
-                n_dlf = sums.len();
+                n_dlf = square_sums::count(&sums);
                 parts.extend(sums);
                 g_dlf = Some(g);
             }

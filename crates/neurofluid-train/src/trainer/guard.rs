@@ -13,6 +13,7 @@
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::GradientsParams;
 use burn::prelude::*;
+use neurofluid_core::square_sums::square_sums;
 use neurofluid_core::transfer::read_together;
 
 use super::StepStats;
@@ -34,31 +35,30 @@ pub fn grad_norm<M: Module>(grads: &GradientsParams, module: &M) -> f64 {
     norm_of(&read_together(sums).expect("float gradients"))
 }
 
-/// The sum of the squares of each gradient `grads` holds for `module`'s parameters, one `[1]`
-/// tensor per parameter on the device in the module's visiting order (none when it holds none):
-/// read them back together with whatever else the step reads (`transfer::read_together`), then
-/// [`norm_of`].
+/// The sums of the squares of the gradients `grads` holds for `module`'s parameters, one value
+/// per parameter in the module's visiting order, on the device (none when it holds none;
+/// `neurofluid_core::square_sums`: one kernel for many parameters on a GPU): read them back
+/// together with whatever else the step reads (`transfer::read_together`; they hold
+/// `square_sums::count` values), then [`norm_of`].
 pub fn grad_square_sums<M: Module>(grads: &GradientsParams, module: &M) -> Vec<Tensor<1>> {
-    struct SumSquares<'a> {
+    struct Flat<'a> {
         grads: &'a GradientsParams,
-        sums: Vec<Tensor<1>>,
+        flat: Vec<Tensor<1>>,
     }
-    impl ModuleVisitor for SumSquares<'_> {
+    impl ModuleVisitor for Flat<'_> {
         fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
             if let Some(g) = self.grads.get::<D>(param.id) {
-                // the same bits on every run, and one reduction kernel on a GPU for a
-                // parameter of up to 65,536 elements (a whole-tensor sum: a fill and atomic adds)
-                self.sums
-                    .push(neurofluid_core::tensors::sum_all(g.powi_scalar(2)));
+                let n = g.shape().num_elements();
+                self.flat.push(g.reshape([n]));
             }
         }
     }
-    let mut v = SumSquares {
+    let mut v = Flat {
         grads,
-        sums: Vec::new(),
+        flat: Vec::new(),
     };
     module.visit(&mut v);
-    v.sums
+    square_sums(v.flat)
 }
 
 /// The L2 norm from [`grad_square_sums`] read back: their sum in order, in f64, and its root.
