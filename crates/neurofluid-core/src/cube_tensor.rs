@@ -16,7 +16,10 @@ use burn_cubecl::tensor::CubeTensor;
 use burn_fusion::stream::StreamId;
 use burn_fusion::{FusionBackend, NoOp, get_client};
 use burn_ir::{BackendIr, InitOperationIr, OperationIr};
+use cubecl::ir::ElemType;
+use cubecl::prelude::{Scalar, TensorArg};
 use cubecl::server::Handle;
+use cubecl::std::tensor::TensorHandle;
 
 type FusionTensor = burn_fusion::FusionTensor<<CubeBackend as FusionBackend>::FusionRuntime>;
 
@@ -80,4 +83,14 @@ pub fn cube_device(device: &Device) -> Option<cubecl::Device> {
         #[allow(unreachable_patterns)]
         _ => None,
     }
+}
+
+/// A kernel argument over the first `len` elements of `dtype` in `handle`, contiguous.
+pub fn arg(handle: &Handle, len: usize, dtype: ElemType) -> TensorArg {
+    TensorHandle::new_contiguous([len], handle.clone(), dtype).into_arg()
+}
+
+/// [`arg`] for float32 elements.
+pub fn f32_arg(handle: &Handle, len: usize) -> TensorArg {
+    arg(handle, len, f32::elem_type_native())
 }

@@ -265,7 +265,6 @@ mod kernel {
 
     use burn::prelude::Tensor as BurnTensor;
     use cubecl::calculate_cube_count_elemwise;
-    use cubecl::ir::ElemType;
     use cubecl::prelude::*;
     use cubecl::server::Handle;
     use cubecl::std::tensor::TensorHandle;
@@ -528,20 +527,16 @@ mod kernel {
         }
     }
 
-    fn buffer(handle: Handle, len: usize, dtype: ElemType) -> TensorArg {
-        TensorHandle::new_contiguous([len], handle, dtype).into_arg()
-    }
-
     fn f32s(h: &Handle, len: usize) -> TensorArg {
-        buffer(h.clone(), len, f32::elem_type_native())
+        cube_tensor::f32_arg(h, len)
     }
 
     fn u32s(h: &Handle, len: usize) -> TensorArg {
-        buffer(h.clone(), len, u32::elem_type_native())
+        cube_tensor::arg(h, len, u32::elem_type_native())
     }
 
     fn i32s(h: &Handle, len: usize) -> TensorArg {
-        buffer(h.clone(), len, i32::elem_type_native())
+        cube_tensor::arg(h, len, i32::elem_type_native())
     }
 
     /// Uploads `values` to `device`, counted.

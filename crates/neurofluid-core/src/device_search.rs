@@ -84,11 +84,9 @@ pub fn ball_query(
 #[cfg(any(feature = "wgpu-base", feature = "cuda"))]
 mod kernel {
     use cubecl::calculate_cube_count_elemwise;
-    use cubecl::ir::ElemType;
     use cubecl::prelude::*;
-    use cubecl::server::Handle;
-    use cubecl::std::tensor::TensorHandle;
 
+    use crate::cube_tensor::{arg, f32_arg};
     use crate::neighbors::{BallQuery, NeighborSelection};
 
     /// One query per thread; see the module docs.
@@ -170,11 +168,6 @@ mod kernel {
         }
     }
 
-    /// A kernel argument over `len` contiguous elements of `dtype` in `handle`.
-    fn buffer(handle: Handle, len: usize, dtype: ElemType) -> TensorArg {
-        TensorHandle::new_contiguous([len], handle, dtype).into_arg()
-    }
-
     pub(super) fn run(
         device: &cubecl::Device,
         points: &[[f32; 3]],
@@ -220,11 +213,11 @@ mod kernel {
             &client,
             cube_count,
             cube_dim,
-            buffer(p_handle, p_flat.len(), f32::elem_type_native()),
-            buffer(q_handle, q_flat.len(), f32::elem_type_native()),
-            buffer(idx_handle.clone(), slots, i32::elem_type_native()),
-            buffer(d2_handle.clone(), slots, f32::elem_type_native()),
-            buffer(b_handle, 6, f32::elem_type_native()),
+            f32_arg(&p_handle, p_flat.len()),
+            f32_arg(&q_handle, q_flat.len()),
+            arg(&idx_handle, slots, i32::elem_type_native()),
+            f32_arg(&d2_handle, slots),
+            f32_arg(&b_handle, 6),
             points.len(),
             n,
             radius * radius,

@@ -42,11 +42,9 @@ mod kernel {
     use burn::prelude::Tensor as BurnTensor;
     use burn::tensor::DType;
     use cubecl::prelude::*;
-    use cubecl::server::Handle;
-    use cubecl::std::tensor::TensorHandle;
 
     use super::{MOST_PER_GROUP, UNITS};
-    use crate::cube_tensor;
+    use crate::cube_tensor::{self, f32_arg};
 
     /// Workgroup `c` sums the squares of `tensors[c]` into `out[c]` (see the module docs).
     #[cube(launch)]
@@ -87,10 +85,6 @@ mod kernel {
         }
     }
 
-    fn arg(handle: &Handle, len: usize) -> TensorArg {
-        TensorHandle::new_contiguous([len], handle.clone(), f32::elem_type_native()).into_arg()
-    }
-
     /// The kernel's sums of `tensors` (untracked f32 tensors with elements, on one cubecl
     /// device); `None` where one is not, and nothing has been launched.
     pub(super) fn square_sums(tensors: &[BurnTensor<1>]) -> Option<Vec<BurnTensor<1>>> {
@@ -116,13 +110,13 @@ mod kernel {
                 .map(|group| {
                     let out = client.empty(group.len() * 4);
                     let inputs: SequenceArg<OwnedTensor<f32>> =
-                        group.iter().map(|(h, len)| arg(h, *len)).collect();
+                        group.iter().map(|(h, len)| f32_arg(h, *len)).collect();
                     square_sums_kernel::launch(
                         &client,
                         CubeCount::Static(group.len() as u32, 1, 1),
                         CubeDim::new_1d(UNITS as u32),
                         inputs,
-                        arg(&out, group.len()),
+                        f32_arg(&out, group.len()),
                     );
                     cube_tensor::float_tensor(&device, out, [group.len()])
                 })

@@ -44,7 +44,6 @@ mod kernel {
     use cubecl::calculate_cube_count_elemwise;
     use cubecl::prelude::*;
     use cubecl::server::Handle;
-    use cubecl::std::tensor::TensorHandle;
     use neurofluid_core::cube_tensor;
 
     use crate::geometry::search_radius;
@@ -410,8 +409,7 @@ mod kernel {
     }
 
     fn arg(handle: &Handle, len: usize) -> TensorArg {
-        TensorHandle::new_contiguous([len.max(1)], handle.clone(), f32::elem_type_native())
-            .into_arg()
+        cube_tensor::f32_arg(handle, len.max(1))
     }
 
     /// The buffer of an untracked or tracked cubecl tensor (its value), contiguous.
