@@ -24,21 +24,30 @@ cd "$root"
 # H100: neurofluid-core's Cargo.toml); where a driver cannot take the SPIR-V compiler (Mesa
 # 22.3's lavapipe crashes), GPU_BUNDLE_FEATURES=neurofluid-train/wgpu-base
 features=${GPU_BUNDLE_FEATURES:-neurofluid-train/wgpu-base,neurofluid-train/vulkan}
-# the binaries, in the parts they travel in: part 1 the trainer and the two step benchmarks, then
 # the backend-generic tests that check numbers on the device (the float64 ones are refused on
-# wgpu). Parts of at most 36 MiB (about six binaries' worth: each binary holds Burn's kernels for
-# flex and cubecl, 60 MB stripped, 6 MB more per binary compressed together), so that each fits
-# beside the repository (26 MB) in a 64 MiB transfer; the parts may arrive one at a time and
-# unpack into the same folder there.
+# wgpu): a test binary and the modules of it to run (none: all of it), one per line of the
+# bundle's `tests` file
+tests=(
+    "core_tests dense_layer:: half_matmul:: posenc:: indexed_rows:: backends:: square_sums:: device_search:: device_pairs:: row_sum_scale::"
+    "dlf_tests conv_geometry:: fused_conv:: parity_forward:: parity_backward:: parity_rollout::"
+    "device_geometry"
+    "train_tests supervised_dlf::"
+    "dev_tests parity_e2e_f32:: parity_stages:: options_and_weights::"
+    "device_search_render"
+    "nerf_fit"
+    "end_to_end pipeline_resume:: transfers:: pretrain_on_scene:: learning:: warmup_passes::"
+)
+# the binaries, in the parts they travel in: part 1 the trainer and the two step benchmarks, then
+# the test binaries. Parts of at most 36 MiB (each binary holds Burn's kernels for flex and
+# cubecl: 60 MB stripped, 6 MB more per binary compressed together), so that each fits beside
+# the repository (26 MB) in a 64 MiB transfer; the parts may arrive one at a time and unpack
+# into the same folder there.
 parts=(
     "neurofluid-train train_step dlf_step"
-    "dense_layer half_matmul posenc indexed_rows backends square_sums"
-    "conv_geometry fused_conv parity_forward parity_backward"
-    "parity_rollout supervised_dlf parity_e2e_f32 parity_stages"
-    "options_and_weights nerf_fit pipeline_resume transfers device_search_render"
-    "pretrain_on_scene learning device_search device_pairs device_geometry row_sum_scale warmup_passes"
+    "core_tests dlf_tests device_geometry train_tests"
+    "dev_tests device_search_render nerf_fit end_to_end"
 )
-tests="${parts[*]:1}"
+wanted="${parts[*]:1}"
 mkdir -p "$out"
 rm -f "$out"/part-*.tar.xz
 json=$(mktemp)
@@ -49,7 +58,8 @@ mkdir -p "$stage/bin"
 profile=${GPU_BUNDLE_PROFILE:-gpu}
 only_first=${GPU_BUNDLE_PARTS:-all}
 if [ "$only_first" = 1 ]; then
-    tests=""
+    wanted=""
+    tests=()
     cargo build --profile "$profile" --workspace --features $features --locked --bins \
         --message-format=json >"$json"
 else
@@ -58,9 +68,10 @@ else
 fi
 cargo bench --profile "$profile" --workspace --features $features --locked --no-run \
     --bench train_step --bench dlf_step --message-format=json >>"$json"
-python3 - "$json" "$stage/bin" $tests <<'PY'
+printf '%s\n' "${tests[@]}" | sed '/^$/d' >"$stage/tests"
+python3 - "$json" "$stage/bin" "$stage/tests" $wanted <<'PY'
 import json, shutil, subprocess, sys
-path, dest, wanted = sys.argv[1], sys.argv[2], set(sys.argv[3:])
+path, dest, tests_list, wanted = sys.argv[1], sys.argv[2], sys.argv[3], set(sys.argv[4:])
 found = {}
 for line in open(path):
     if not line.startswith("{"):
@@ -80,9 +91,18 @@ if missing:
     sys.exit(f"not built: {sorted(missing)}")
 for name, exe in sorted(found.items()):
     subprocess.run(["strip", "-o", f"{dest}/{name}", exe], check=True)
+# every module named in the tests list holds tests in its binary
+for line in open(tests_list):
+    binary, *modules = line.split()
+    if binary not in found:
+        sys.exit(f"the tests list names {binary}, which is in no part")
+    listed = subprocess.run([found[binary], "--list"], capture_output=True, text=True, check=True)
+    names = [l.split(": ")[0] for l in listed.stdout.splitlines() if l.endswith(": test")]
+    empty = [m for m in modules if not any(n.startswith(m) for n in names)]
+    if empty:
+        sys.exit(f"{binary} has no tests in {empty}")
 PY
 echo "$root" >"$stage/build-root"
-echo "$tests" >"$stage/tests"
 echo "$profile $features" >"$stage/profile"
 git rev-parse HEAD >"$stage/commit"
 cp scripts/run-on-gpu.sh "$out/run-on-gpu.sh"

@@ -31,7 +31,7 @@
 #             kernel launch, timed on the device, summed by kernel (scripts/cubecl-profile-summary.py)
 #   dlfprofile  the same for DLF steps at 8k fluid particles (a warm-up, one forward, one
 #             forward+backward)
-#   tests     the backend-generic test binaries on wgpu (parts 2-6 of the bundle)
+#   tests     the backend-generic tests on wgpu (parts 2 and 3 of the bundle)
 #   paper     the paper-scale WaterCube for PAPER_SECONDS (default 300; a second call resumes it)
 #
 #   BUNDLE/run-on-gpu.sh BUNDLE RESULTS [STEP...]   # default: physnerf dlf profile dlfprofile quick
@@ -318,12 +318,15 @@ PY
             tee -a "$summary"
         ;;
     tests)
-        # the test binaries the bundle was built with (gpu-bundle.sh)
-        for t in $(cat "$bundle/tests"); do
-            NEUROFLUID_TEST_DEVICE=wgpu timed "test $t" 600 "$results/tests.log" "$bin/$t"
+        # the test binaries the bundle was built with, each with the modules of it to run
+        # (none: all of it; gpu-bundle.sh)
+        while read -r t modules <&3; do
+            # shellcheck disable=SC2086 # the modules are a list of test filters
+            NEUROFLUID_TEST_DEVICE=wgpu timed "test $t (${modules:-all})" 600 "$results/tests.log" \
+                "$bin/$t" $modules
             [ -x "$bin/$t" ] && grep '^test result' "$results/tests.log" | tail -1 |
                 sed 's/^/    /' | tee -a "$summary"
-        done
+        done 3<"$bundle/tests"
         ;;
     paper)
         timed "paper-scale WaterCube (wgpu, ${PAPER_SECONDS:-300} s at most)" \

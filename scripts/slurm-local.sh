@@ -7,7 +7,7 @@
 #
 #   scripts/slurm-local.sh start     # install if needed, write slurm.conf, start the daemons
 #   eval "$(scripts/slurm-local.sh env)"   # SLURM_CONF for sbatch, squeue, scontrol
-#   NEUROFLUID_SLURM=1 cargo test -p neurofluid-train --test slurm_sweep -- --nocapture
+#   NEUROFLUID_SLURM=1 cargo test -p neurofluid-train --test train_tests slurm_sweep:: -- --nocapture
 #   scripts/slurm-local.sh stop      # stop the daemons this script started (by their pids)
 set -euo pipefail
 

@@ -5,7 +5,7 @@
 //! at 1e-7 the ReLU kinks and the ×512 encodings crossed inside ±ε already cost ~4e-5 on a
 //! direction that moves every particle.
 
-mod common;
+use crate::common;
 
 use burn::prelude::*;
 use burn::tensor::{DType, TensorData};

@@ -1,7 +1,7 @@
 //! The configuration switches (gated-only evaluation, stratified jitter, ablations, nearest-K)
 //! and the weight files (save/load round trip, clear errors for bad files).
 
-mod common;
+use crate::common;
 
 use burn::prelude::*;
 use burn::tensor::DType;

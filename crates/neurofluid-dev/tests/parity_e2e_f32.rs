@@ -1,6 +1,6 @@
 //! End-to-end float32 parity with the stored reference case (README table C).
 
-mod common;
+use crate::common;
 
 use burn::tensor::DType;
 use common::*;

@@ -1,7 +1,7 @@
 //! End-to-end float64 parity with the `f64/` keys of the reference case (README table A):
 //! the precise test. Skipped (with a message) on a device without F64.
 
-mod common;
+use crate::common;
 
 use burn::tensor::DType;
 use common::*;

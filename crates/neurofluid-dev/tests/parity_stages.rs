@@ -1,7 +1,7 @@
 //! Stage-by-stage float32 parity with the reference case (README table B): every stage is fed
 //! with the stored inputs of that stage, so no error is carried over.
 
-mod common;
+use crate::common;
 
 use burn::prelude::*;
 use burn::tensor::DType;

@@ -2,7 +2,7 @@
 //! resolution, does not depend on the chunk size, shows an opaque blob on exact white, and
 //! round-trips through PNG.
 
-mod common;
+use crate::common;
 
 use burn::tensor::DType;
 use common::*;

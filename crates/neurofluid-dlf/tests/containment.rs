@@ -3,7 +3,7 @@
 //! displacement over dt), against finite differences, and on a pretrained rollout through a floor
 //! the box particles do not stop.
 
-mod common;
+use crate::common;
 
 use common::{CaseScene, Scene, device, pretrained};
 use neurofluid_core::scene::Aabb;

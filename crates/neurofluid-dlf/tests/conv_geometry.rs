@@ -2,7 +2,7 @@
 //! evaluation paths (host inference, autodiff gather/scatter) against each other, the
 //! differentiable geometry against finite differences (f64), and the frame rotation.
 
-mod common;
+use crate::common;
 
 use burn::prelude::*;
 use burn::tensor::{DType, Distribution};

@@ -3,7 +3,7 @@
 //! step raises any particle's, the particles the cap leaves alone take DLF's step bit for bit,
 //! and v stays the displacement over dt.
 
-mod common;
+use crate::common;
 
 use common::{CaseScene, Scene, device, pretrained};
 use neurofluid_dlf::DlfConfig;

@@ -5,7 +5,7 @@
 //! free flight (`ballistic_free_flight`) must make the fall g's at any scale, leave the clump's own
 //! motion as the network made it, and leave a clump the walls reach alone.
 
-mod common;
+use crate::common;
 
 use common::*;
 use neurofluid_core::npz::NpzReader;

@@ -3,7 +3,7 @@
 //! the features, of both point sets through the differentiable weights, and of the kernel, in
 //! float64, for both evaluation orders and for every subset of tracked inputs.
 
-mod common;
+use crate::common;
 
 use burn::module::Param;
 use burn::prelude::*;

@@ -2,7 +2,7 @@
 //! (targets = the input positions) and every parameter gradient
 //! (`cubedrop2197_dlfwall_grad_open3d.npz`), 1e-4 relative.
 
-mod common;
+use crate::common;
 
 use burn::prelude::*;
 use common::*;

@@ -1,7 +1,7 @@
 //! Forward parity with the Open3D reference: `cubedrop2197_dlfwall`, 5 steps of the pretrained
 //! model (tests/data/dlf/README.md). Tolerance 1e-5 relative, neighbour counts exact.
 
-mod common;
+use crate::common;
 
 use common::*;
 use neurofluid_core::npz::NpzReader;

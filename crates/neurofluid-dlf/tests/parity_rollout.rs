@@ -2,7 +2,7 @@
 //! trajectory and the number of particles outside the box. Rollouts are chaotic, so particles are
 //! not compared one by one (spec/dlf.md §7).
 
-mod common;
+use crate::common;
 
 use std::time::Instant;
 

@@ -1,7 +1,7 @@
 //! DLF's validation errors: the pretrained model scores (numerically) zero error on its own
 //! rollout. (The supervised training loop is a stage of `neurofluid-train`, tested there.)
 
-mod common;
+use crate::common;
 
 use common::*;
 use neurofluid_dlf::scene::{block_in_box, dlf_wall_spacing};

@@ -1,7 +1,7 @@
 //! Weight import (PyTorch `.pt`, `.safetensors`), strict name/shape checking, and our own
 //! checkpoints.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 

@@ -8,7 +8,7 @@ use neurofluid_core::scene::{MANIFEST_FILE, Role, Scene};
 use neurofluid_scenegen::generate::{validation_azimuths, validation_views, views};
 use neurofluid_scenegen::{Preset, Scale, SceneConfig, SceneKind, generate};
 
-mod common;
+use crate::common;
 use common::contents;
 
 fn tmp(name: &str) -> PathBuf {

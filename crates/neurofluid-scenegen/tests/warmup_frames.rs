@@ -9,7 +9,7 @@ use neurofluid_scenegen::{Preset, Scale, SceneConfig, SceneKind, generate, rende
 
 const TRAIN_FRAMES: usize = 4;
 
-mod common;
+use crate::common;
 use common::contents;
 
 fn tmp(name: &str) -> PathBuf {
@@ -255,7 +255,7 @@ fn folders_that_are_not_a_generated_scene_of_the_preset_are_refused() {
 /// The quick watercube scene (`data/watercube_quick`, generated with the warm-up views at every
 /// frame) copied, stripped to what `generate` writes without them, and extended again: prints
 /// the time of the extension and checks that it gives back the scene's files byte for byte.
-/// `cargo test -p neurofluid-scenegen --test warmup_frames -- --ignored --nocapture`
+/// `cargo test -p neurofluid-scenegen --test scenegen_tests warmup_frames:: -- --ignored --nocapture`
 #[test]
 #[ignore = "needs data/watercube_quick; renders 147 images of 100×100"]
 fn extend_a_copy_of_the_quick_watercube() {

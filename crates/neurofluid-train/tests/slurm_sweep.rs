@@ -9,7 +9,7 @@
 //!
 //! ```sh
 //! scripts/slurm-local.sh start && eval "$(scripts/slurm-local.sh env)"
-//! NEUROFLUID_SLURM=1 cargo test -p neurofluid-train --test slurm_sweep -- --nocapture
+//! NEUROFLUID_SLURM=1 cargo test -p neurofluid-train --test train_tests slurm_sweep:: -- --nocapture
 //! scripts/slurm-local.sh stop
 //! ```
 
@@ -17,7 +17,7 @@ use std::time::{Duration, Instant};
 
 use neurofluid_train::sweep::state::{self, Phase, RunState};
 
-mod common;
+use crate::common;
 
 use common::{EXE, checkpoint_step, metrics, report, run, sweep_file, wait_for};
 

@@ -3,7 +3,7 @@
 //! where its uninterrupted twin ends; meanwhile `--table` and `--status` mark it stopped. And
 //! `--slurm --dry-run` writes the array script alone.
 
-mod common;
+use crate::common;
 
 use std::time::Duration;
 
