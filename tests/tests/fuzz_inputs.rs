@@ -11,7 +11,7 @@ use neurofluid_core::scene::{
     BoxParticles, FrameEntry, Image, Particles, SceneManifest, TransformsFile, png_size,
     write_png_rgba,
 };
-use neurofluid_tests::workspace_root;
+use neurofluid_tests::{seeded_turn, workspace_root};
 use neurofluid_train::config::Experiment;
 use proptest::prelude::*;
 
@@ -171,6 +171,8 @@ fn seeds() -> &'static Seeds {
         .write(&p("box.npz"))
         .unwrap();
 
+        // DLF's convs and PhysNeRF's layers draw their initial weights from the backend's RNG
+        let _turn = seeded_turn();
         let device = neurofluid_core::device::cpu();
         let weights = workspace_root().join("assets/dlf_pretrained/pretrained_model_weights.pt");
         let net = neurofluid_dlf::load_dlf(&weights, Default::default(), &device).unwrap();
@@ -299,6 +301,7 @@ proptest! {
         physnerf in mutated(seeds().physnerf.clone()),
         record in mutated(seeds().record.clone()),
     ) {
+        let _turn = seeded_turn();
         let device = neurofluid_core::device::cpu();
         let (_d, p) = file_with("dlf.bpk", &bpk);
         names_file(neurofluid_dlf::load_dlf(&p, Default::default(), &device), &p)?;
@@ -334,6 +337,7 @@ proptest! {
         pt in mutated(published_weights().0.clone()),
         st in mutated(published_weights().1.clone()),
     ) {
+        let _turn = seeded_turn();
         let device = neurofluid_core::device::cpu();
         let (_d, p) = file_with("w.pt", &pt);
         names_file(neurofluid_dlf::load_dlf(&p, Default::default(), &device), &p)?;
