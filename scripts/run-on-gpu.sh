@@ -321,6 +321,7 @@ PY
         # the test binaries the bundle was built with, each with the modules of it to run
         # (none: all of it; gpu-bundle.sh)
         while read -r t modules <&3; do
+            [ -n "$t" ] || continue
             # shellcheck disable=SC2086 # the modules are a list of test filters
             NEUROFLUID_TEST_DEVICE=wgpu timed "test $t (${modules:-all})" 600 "$results/tests.log" \
                 "$bin/$t" $modules
