@@ -17,6 +17,7 @@ mod scene_configs;
 mod scene_generation;
 mod scene_layout;
 mod sweep_and_bptt;
+mod test_files;
 mod transfers;
 mod validation_views;
 mod warmup_passes;
