@@ -18,9 +18,9 @@ pub fn workspace_root() -> PathBuf {
 
 /// Burn's backend RNG, which initialises models from the experiment's seed, is global to the
 /// process, and every test of `end_to_end` shares one: the tests that build seeded models take
-/// turns through this lock, and so do those that draw from it unseeded (loading DLF weights
-/// draws, as DLF's convs draw their kernels when built), lest a draw land between a seed and the
-/// model it seeds.
+/// turns through this lock, and so do those that draw from it unseeded (a model built from
+/// scratch draws its weights; loading one from a file draws nothing: `loading_draws`), lest a
+/// draw land between a seed and the model it seeds.
 pub fn seeded_turn() -> MutexGuard<'static, ()> {
     static SEEDED: Mutex<()> = Mutex::new(());
     SEEDED.lock().unwrap_or_else(|e| e.into_inner())

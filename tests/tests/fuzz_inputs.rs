@@ -171,7 +171,7 @@ fn seeds() -> &'static Seeds {
         .write(&p("box.npz"))
         .unwrap();
 
-        // DLF's convs and PhysNeRF's layers draw their initial weights from the backend's RNG
+        // PhysNeRF's layers draw their initial weights from the backend's RNG when saved
         let _turn = seeded_turn();
         let device = neurofluid_core::device::cpu();
         let weights = workspace_root().join("assets/dlf_pretrained/pretrained_model_weights.pt");
@@ -301,7 +301,7 @@ proptest! {
         physnerf in mutated(seeds().physnerf.clone()),
         record in mutated(seeds().record.clone()),
     ) {
-        let _turn = seeded_turn();
+        // (loading draws no random number: `loading_draws`)
         let device = neurofluid_core::device::cpu();
         let (_d, p) = file_with("dlf.bpk", &bpk);
         names_file(neurofluid_dlf::load_dlf(&p, Default::default(), &device), &p)?;
@@ -337,7 +337,6 @@ proptest! {
         pt in mutated(published_weights().0.clone()),
         st in mutated(published_weights().1.clone()),
     ) {
-        let _turn = seeded_turn();
         let device = neurofluid_core::device::cpu();
         let (_d, p) = file_with("w.pt", &pt);
         names_file(neurofluid_dlf::load_dlf(&p, Default::default(), &device), &p)?;

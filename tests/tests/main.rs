@@ -7,6 +7,7 @@ mod fuzz_inputs;
 mod held_out_view;
 mod joint_diagnostics;
 mod learning;
+mod loading_draws;
 mod lpips_parity;
 mod nerf_baselines;
 mod pipeline_resume;

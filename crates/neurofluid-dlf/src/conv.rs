@@ -36,6 +36,16 @@ impl ContinuousConv {
         }
     }
 
+    /// A conv whose kernel and bias are zeros, to load weights into: it draws no random number
+    /// (building with [`ContinuousConv::new`] would advance the backend's RNG).
+    pub fn zeros(in_channels: usize, out_channels: usize, device: &Device) -> Self {
+        let k = KERNEL_SIZE;
+        Self {
+            kernel: Param::from_tensor(Tensor::zeros([k, k, k, in_channels, out_channels], device)),
+            bias: Param::from_tensor(Tensor::zeros([out_channels], device)),
+        }
+    }
+
     /// Input channels.
     pub fn in_channels(&self) -> usize {
         self.kernel.dims()[3]

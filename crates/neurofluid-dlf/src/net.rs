@@ -1,6 +1,6 @@
 //! The DLF network (spec/dlf.md §3) and its integrator (§4).
 
-use burn::nn::{Linear, LinearConfig};
+use burn::nn::{Initializer, Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
 
@@ -95,9 +95,9 @@ pub struct LayerFeatures {
     pub layer2: Tensor<2>,
 }
 
-fn linear(d_in: usize, d_out: usize, device: &Device) -> Linear {
+fn linear(d_in: usize, d_out: usize, initializer: Initializer, device: &Device) -> Linear {
     LinearConfig::new(d_in, d_out)
-        .with_initializer(burn::nn::Initializer::XavierUniform { gain: 1.0 })
+        .with_initializer(initializer)
         .init(device)
 }
 
@@ -140,19 +140,39 @@ pub fn contain(
 }
 
 impl DlfNet {
-    /// A freshly initialised network (Open3D/torch initialisers) with the given settings.
+    /// A freshly initialised network (Open3D/torch initialisers) with the given settings: the
+    /// convs' kernels drawn from the backend's RNG as they are built, in layer order, the dense
+    /// layers' weights on their first use.
     pub fn new(config: DlfConfig, device: &Device) -> Self {
+        let xavier = || Initializer::XavierUniform { gain: 1.0 };
+        Self::build(config, device, ContinuousConv::new, xavier)
+    }
+
+    /// A network whose parameters are all zeros, to load weights into: it draws no random
+    /// number, so loading weights leaves the backend's RNG where it was.
+    pub fn zeros(config: DlfConfig, device: &Device) -> Self {
+        Self::build(config, device, ContinuousConv::zeros, || Initializer::Zeros)
+    }
+
+    /// The layers, built by `conv` and with the dense layers' `initializer`, in layer order.
+    fn build(
+        config: DlfConfig,
+        device: &Device,
+        conv: fn(usize, usize, &Device) -> ContinuousConv,
+        initializer: impl Fn() -> Initializer,
+    ) -> Self {
         let [c0, c1, c2, c3] = LAYER_CHANNELS;
+        let dense = |d_in, d_out| linear(d_in, d_out, initializer(), device);
         Self {
-            conv0_fluid: ContinuousConv::new(4, c0, device),
-            conv0_obstacle: ContinuousConv::new(3, c0, device),
-            dense0_fluid: linear(4, c0, device),
-            conv1: ContinuousConv::new(3 * c0, c1, device),
-            dense1: linear(3 * c0, c1, device),
-            conv2: ContinuousConv::new(c1, c2, device),
-            dense2: linear(c1, c2, device),
-            conv3: ContinuousConv::new(c2, c3, device),
-            dense3: linear(c2, c3, device),
+            conv0_fluid: conv(4, c0, device),
+            conv0_obstacle: conv(3, c0, device),
+            dense0_fluid: dense(4, c0),
+            conv1: conv(3 * c0, c1, device),
+            dense1: dense(3 * c0, c1),
+            conv2: conv(c1, c2, device),
+            dense2: dense(c1, c2),
+            conv3: conv(c2, c3, device),
+            dense3: dense(c2, c3),
             config,
         }
     }

@@ -230,7 +230,7 @@ pub fn net_from_tensors(
         }
         Ok(t)
     };
-    let mut net = DlfNet::new(config, device);
+    let mut net = DlfNet::zeros(config, device);
     let expected: BTreeMap<String, Vec<usize>> = expected_tensors().into_iter().collect();
     let mut conv = |conv: &mut ContinuousConv, name: &str| -> Result<(), WeightsError> {
         let ks = &expected[&format!("{name}.kernel")];
@@ -363,7 +363,7 @@ pub fn load_checkpoint(
     let bytes = std::fs::read(path).map_err(|e| read_err(path, e))?;
     let record = burn::store::ModuleRecord::from_bytes(burn::tensor::Bytes::from_bytes_vec(bytes))
         .map_err(|e| read_err(path, e))?;
-    let net = DlfNet::new(config, device)
+    let net = DlfNet::zeros(config, device)
         .try_load_record(record)
         .map_err(|e| read_err(path, e))?;
     match neurofluid_core::params::first_non_finite(&net) {
