@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """The test bed's table over scenes × seeds (issue 34, item 6), from the runs' own reports.
 
-    python3 scripts/bed-table.py [experiments/bed/table-runs.txt]
+    python3 scripts/bed-table.py [experiments/research/bed/table-runs.txt]
 
 The runs file lists `scene seed run_folder` per line (`#` starts a comment). Each run folder's
 `eval/report.md` gives d and d′ over t = 1–49 and t = 50–59, (d + d′)/2, PSNR/SSIM/LPIPS, the
@@ -164,7 +164,7 @@ def targets(honey, dlf, dlfp, firsts, seconds):
 
 
 def main():
-    runs_file = sys.argv[1] if len(sys.argv) > 1 else "experiments/bed/table-runs.txt"
+    runs_file = sys.argv[1] if len(sys.argv) > 1 else "experiments/research/bed/table-runs.txt"
     runs = load(runs_file)
     print("| scene | seed | d (t<50 / t≥50) | d′ (t<50 / t≥50) | (d+d′)/2 (t<50 / t≥50) | PSNR / SSIM / LPIPS | through walls | alone % (t<50 / t≥50) | far % beside / above / within (t<50) | density, truth / NF (t<50) | renderer on the truth, training view (dB) | warm-up / joint s |")
     print("|---|---:|---|---|---|---|---:|---|---|---|---:|---|")

@@ -5,7 +5,7 @@ folder, and `neurofluid-train sweep` then runs each variant's joint stage and ev
 finds the copied warm-up complete and with its own settings, so it goes on from it; a variant
 that changes a warm-up setting is refused by the run, with the keys named).
 
-    python3 scripts/sweep-shared-warmup.py experiments/bed/sweeps/water-dam-z.toml [--bin PATH] [-- --keep-going]
+    python3 scripts/sweep-shared-warmup.py experiments/research/bed/sweeps/water-dam-z.toml [--bin PATH] [-- --keep-going]
 """
 
 import argparse

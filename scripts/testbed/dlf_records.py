@@ -5,12 +5,12 @@ data set: the data for a DLF prior trained outside the test bed and the built-in
     /work/bedenv/bin/python scripts/testbed/dlf_records.py --out data/dlf-records/train --seeds 1-8
     /work/bedenv/bin/python scripts/testbed/dlf_records.py --out data/dlf-records/val --seeds 201-202
 
-Each seed draws one scene the way DLF's `create_physics_scenes.py` does (spec/dlf.md §6.1), within
+Each seed draws one scene the way DLF's `create_physics_scenes.py` does (docs/spec/dlf.md §6.1), within
 what `bed_sim.py` simulates: a closed box of random size, one fluid body (a block, sphere,
 cylinder or torus) of random size, orientation and place, thrown with x and z velocity U(−2, 2)
 and y velocity U(−0.5, 0.5) m/s; water (density 1000, viscosity 0.01), y-up, radius 0.025,
 50 fps, SPlisHSPlasH's DFSPH (the simulator of DLF's data; not neurofluid-scenegen). Box
-particles on each face's grid at DLF's density (0.0321 m, spec/dlf.md §6.3) with inward normals.
+particles on each face's grid at DLF's density (0.0321 m, docs/spec/dlf.md §6.3) with inward normals.
 A scene's frames are split into files of `--frames-per-file` (DLF: 16 parts of one scene), each
 file a training sequence; the files are written atomically (`.part` then renamed).
 """
@@ -38,7 +38,7 @@ WATER = {"viscosityMethod": 1, "viscosity": 0.01}
 
 
 def nd(a):
-    """A numpy array the msgpack-numpy way (binary keys, spec/dlf.md §6.2)."""
+    """A numpy array the msgpack-numpy way (binary keys, docs/spec/dlf.md §6.2)."""
     a = np.ascontiguousarray(a)
     return {b"nd": True, b"type": a.dtype.str, b"kind": b"", b"shape": list(a.shape), b"data": a.tobytes()}
 

@@ -118,8 +118,8 @@ pub fn add_validation_copy(scene_dir: &Path, view: &str) {
 /// Asserts that `validation` scored the views of `add_validation_copy` (named `view`) frame by
 /// frame exactly as `test` scored the test view `test_view`: the same camera and images.
 pub fn assert_scored_as_the_test_view(
-    validation: &[neurofluid_train::report::ImageScore],
-    test: &[neurofluid_train::report::ImageScore],
+    validation: &[neurofluid_outputs::report::ImageScore],
+    test: &[neurofluid_outputs::report::ImageScore],
     view: &str,
     test_view: &str,
 ) {

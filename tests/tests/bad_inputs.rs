@@ -376,6 +376,44 @@ fn foreign_and_linked_run_folders_are_refused() {
     }
 }
 
+/// A run folder whose stage folder or lock is a symbolic link is refused before anything is
+/// written, whatever the start (issue 72: `eval` wrote through a linked `eval/`, and truncated the
+/// target of a linked `.lock`): the link's target is left as it was.
+#[cfg(unix)]
+#[test]
+fn links_inside_a_run_folder_are_refused() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let outside = tmp.path().join("outside");
+    std::fs::create_dir_all(&outside).unwrap();
+    std::fs::write(outside.join("precious"), b"keep").unwrap();
+    for (name, target) in [
+        ("eval", outside.clone()),
+        (".lock", outside.join("precious")),
+    ] {
+        let e = prepared(
+            tmp.path(),
+            &format!("linked-{}", name.trim_start_matches('.')),
+        );
+        let link = e.out_dir().join(name);
+        let _ = std::fs::remove_file(&link);
+        let _ = std::fs::remove_dir_all(&link);
+        std::os::unix::fs::symlink(&target, &link).unwrap();
+        for start in [Start::Resume, Start::Fresh] {
+            let err = format!(
+                "{:#}",
+                Run::prepare(e.clone(), start, &[Stage::Eval]).unwrap_err()
+            );
+            assert!(
+                err.contains("symbolic link") && err.contains(name),
+                "{name}: {err}"
+            );
+        }
+        assert_eq!(std::fs::read(outside.join("precious")).unwrap(), b"keep");
+        assert_eq!(std::fs::read_dir(&outside).unwrap().count(), 1);
+    }
+}
+
 /// A generated scene whose recorded generator settings differ from the experiment's is not
 /// reused silently.
 #[test]
@@ -411,7 +449,8 @@ fn a_malformed_metrics_line_is_found_before_the_evaluation() {
 /// never loaded, and a report made before the stage went on is not taken for the current one.
 #[test]
 fn damaged_checkpoints_and_stale_reports_are_refused() {
-    use neurofluid_train::trainer::{checkpoint, checksums};
+    use neurofluid_core::checksums;
+    use neurofluid_train::trainer::checkpoint;
     let _turn = seeded_turn();
     let tmp = tempfile::tempdir().unwrap();
     let e = prepared(tmp.path(), "seal");
@@ -443,11 +482,11 @@ fn damaged_checkpoints_and_stale_reports_are_refused() {
         Ok(())
     })
     .unwrap();
-    let mut report = neurofluid_train::report::EvalReport::new(
+    let mut report = neurofluid_outputs::report::EvalReport::new(
         "seal",
         "scene",
         "joint",
-        neurofluid_train::report::Windows::from_lengths(4, 6),
+        neurofluid_outputs::report::Windows::from_lengths(4, 6),
     );
     report.scored_seal = checksums::seal_digest(&first).unwrap();
     neurofluid_train::stages::eval::check_current(&run, &report).unwrap();

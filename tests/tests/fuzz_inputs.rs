@@ -149,9 +149,9 @@ fn seeds() -> &'static Seeds {
         });
         std::fs::write(p("state.json"), state.to_string()).unwrap();
         {
-            let mut log = neurofluid_train::metrics_log::MetricsLog::open(dir.path()).unwrap();
+            let mut log = neurofluid_outputs::metrics_log::MetricsLog::open(dir.path()).unwrap();
             for s in 1..4 {
-                let mut r = neurofluid_train::metrics_log::MetricsRow::new("warmup", s, 0.1, 1.0);
+                let mut r = neurofluid_outputs::metrics_log::MetricsRow::new("warmup", s, 0.1, 1.0);
                 r.set("psnr", 20.0);
                 log.append(&r).unwrap();
             }
@@ -265,7 +265,7 @@ proptest! {
             neurofluid_train::trainer::checkpoint::CheckpointState,
         >(d.path()), &p)?;
         let (_d, p) = file_with("metrics.jsonl", &metrics);
-        names_file(neurofluid_train::metrics_log::read_jsonl(&p), &p)?;
+        names_file(neurofluid_outputs::metrics_log::read_jsonl(&p), &p)?;
     }
 
     #[test]
@@ -431,7 +431,7 @@ proptest! {
         .into_bytes();
         ply.extend(floats);
         let (_d, p) = file_with("cloud.ply", &ply);
-        names_file(neurofluid_train::formats::ply::read_ply(&p), &p)?;
+        names_file(neurofluid_outputs::formats::ply::read_ply(&p), &p)?;
     }
 }
 

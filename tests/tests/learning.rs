@@ -6,8 +6,12 @@
 use burn::module::Module;
 use neurofluid_core::metrics::{RgbImage, psnr};
 use neurofluid_core::scene::Role;
+use neurofluid_outputs::report::{FrameDistance, Rollout};
+use neurofluid_outputs::scoring::{picture_frames, rendered_steps};
+use neurofluid_outputs::sequences::{
+    RENDERER_ON_DLF, RENDERER_ON_SUPERVISED_DLF, RENDERER_ON_TRUTH,
+};
 use neurofluid_tests::{params, seeded_turn, tiny_experiment};
-use neurofluid_train::report::FrameDistance;
 use neurofluid_train::stage::Stage;
 use neurofluid_train::stages::views::{ViewFrame, points_tensor, render_beside_truth};
 use neurofluid_train::stages::{Run, Start, eval, joint, warmup};
@@ -83,8 +87,8 @@ fn the_ci_experiment_learns() {
     );
     let s = eval::run(&run, &grounded).unwrap().summary();
     let (nf, dlf) = (
-        s.grounding.neurofluid_d.unwrap(),
-        s.grounding.dlf_d.unwrap(),
+        s.grounding.d_of(Rollout::NeuroFluid).unwrap(),
+        s.grounding.d_of(Rollout::Dlf).unwrap(),
     );
     assert!(
         nf != dlf,
@@ -101,7 +105,7 @@ fn the_ci_experiment_learns() {
         .read_info()
         .unwrap();
     let test_frames = run.scene.frames(Role::Test).len();
-    let rendered = eval::rendered_steps(test_frames, run.exp.eval.render_every).len();
+    let rendered = rendered_steps(test_frames, run.exp.eval.render_every).len();
     assert_eq!(
         apng.info().animation_control.unwrap().num_frames as usize,
         rendered
@@ -110,7 +114,7 @@ fn the_ci_experiment_learns() {
         (apng.info().width, apng.info().height),
         (
             3 * cam.width,
-            cam.height + neurofluid_train::pictures::LABEL_HEIGHT
+            cam.height + neurofluid_outputs::pictures::LABEL_HEIGHT
         )
     );
     let mut buf = vec![0; apng.output_buffer_size().unwrap()];
@@ -118,7 +122,7 @@ fn the_ci_experiment_learns() {
         apng.next_frame(&mut buf).unwrap();
     }
     // the image scores (with LPIPS) are in the metrics log, once per render
-    let rows = neurofluid_train::metrics_log::read_jsonl(&run.dir.join("metrics.jsonl")).unwrap();
+    let rows = neurofluid_outputs::metrics_log::read_jsonl(&run.dir.join("metrics.jsonl")).unwrap();
     let eval_rows: Vec<_> = rows
         .iter()
         .filter(|r| r.stage == format!("eval-{view}"))
@@ -131,7 +135,7 @@ fn the_ci_experiment_learns() {
     );
 
     // the browser recording holds every frame of the three sets, as eval wrote them
-    let rec = neurofluid_train::pictures::viewer::Recording::read(
+    let rec = neurofluid_outputs::pictures::viewer::Recording::read(
         &run.stage_dir(eval::STAGE).join(eval::VIEWER_FILE),
     )
     .unwrap();
@@ -139,7 +143,7 @@ fn the_ci_experiment_learns() {
     let names: Vec<&str> = rec.tracks.iter().map(|t| t.name.as_str()).collect();
     assert_eq!(names, ["truth", "DLF", "NeuroFluid"]);
     let last = test_frames - 1;
-    let ply = neurofluid_train::formats::ply::read_ply(
+    let ply = neurofluid_outputs::formats::ply::read_ply(
         &run.stage_dir(eval::STAGE)
             .join(format!("particles/neurofluid_{last:04}.ply")),
     )
@@ -154,27 +158,27 @@ fn the_ci_experiment_learns() {
     assert_eq!(rec.training[0].points.len() as u64, run.exp.warmup.iters);
     let (w, h) = image::image_dimensions(dir.join(format!("{view}_particles.png"))).unwrap();
     let panel = 240u32.max(cam.width);
-    let rows = eval::picture_frames(run.scene.frames(Role::Train).len(), test_frames - 1).len();
+    let rows = picture_frames(run.scene.frames(Role::Train).len(), test_frames - 1).len();
     assert_eq!(w, 3 * panel);
     assert_eq!(
         h as usize,
         rows * (panel as usize * cam.height as usize / cam.width as usize
-            + neurofluid_train::pictures::LABEL_HEIGHT as usize)
+            + neurofluid_outputs::pictures::LABEL_HEIGHT as usize)
     );
 
-    // the renderer on the true particles (`eval.render_truth`): a row of the novel-view table,
+    // the renderer on the true particles (`diagnostics.render_truth`): a row of the novel-view table,
     // one score per NeuroFluid render, each the grounded renderer's image of the true particles
     drop((log, run));
     let mut e = experiment();
-    e.apply_override("eval.render_truth=true").unwrap();
+    e.apply_override("diagnostics.render_truth=true").unwrap();
     let again = Run::prepare(e, Start::Resume, &[Stage::Eval]).unwrap();
     let report = eval::run(&again, &grounded).unwrap();
     let on_truth = report
         .nvs_baselines
         .iter()
-        .find(|b| b.model == eval::RENDERER_ON_TRUTH)
+        .find(|b| b.model == RENDERER_ON_TRUTH)
         .expect("a row of the renderer on the true particles");
-    let steps = |s: &[neurofluid_train::report::ImageScore]| -> Vec<(String, usize)> {
+    let steps = |s: &[neurofluid_outputs::report::ImageScore]| -> Vec<(String, usize)> {
         s.iter().map(|i| (i.view.clone(), i.t)).collect()
     };
     assert_eq!(steps(&on_truth.images), steps(&report.images));
@@ -219,14 +223,14 @@ fn the_ci_experiment_learns() {
         on_truth.images != report.images,
         "the true particles' renders scored as NeuroFluid's at every step"
     );
-    assert!(report.markdown().contains(eval::RENDERER_ON_TRUTH));
+    assert!(report.markdown().contains(RENDERER_ON_TRUTH));
     drop(again);
 
-    // the renderer on the pretrained DLF's and DLF†'s rollouts (`eval.render_dlf`): a row each,
+    // the renderer on the pretrained DLF's and DLF†'s rollouts (`diagnostics.render_dlf`): a row each,
     // every score the grounded renderer's image of that rollout's particles at that step (DLF†
     // here the pretrained weights themselves, so its row is DLF's to the last digit)
     let mut e = experiment();
-    e.apply_override("eval.render_dlf=true").unwrap();
+    e.apply_override("diagnostics.render_dlf=true").unwrap();
     let weights = e.dlf.weights.display().to_string();
     e.apply_override(&format!("eval.supervised_dlf={weights:?}"))
         .unwrap();
@@ -241,15 +245,12 @@ fn the_ci_experiment_learns() {
             .images
             .clone()
     };
-    let (on_dlf, on_supervised) = (
-        row(eval::RENDERER_ON_DLF),
-        row(eval::RENDERER_ON_SUPERVISED_DLF),
-    );
+    let (on_dlf, on_supervised) = (row(RENDERER_ON_DLF), row(RENDERER_ON_SUPERVISED_DLF));
     assert!(
         with_dlf
             .nvs_baselines
             .iter()
-            .all(|b| b.model != eval::RENDERER_ON_TRUTH)
+            .all(|b| b.model != RENDERER_ON_TRUTH)
     );
     assert_eq!(steps(&on_dlf), steps(&with_dlf.images));
     assert_eq!(on_dlf, on_supervised);
@@ -257,7 +258,7 @@ fn the_ci_experiment_learns() {
         on_dlf != with_dlf.images,
         "DLF's renders scored as NeuroFluid's"
     );
-    let rollouts = eval::rollouts::Rollouts::of(&again, &grounded).unwrap();
+    let rollouts = eval::rollouts::of(&again, &grounded).unwrap();
     let last = on_dlf.last().unwrap();
     let at = again.scene.frames(Role::Test).start + last.t;
     let frame = ViewFrame::load(&again.scene, Role::Test, &last.view, at).unwrap();
@@ -271,15 +272,16 @@ fn the_ci_experiment_learns() {
     for prefix in ["dlf_particles_", "dlf_supervised_particles_"] {
         assert!(dir.join(format!("{prefix}t{:04}.png", last.t)).is_file());
     }
-    assert!(with_dlf.markdown().contains(eval::RENDERER_ON_DLF));
+    assert!(with_dlf.markdown().contains(RENDERER_ON_DLF));
 
     drop(again);
-    // `eval.weight_interpolation`: at 0 NeuroFluid's DLF is the pretrained one, so its rollout
+    // `diagnostics.weight_interpolation`: at 0 NeuroFluid's DLF is the pretrained one, so its rollout
     // is DLF's at every frame; halfway it is neither, and the report says which model it scored
     let interpolated = |key: &str, fraction: &str| {
         let mut e = experiment();
         e.apply_override("eval.render=false").unwrap();
-        e.apply_override(&format!("eval.{key}={fraction}")).unwrap();
+        e.apply_override(&format!("diagnostics.{key}={fraction}"))
+            .unwrap();
         let run = Run::prepare(e, Start::Resume, &[Stage::Eval]).unwrap();
         let report = eval::run(&run, &grounded).unwrap();
         (report, run.stage_dir(eval::STAGE))
@@ -289,12 +291,16 @@ fn the_ci_experiment_learns() {
         at_zero
             .frames
             .iter()
-            .all(|f| Some(f.neurofluid) == f.dlf && f.reverse.neurofluid == f.reverse.dlf),
+            .all(|f| Rollout::NeuroFluid.of(f) == Rollout::Dlf.of(f)
+                && Rollout::NeuroFluid.reverse_of(f) == Rollout::Dlf.reverse_of(f)),
         "at weight_interpolation 0 NeuroFluid's rollout is not the pretrained DLF's"
     );
     let (halfway, _) = interpolated("weight_interpolation", "0.5");
-    let d = |r: &neurofluid_train::report::EvalReport| -> Vec<f64> {
-        r.frames.iter().map(|f| f.neurofluid).collect()
+    let d = |r: &neurofluid_outputs::report::EvalReport| -> Vec<f64> {
+        r.frames
+            .iter()
+            .filter_map(|f| Rollout::NeuroFluid.of(f))
+            .collect()
     };
     assert!(d(&halfway) != d(&at_zero) && d(&halfway) != d(&report));
     assert!(
@@ -302,12 +308,16 @@ fn the_ci_experiment_learns() {
             .markdown()
             .contains("plus 0.5 of what grounding changed")
     );
-    assert!(!report.markdown().contains("eval.weight_interpolation"));
+    assert!(
+        !report
+            .markdown()
+            .contains("diagnostics.weight_interpolation")
+    );
 
-    // `eval.interpolation_sweep`: the grounded model's report gains d and d′ per window at each
+    // `diagnostics.interpolation_sweep`: the grounded model's report gains d and d′ per window at each
     // fraction, the same figures as evaluating each fraction on its own (0: the pretrained DLF,
     // 1: NeuroFluid as trained), and a picture of them
-    let means = |r: &neurofluid_train::report::EvalReport, of: fn(&FrameDistance) -> [f64; 2]| {
+    let means = |r: &neurofluid_outputs::report::EvalReport, of: fn(&FrameDistance) -> [f64; 2]| {
         let window = |(a, b): (usize, usize)| {
             let rows: Vec<[f64; 2]> = r
                 .frames
@@ -320,8 +330,11 @@ fn the_ci_experiment_learns() {
         };
         (window(r.windows.grounding), window(r.windows.prediction))
     };
-    let dlf = |f: &FrameDistance| [f.dlf.unwrap(), f.reverse.dlf.unwrap()];
-    let nf = |f: &FrameDistance| [f.neurofluid, f.reverse.neurofluid.unwrap()];
+    fn both(m: Rollout, f: &FrameDistance) -> [f64; 2] {
+        [m.of(f).unwrap(), m.reverse_of(f).unwrap()]
+    }
+    let dlf = |f: &FrameDistance| both(Rollout::Dlf, f);
+    let nf = |f: &FrameDistance| both(Rollout::NeuroFluid, f);
     let (swept, dir) = interpolated("interpolation_sweep", "[0.5]");
     let points: Vec<_> = swept
         .interpolation
@@ -341,7 +354,7 @@ fn the_ci_experiment_learns() {
     assert!(close(points[2].1, means(&swept, nf)));
     assert!(close(means(&swept, nf), means(&report, nf)));
     assert!(dir.join(eval::INTERPOLATION_PLOT).is_file());
-    assert!(swept.markdown().contains("eval.interpolation_sweep"));
+    assert!(swept.markdown().contains("diagnostics.interpolation_sweep"));
 }
 
 #[test]
@@ -360,7 +373,7 @@ fn a_model_that_starts_dead_is_stopped_with_the_reason() {
     assert!(err.contains("physnerf received no gradient"), "{err}");
     assert!(err.contains("physnerf.density"), "{err}");
     // the rows logged so far show the zero gradients, and the message counts steps as they do
-    let rows = neurofluid_train::metrics_log::read_jsonl(log.jsonl_path()).unwrap();
+    let rows = neurofluid_outputs::metrics_log::read_jsonl(log.jsonl_path()).unwrap();
     assert!(
         rows.iter()
             .all(|r| r.get("grad_norm/physnerf") == Some(0.0))

@@ -3,6 +3,7 @@
 //! Cargo.toml).
 mod bad_inputs;
 mod camera_files;
+mod config_reference;
 mod fuzz_inputs;
 mod held_out_view;
 mod joint_diagnostics;

@@ -6,9 +6,10 @@
 use std::path::Path;
 
 use neurofluid_core::scene::{Particles, Role};
+use neurofluid_outputs::metrics_log::MetricsLog;
+use neurofluid_outputs::scoring::rendered_steps;
 use neurofluid_tests::{params, seeded_turn, tiny_experiment};
 use neurofluid_train::config::Experiment;
-use neurofluid_train::metrics_log::MetricsLog;
 use neurofluid_train::stage::Stage;
 use neurofluid_train::stages::joint::{JointData, JointTrainer};
 use neurofluid_train::stages::nerf::{self, NerfData, NerfKind};
@@ -153,7 +154,7 @@ fn a_baseline_resumes_exactly_and_is_scored_on_the_test_frames() {
     let mut log = second.open_log().unwrap();
     let b = nerf::train(&second, &mut log, NerfKind::NerfT).unwrap();
     assert_eq!(params(&a), params(&b), "the resumed NeRF-T differs");
-    let rows = neurofluid_train::metrics_log::read_jsonl(log.jsonl_path())
+    let rows = neurofluid_outputs::metrics_log::read_jsonl(log.jsonl_path())
         .unwrap()
         .iter()
         .filter(|r| r.stage == "nerf-t")
@@ -162,7 +163,7 @@ fn a_baseline_resumes_exactly_and_is_scored_on_the_test_frames() {
 
     let scores = baseline::evaluate(&second, &b, NerfKind::NerfT).unwrap();
     let test = second.scene.frames(Role::Test);
-    let frames = eval::rendered_steps(test.len(), second.exp.eval.render_every);
+    let frames = rendered_steps(test.len(), second.exp.eval.render_every);
     assert_eq!(scores.model, "NeRF-T");
     assert_eq!(
         scores.images.iter().map(|s| s.t).collect::<Vec<_>>(),
@@ -274,7 +275,14 @@ fn particles_from_images_feed_every_stage() {
     assert!(report.markdown().contains("initial particles from images"));
     // the rollouts start from the recovered particles: at t = 1 the truth is about two radii
     // (50 × 10⁻³) from them, far more than from a rollout of the true state
-    assert!(report.frames[0].neurofluid > 20.0, "{:?}", report.frames[0]);
+    assert!(
+        neurofluid_outputs::report::Rollout::NeuroFluid
+            .of(&report.frames[0])
+            .unwrap()
+            > 20.0,
+        "{:?}",
+        report.frames[0]
+    );
 }
 
 #[test]

@@ -19,7 +19,7 @@ fn fine_tunes_on_a_generated_scene() {
     std::fs::write(
         &rules,
         "name = \"rules\"\n[scene]\nbuiltin = \"watercube\"\n[dlf]\ncontainment = \"box\"\n\
-         energy_cap = \"particle\"\ngravity_scale = 1.7\nviscosity = 0.2\nno_slip = true\n",
+         energy_cap = \"particle\"\ngravity_scale = 1.7\nviscosity = 0.2\n",
     )
     .unwrap();
     run(Args {

@@ -4,9 +4,9 @@
 
 use std::path::Path;
 
+use neurofluid_outputs::metrics_log::MetricsLog;
 use neurofluid_tests::{params, seeded_turn, tiny_experiment};
 use neurofluid_train::config::Experiment;
-use neurofluid_train::metrics_log::MetricsLog;
 use neurofluid_train::stage::Stage;
 use neurofluid_train::stages::views::{points_tensor, render_beside_truth};
 use neurofluid_train::stages::{Run, Start, eval, joint, orbit, refit, run_all, warmup};
@@ -81,7 +81,7 @@ fn the_refit_renders_the_views_and_leaves_the_dynamics() {
     assert_eq!(again.images, after.images);
 
     // its rows: the warm-up phase and the fit phase, each step updating, with psnr_true
-    let rows = neurofluid_train::metrics_log::read_jsonl(log.jsonl_path()).unwrap();
+    let rows = neurofluid_outputs::metrics_log::read_jsonl(log.jsonl_path()).unwrap();
     let refit_rows: Vec<_> = rows.iter().filter(|r| r.stage == "refit").collect();
     let steps = with.exp.warmup.iters + with.exp.joint.epochs * 3;
     assert_eq!(refit_rows.len() as u64, steps, "one row per step");
@@ -158,7 +158,7 @@ fn a_stale_refit_starts_over_and_each_step_is_logged_once() {
         run.exp.warmup.iters + run.exp.joint.epochs * 3
     };
     let refit_rows = |log: &MetricsLog| {
-        neurofluid_train::metrics_log::read_jsonl(log.jsonl_path())
+        neurofluid_outputs::metrics_log::read_jsonl(log.jsonl_path())
             .unwrap()
             .into_iter()
             .filter(|r| r.stage == "refit")

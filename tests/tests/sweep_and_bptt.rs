@@ -3,9 +3,9 @@
 //! (refusing a folder trained under other settings or holding an unfinished joint stage);
 //! multi-step BPTT with differentiable conv geometry trains.
 
+use neurofluid_outputs::metrics_log::MetricsLog;
 use neurofluid_tests::{params, seeded_turn, tiny_experiment, workspace_root};
 use neurofluid_train::commands::sweep;
-use neurofluid_train::metrics_log::MetricsLog;
 use neurofluid_train::stage::Stage;
 use neurofluid_train::stages::{Run, Start, joint, warmup};
 

@@ -5,8 +5,8 @@
 
 use std::path::Path;
 
+use neurofluid_outputs::metrics_log::{MetricsLog, read_jsonl};
 use neurofluid_tests::{seeded_turn, tiny_experiment, workspace_root};
-use neurofluid_train::metrics_log::{MetricsLog, read_jsonl};
 use neurofluid_train::stage::Stage;
 use neurofluid_train::stages::{Run, Start, joint, warmup};
 

@@ -208,6 +208,45 @@ impl Camera {
     }
 }
 
+/// `n` cameras at `distance` from `centre`, spread evenly over the half sphere above it (a
+/// Fibonacci lattice, none on the up axis itself), each looking at `centre` with the
+/// intrinsics of `like` (scaled to at most `max_width` pixels wide).
+pub fn orbit_cameras(
+    like: &Camera,
+    centre: [f32; 3],
+    distance: f32,
+    up_axis: usize,
+    n: usize,
+    max_width: u32,
+) -> Vec<Camera> {
+    let k = (max_width as f32 / like.width as f32).min(1.0);
+    let scaled = like.resized(
+        ((like.width as f32 * k).round() as u32).max(1),
+        ((like.height as f32 * k).round() as u32).max(1),
+    );
+    let mut up = [0.0f32; 3];
+    up[up_axis] = 1.0;
+    let (a, b) = ((up_axis + 1) % 3, (up_axis + 2) % 3);
+    let golden = std::f32::consts::PI * (3.0 - 5f32.sqrt());
+    (0..n)
+        .map(|i| {
+            // equal areas of the half sphere: the height above the centre uniform in (0, 1)
+            let h = (i as f32 + 0.5) / n as f32;
+            let r = (1.0 - h * h).sqrt();
+            let phi = golden * i as f32;
+            let mut eye = centre;
+            eye[a] += distance * r * phi.cos();
+            eye[b] += distance * r * phi.sin();
+            eye[up_axis] += distance * h;
+            let pose = Camera::look_at(scaled.width, scaled.height, 1.0, eye, centre, up);
+            Camera {
+                c2w: pose.c2w,
+                ..scaled
+            }
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -367,5 +406,40 @@ mod tests {
         assert!(close(d, to.into(), 1e-6), "{d:?}");
         // image-up points to world-up-ish: pixel row 0 looks higher than row 7
         assert!(cam.ray_dir(0, 4)[1] > cam.ray_dir(7, 4)[1]);
+    }
+
+    /// Every camera sits at the distance asked, above the centre, looks at it through its
+    /// principal point, keeps the intrinsics' field of view, and no two look from one place.
+    #[test]
+    fn an_orbit_surrounds_the_centre_from_above() {
+        let like = Camera::look_at(400, 300, 0.6, [0.0, -4.0, 2.0], [0.0; 3], [0.0, 0.0, 1.0]);
+        let centre = [0.2, -0.1, 0.3];
+        let cams = orbit_cameras(&like, centre, 3.0, 2, 16, 128);
+        assert_eq!(cams.len(), 16);
+        let mut azimuths = Vec::new();
+        for c in &cams {
+            assert_eq!((c.width, c.height), (128, 96));
+            assert!((c.fx / c.width as f32 - like.fx / like.width as f32).abs() < 1e-5);
+            let o = c.origin();
+            let rel: [f32; 3] = std::array::from_fn(|k| o[k] - centre[k]);
+            let dist = rel.iter().map(|x| x * x).sum::<f32>().sqrt();
+            assert!((dist - 3.0).abs() < 1e-4, "{dist}");
+            assert!(rel[2] > 0.0 && rel[2] < 3.0, "{rel:?}");
+            // the principal ray (camera −z) points from the eye at the centre
+            let ahead = [-c.c2w[0][2], -c.c2w[1][2], -c.c2w[2][2]];
+            for k in 0..3 {
+                assert!((ahead[k] + rel[k] / dist).abs() < 1e-4);
+            }
+            azimuths.push(rel[1].atan2(rel[0]));
+        }
+        // heights spread from near the floor to near the top, azimuths all round
+        let heights: Vec<f32> = cams.iter().map(|c| c.origin()[2] - centre[2]).collect();
+        assert!(heights.iter().cloned().fold(f32::MAX, f32::min) < 0.2);
+        assert!(heights.iter().cloned().fold(f32::MIN, f32::max) > 2.8);
+        for q in 0..4 {
+            let lo = -std::f32::consts::PI + q as f32 * std::f32::consts::FRAC_PI_2;
+            let hi = lo + std::f32::consts::FRAC_PI_2;
+            assert!(azimuths.iter().filter(|a| (lo..hi).contains(*a)).count() >= 3);
+        }
     }
 }

@@ -448,7 +448,7 @@ pub fn set_split_rows(rows: usize) {
 /// products `x_bᵀ·dz_b` summed over the batch — the split of the reduction over the rows that a
 /// GPU needs. A single matmul's weight gradient has an inner dimension of every row (PhysNeRF's
 /// 150k samples), which the fixed matmul kernel runs on a few workgroups: on an H100 the MLPs'
-/// backward took 48 times their forward (BENCHMARKS.md, "Issue 30, first H100 session").
+/// backward took 48 times their forward (docs/notebook/benchmarks-history.md, "Issue 30, first H100 session").
 /// With 16-bit `operands` the blocks' products are [`half_matmul`]s (forward and backward).
 /// The same values as `act(layer.forward(x))` up to the order of the sums (and the 16-bit
 /// operands' rounding).

@@ -66,12 +66,12 @@ pub fn is_host(device: &Device) -> bool {
 /// The most bytes `device` allocates in one buffer, where its backend says (the cubecl
 /// backends: wgpu's storage-binding and buffer limits, CUDA's); `None` for the CPU backends.
 pub fn max_buffer_bytes(device: &Device) -> Option<u64> {
-    #[cfg(any(feature = "wgpu-base", feature = "cuda"))]
+    #[cfg(feature = "gpu")]
     {
         let cube = crate::cube_tensor::cube_device(device)?;
         Some(cube.client().properties().memory.max_page_size)
     }
-    #[cfg(not(any(feature = "wgpu-base", feature = "cuda")))]
+    #[cfg(not(feature = "gpu"))]
     {
         let _ = device;
         None

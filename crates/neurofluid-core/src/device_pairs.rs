@@ -154,7 +154,7 @@ pub fn device_pairs(
     symmetric: bool,
     max_slots: usize,
 ) -> Option<Result<DevicePairs, String>> {
-    #[cfg(any(feature = "wgpu-base", feature = "cuda"))]
+    #[cfg(feature = "gpu")]
     {
         let cube = crate::cube_tensor::cube_device(device)?;
         Some(kernel::run(
@@ -167,7 +167,7 @@ pub fn device_pairs(
             max_slots,
         ))
     }
-    #[cfg(not(any(feature = "wgpu-base", feature = "cuda")))]
+    #[cfg(not(feature = "gpu"))]
     {
         let _ = (
             device,
@@ -196,14 +196,14 @@ pub fn device_pairs_from_host(
     symmetric: bool,
     max_slots: usize,
 ) -> Option<Result<DevicePairs, String>> {
-    #[cfg(any(feature = "wgpu-base", feature = "cuda"))]
+    #[cfg(feature = "gpu")]
     {
         let cube = crate::cube_tensor::cube_device(device)?;
         Some(kernel::from_host(
             &cube, pairs, num_in, symmetric, max_slots,
         ))
     }
-    #[cfg(not(any(feature = "wgpu-base", feature = "cuda")))]
+    #[cfg(not(feature = "gpu"))]
     {
         let _ = (device, pairs, num_in, symmetric, max_slots);
         None
@@ -214,7 +214,7 @@ pub fn device_pairs_from_host(
 /// pair lies in neighbouring cells under float rounding), grown where the points spread so
 /// far that the cells would outnumber `MAX_CELLS`; the points' positions and indices in cell
 /// order (a stable counting sort: ascending index within a cell) and each cell's first point.
-#[cfg(any(feature = "wgpu-base", feature = "cuda"))]
+#[cfg(feature = "gpu")]
 #[derive(Debug)]
 struct Grid {
     lo: [f32; 3],
@@ -225,10 +225,10 @@ struct Grid {
     starts: Vec<u32>,
 }
 
-#[cfg(any(feature = "wgpu-base", feature = "cuda"))]
+#[cfg(feature = "gpu")]
 const MAX_CELLS: f64 = (1 << 22) as f64;
 
-#[cfg(any(feature = "wgpu-base", feature = "cuda"))]
+#[cfg(feature = "gpu")]
 impl Grid {
     fn new(points: &[[f32; 3]], radius: f32) -> Self {
         let (lo, hi) = crate::neighbors::bounding_box(points);
@@ -259,7 +259,7 @@ impl Grid {
     }
 }
 
-#[cfg(any(feature = "wgpu-base", feature = "cuda"))]
+#[cfg(feature = "gpu")]
 mod kernel {
     use std::sync::Arc;
 
@@ -815,7 +815,7 @@ mod tests {
         }
     }
 
-    #[cfg(any(feature = "wgpu-base", feature = "cuda"))]
+    #[cfg(feature = "gpu")]
     #[test]
     fn the_grid_sorts_points_by_cell_stably() {
         let pts: Vec<[f32; 3]> = (0..200)

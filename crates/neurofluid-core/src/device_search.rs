@@ -69,19 +69,19 @@ pub fn ball_query(
     k: usize,
     selection: crate::neighbors::NeighborSelection,
 ) -> Option<Result<crate::neighbors::BallQuery<f32>, String>> {
-    #[cfg(any(feature = "wgpu-base", feature = "cuda"))]
+    #[cfg(feature = "gpu")]
     {
         let cube = crate::cube_tensor::cube_device(device)?;
         Some(kernel::run(&cube, points, queries, radius, k, selection))
     }
-    #[cfg(not(any(feature = "wgpu-base", feature = "cuda")))]
+    #[cfg(not(feature = "gpu"))]
     {
         let _ = (device, points, queries, radius, k, selection);
         None
     }
 }
 
-#[cfg(any(feature = "wgpu-base", feature = "cuda"))]
+#[cfg(feature = "gpu")]
 mod kernel {
     use cubecl::calculate_cube_count_elemwise;
     use cubecl::prelude::*;

@@ -5,7 +5,7 @@
 //!
 //! Why: on NVIDIA's Vulkan driver the tensor cores take f16 or bf16 operands only (no tf32), so
 //! cubecl's matmul falls back to its scalar kernel for f32 operands; on an H100 that kernel was
-//! 82 % of the PhysNeRF step (BENCHMARKS.md, "Issue 30, second H100 session").
+//! 82 % of the PhysNeRF step (docs/notebook/benchmarks-history.md, "Issue 30, second H100 session").
 //!
 //! Why the scaling: f16 keeps magnitudes from 6·10⁻⁵ (normal) to 65,504; a PhysNeRF step's
 //! output gradients are around 10⁻⁶–10⁻⁸, which f16 would flush to zero or keep with a few bits.
@@ -137,7 +137,7 @@ pub fn half_matmul(x: Tensor<3>, w: Tensor<2>, half: DType) -> Tensor<3> {
     if let Some(z) = flex_op::tracked(&x, &w, half) {
         return z;
     }
-    #[cfg(any(feature = "wgpu-base", feature = "cuda"))]
+    #[cfg(feature = "gpu")]
     if let Some(z) = cube_op::tracked(&x, &w, half) {
         return z;
     }
@@ -261,5 +261,5 @@ macro_rules! half_matmul_op {
 
 #[cfg(feature = "flex")]
 half_matmul_op!(flex_op, burn::backend::Flex);
-#[cfg(any(feature = "wgpu-base", feature = "cuda"))]
+#[cfg(feature = "gpu")]
 half_matmul_op!(cube_op, burn::backend::Cube);

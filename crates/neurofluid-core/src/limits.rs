@@ -22,15 +22,40 @@ pub const MAX_PICKLE_VALUES: usize = 1 << 20;
 /// Bytes a decoded image pixel takes (RGBA, float32).
 const BYTES_PER_PIXEL: u64 = 16;
 
+/// `NEUROFLUID_MAX_FILE_MB`'s value `text` read as MiB: a whole number ≥ 1, or an error that
+/// names the variable, what it holds (cut to 40 characters) and what was expected.
+pub fn parse_max_file_mb(text: &str) -> Result<u64, String> {
+    match text.trim().parse::<u64>() {
+        Ok(mb) if mb > 0 => Ok(mb),
+        _ => {
+            let shown: String = text.chars().take(40).collect();
+            let cut = if text.chars().count() > 40 { "…" } else { "" };
+            Err(format!(
+                "{MAX_FILE_MB_ENV}={shown:?}{cut}: expected a whole number of MiB ≥ 1 (the most \
+                 one file's decoded content may take; unset: {DEFAULT_MAX_FILE_MB})"
+            ))
+        }
+    }
+}
+
+/// The setting of `NEUROFLUID_MAX_FILE_MB` in MiB: [`DEFAULT_MAX_FILE_MB`] when unset, an error
+/// when set to anything but a whole number ≥ 1. The programs check it when they start, so a
+/// bad value stops them with that error instead of being ignored.
+pub fn max_file_mb() -> Result<u64, String> {
+    match std::env::var(MAX_FILE_MB_ENV) {
+        Err(std::env::VarError::NotPresent) => Ok(DEFAULT_MAX_FILE_MB),
+        Err(std::env::VarError::NotUnicode(v)) => parse_max_file_mb(&v.to_string_lossy()),
+        Ok(v) => parse_max_file_mb(&v),
+    }
+}
+
 /// The most bytes one file's decoded content may take: `NEUROFLUID_MAX_FILE_MB` MiB (default
-/// [`DEFAULT_MAX_FILE_MB`]).
+/// [`DEFAULT_MAX_FILE_MB`]; a bad value, which the programs refuse when they start, counts as
+/// the default here).
 pub fn max_decoded_bytes() -> u64 {
-    let mb = std::env::var(MAX_FILE_MB_ENV)
-        .ok()
-        .and_then(|v| v.trim().parse::<u64>().ok())
-        .filter(|&mb| mb > 0)
-        .unwrap_or(DEFAULT_MAX_FILE_MB);
-    mb.saturating_mul(1 << 20)
+    max_file_mb()
+        .unwrap_or(DEFAULT_MAX_FILE_MB)
+        .saturating_mul(1 << 20)
 }
 
 /// The most pixels one image may hold.
@@ -93,5 +118,22 @@ mod tests {
         assert!(check_decoded("x", 1 << 20).is_ok());
         assert!(check_image(800, 800).is_ok());
         assert!(check_image(u32::MAX, u32::MAX).is_err());
+    }
+
+    /// A value that is not a whole number of MiB ≥ 1 is an error naming the variable and the
+    /// value (it was ignored without a word; issue 72), cut to 40 characters.
+    #[test]
+    fn a_bad_cap_is_an_error_not_ignored() {
+        assert_eq!(parse_max_file_mb(" 2048 "), Ok(2048));
+        for bad in ["abc", "0", "-5", "1.5", ""] {
+            let e = parse_max_file_mb(bad).unwrap_err();
+            assert!(
+                e.contains(MAX_FILE_MB_ENV) && e.contains("whole number"),
+                "{bad:?}: {e}"
+            );
+        }
+        let long = "9".repeat(10_000) + "x";
+        let e = parse_max_file_mb(&long).unwrap_err();
+        assert!(e.len() < 300, "{} bytes", e.len());
     }
 }

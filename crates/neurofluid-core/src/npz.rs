@@ -109,10 +109,11 @@ enum Dtype {
 
 impl Dtype {
     fn parse(descr: &str) -> Option<Self> {
-        let (order, code) = descr.split_at(1);
-        if !matches!(order, "<" | "|" | "=") {
-            return None;
-        }
+        // the byte order is one ASCII character; an empty or non-ASCII `descr` is no dtype
+        let code = descr
+            .strip_prefix('<')
+            .or_else(|| descr.strip_prefix('|'))
+            .or_else(|| descr.strip_prefix('='))?;
         Some(match code {
             "f4" => Self::F4,
             "f8" => Self::F8,
@@ -596,26 +597,45 @@ mod tests {
             ("(268435456, 3)", crate::limits::MAX_FILE_MB_ENV),
             ("(1000, 3)", "holds 0 bytes"),
         ] {
-            let header =
-                format!("{{'descr': '<f4', 'fortran_order': False, 'shape': {shape}, }}\n");
-            let mut npy = b"\x93NUMPY\x01\x00".to_vec();
-            npy.extend((header.len() as u16).to_le_bytes());
-            npy.extend(header.as_bytes());
-            let path = dir.join("huge.npz");
-            let mut w = NpzWriter::new();
-            w.entries.push(("pos".into(), npy));
-            w.write(&path).unwrap();
-            let e = NpzReader::open(&path)
-                .unwrap()
-                .f32("pos")
-                .unwrap_err()
-                .to_string();
+            let e = pos_error(&dir, "huge.npz", "<f4", shape, &[]);
             assert!(
                 e.contains("huge.npz") && e.contains("`pos`") && e.contains(needle),
                 "{e}"
             );
         }
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A `descr` that is empty or starts with a multi-byte character is an error naming the
+    /// entry, not a panic (it panicked in `split_at(1)`; issue 72).
+    #[test]
+    fn odd_dtype_descriptions_are_errors() {
+        let dir = tempfile_dir("descr");
+        for descr in ["", "é4", "€", ">f4", "<c8"] {
+            let e = pos_error(&dir, "descr.npz", descr, "(1, 3)", &[0u8; 12]);
+            assert!(
+                e.contains("descr.npz") && e.contains("`pos`"),
+                "{descr:?}: {e}"
+            );
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// The error of reading `pos` as float32 from `dir/name`, an archive of that one entry whose
+    /// npy header declares `descr` and `shape` (as Python writes a tuple), followed by `payload`.
+    fn pos_error(dir: &Path, name: &str, descr: &str, shape: &str, payload: &[u8]) -> String {
+        let header =
+            format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': {shape}, }}\n");
+        let mut npy = b"\x93NUMPY\x01\x00".to_vec();
+        npy.extend((header.len() as u16).to_le_bytes());
+        npy.extend(header.as_bytes());
+        npy.extend(payload);
+        let path = dir.join(name);
+        let mut w = NpzWriter::new();
+        w.entries.push(("pos".into(), npy));
+        w.write(&path).unwrap();
+        let read = NpzReader::open(&path).unwrap().f32("pos");
+        read.expect_err("the header is refused").to_string()
     }
 
     fn tempfile_dir(tag: &str) -> PathBuf {

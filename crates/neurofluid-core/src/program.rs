@@ -28,6 +28,19 @@ pub struct Identity {
     pub about: &'static str,
 }
 
+/// The [`Identity`] of the calling package's binary: its package's name, version and description
+/// (the caller's `CARGO_PKG_*`).
+#[macro_export]
+macro_rules! package_identity {
+    () => {
+        $crate::program::Identity {
+            name: env!("CARGO_PKG_NAME"),
+            version: env!("CARGO_PKG_VERSION"),
+            about: env!("CARGO_PKG_DESCRIPTION"),
+        }
+    };
+}
+
 impl<C: Subcommand> Program<C> {
     /// The command line of the program `id`.
     pub fn named(id: Identity) -> clap::Command {

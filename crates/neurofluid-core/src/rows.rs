@@ -228,7 +228,7 @@ pub fn gather_rows(t: Tensor<2>, idx: &RowIndex) -> Tensor<2> {
     if on_flex(&t) {
         return t.select(0, idx.tensor.clone());
     }
-    #[cfg(any(feature = "wgpu-base", feature = "cuda"))]
+    #[cfg(feature = "gpu")]
     if let Some(y) = cube_ops::gather_rows(&t, idx) {
         return y;
     }
@@ -241,7 +241,7 @@ pub fn add_rows(base: Tensor<2>, idx: &RowIndex, values: Tensor<2>) -> Tensor<2>
     if on_flex(&base) {
         return base.select_assign(0, idx.tensor.clone(), values, IndexingUpdateOp::Add);
     }
-    #[cfg(any(feature = "wgpu-base", feature = "cuda"))]
+    #[cfg(feature = "gpu")]
     if let Some(y) = cube_ops::add_rows(&base, idx, &values) {
         return y;
     }
@@ -268,7 +268,7 @@ fn on_flex(t: &Tensor<2>) -> bool {
 /// [`gather_rows`] and [`add_rows`] as autodiff operations of the cubecl backend (wgpu, CUDA),
 /// their gradients computed on the untracked tensors: the gather's by the planned sum, the
 /// added values' by a gather.
-#[cfg(any(feature = "wgpu-base", feature = "cuda"))]
+#[cfg(feature = "gpu")]
 mod cube_ops {
     use super::*;
     use burn::backend::autodiff::checkpoint::base::Checkpointer;

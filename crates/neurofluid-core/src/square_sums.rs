@@ -22,7 +22,7 @@ pub const MOST_PER_GROUP: usize = 64;
 /// whose values, read back one after the other ([`crate::transfer::read_together`]), are one sum
 /// per input (on a cubecl device one tensor per group; elsewhere a `[1]` tensor per input).
 pub fn square_sums(tensors: Vec<Tensor<1>>) -> Vec<Tensor<1>> {
-    #[cfg(any(feature = "wgpu-base", feature = "cuda"))]
+    #[cfg(feature = "gpu")]
     if let Some(sums) = kernel::square_sums(&tensors) {
         return sums;
     }
@@ -37,7 +37,7 @@ pub fn count(sums: &[Tensor<1>]) -> usize {
     sums.iter().map(|t| t.dims()[0]).sum()
 }
 
-#[cfg(any(feature = "wgpu-base", feature = "cuda"))]
+#[cfg(feature = "gpu")]
 mod kernel {
     use burn::prelude::Tensor as BurnTensor;
     use burn::tensor::DType;

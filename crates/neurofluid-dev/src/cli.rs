@@ -9,11 +9,7 @@ use crate::commands;
 pub type Cli = Program<Command>;
 
 /// What `--help` and `--version` say the program is: its package's name, version and description.
-const IDENTITY: Identity = Identity {
-    name: "neurofluid-dev",
-    version: env!("CARGO_PKG_VERSION"),
-    about: env!("CARGO_PKG_DESCRIPTION"),
-};
+const IDENTITY: Identity = neurofluid_core::package_identity!();
 
 /// The process's arguments, read as `neurofluid-dev`'s.
 pub fn parse() -> Cli {
@@ -29,6 +25,17 @@ pub enum Command {
     Render(commands::render::Args),
     /// Run the DLF model on a scene `.npz` (the DLF reference harness's keys).
     DlfRollout(commands::dlf_rollout::Args),
+}
+
+impl Command {
+    /// Runs the chosen subcommand.
+    pub fn run(self) -> anyhow::Result<()> {
+        match self {
+            Command::PhysnerfCase(args) => commands::physnerf_case::run(args),
+            Command::Render(args) => commands::render::run(args),
+            Command::DlfRollout(args) => commands::dlf_rollout::run(args),
+        }
+    }
 }
 
 #[cfg(test)]

@@ -1,12 +1,16 @@
 //! `neurofluid-dev`: the reference-case runners of NeuroFluid-rs.
 
-use neurofluid_dev::{cli, commands};
+use neurofluid_dev::cli;
 
 fn main() -> std::process::ExitCode {
     neurofluid_core::malloc::keep_freed_memory();
     let cli = cli::parse();
+    if let Err(err) = neurofluid_core::limits::max_file_mb() {
+        eprintln!("error: {err}");
+        return std::process::ExitCode::FAILURE;
+    }
     cli.log.init(&[]);
-    match commands::dispatch(cli.command) {
+    match cli.command.run() {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(err) => {
             eprintln!("error: {err:#}");

@@ -51,7 +51,7 @@ fn float64_case_matches_reference_precisely() {
         );
     }
     // importance depths: columns 0..126 tight; column 127 (u = 1) may legitimately sit anywhere
-    // in [bins[61], bins[62]] (README "sample_pdf has a threshold")
+    // in [bins[61], bins[62]] (tests/data/physnerf/README.md, "sample_pdf has a threshold")
     let (zi, zr) = (
         out.float("fine/z_importance"),
         refv(&file, "f64/fine/z_importance"),

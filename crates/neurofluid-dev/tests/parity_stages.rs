@@ -477,8 +477,9 @@ fn importance_sampling() {
         let z = sample_pdf(&bins, &w[r * 64 + 1..r * 64 + 63], &u);
         for (c, &zi) in z.iter().enumerate() {
             if c == 127 {
-                // u = 1 depends on whether cdf[62] rounds above or below 1 (README "sample_pdf
-                // has a threshold"): it must lie in [bins[61], bins[62]]
+                // u = 1 depends on whether cdf[62] rounds above or below 1
+                // (tests/data/physnerf/README.md, "sample_pdf has a threshold"): it must lie in
+                // [bins[61], bins[62]]
                 assert!(
                     (bins[61] - 1e-5..=bins[62] + 1e-5).contains(&zi),
                     "ray {r}: u = 1 gave {zi}"

@@ -1,7 +1,9 @@
-//! Run-time settings of the DLF model: gravity, time step, frame, geometry mode, container,
-//! energy cap, gravity scale, viscosity.
+//! Run-time settings of the DLF model: gravity, time step, frame, geometry mode, and the rules of
+//! its step ([`StepRules`]) with the box its walls keep.
 
 use neurofluid_core::scene::{Aabb, UpAxis};
+
+use crate::rules::{RulesError, StepRules};
 
 /// How the conv geometry (mapped coordinates, trilinear and window weights) enters autodiff.
 /// In files: `"constant"` or `"differentiable"`.
@@ -69,29 +71,13 @@ pub struct DlfConfig {
     pub frame: Frame,
     /// Whether the conv geometry is differentiable.
     pub geometry: GeometryMode,
-    /// Keep every predicted particle inside this box (scene frame, metres): a step that would carry a
-    /// particle through a wall ends on the wall, its velocity the displacement it really made.
-    /// `None` (the reference): the walls act only through the box particles' convolution.
+    /// The rules of the step beyond the published model's (the reference: none).
+    pub rules: StepRules,
+    /// The box the walls keep every predicted particle in (scene frame, metres), under
+    /// `rules.containment = "box"`: a step that would carry a particle through a wall ends on
+    /// the wall, its velocity the displacement it really made. `None` (the reference): the
+    /// walls act only through the box particles' convolution.
     pub container: Option<Aabb>,
-    /// Shorten each particle's step where it would raise the particle's mechanical energy
-    /// ([`crate::energy_cap`]; applied after the container). `false` (the reference): DLF's step
-    /// as it is.
-    pub cap_particle_energy: bool,
-    /// Scale of the gravity in the pre-step (x*, v* of spec §4) only; the energy cap and
-    /// everything else keep [`DlfConfig::gravity`]. `1.0` (the reference). The published weights
-    /// accelerate a falling clump at about 6.3 m/s² under 9.81 (Open3D's reference rollout of
-    /// the same weights agrees); 1.7 makes it fall at 9.8 (`tests/free_fall.rs`).
-    pub gravity_scale: f32,
-    /// Strength in [0, 1] of the XSPH viscosity applied to each step's velocities before the
-    /// container and the energy cap ([`crate::viscosity`]). `0.0` (the reference): none.
-    pub viscosity: f32,
-    /// With [`DlfConfig::viscosity`], whether the box's particles count among each particle's
-    /// neighbours, at rest (no-slip walls). `false`: the fluid's particles alone.
-    pub no_slip: bool,
-    /// Whether each cluster of fluid particles out of the walls' reach has its corrections'
-    /// mean set so that its centre of mass moves as a projectile under [`DlfConfig::gravity`]
-    /// ([`crate::free_flight`]). `false` (the reference): the network's corrections as they are.
-    pub ballistic_free_flight: bool,
 }
 
 impl Default for DlfConfig {
@@ -104,12 +90,8 @@ impl Default for DlfConfig {
             output_scale: 1.0 / 128.0,
             frame: Frame::YUp,
             geometry: GeometryMode::Constant,
+            rules: StepRules::default(),
             container: None,
-            cap_particle_energy: false,
-            gravity_scale: 1.0,
-            viscosity: 0.0,
-            no_slip: false,
-            ballistic_free_flight: false,
         }
     }
 }
@@ -131,6 +113,21 @@ impl DlfConfig {
             UpAxis::Y => Self::default(),
             UpAxis::Z => Self::z_up(),
         }
+    }
+
+    /// This model under `rules`, its walls at `box_interior` (the scene's box; `None` where
+    /// none is known, which only rules without walls accept).
+    pub fn with_rules(
+        mut self,
+        rules: StepRules,
+        box_interior: Option<Aabb>,
+    ) -> Result<Self, RulesError> {
+        if let Some(e) = rules.problem() {
+            return Err(e);
+        }
+        self.container = rules.container(box_interior)?;
+        self.rules = rules;
+        Ok(self)
     }
 
     /// Gravity in the model frame.

@@ -20,18 +20,18 @@ use burn::prelude::*;
 /// filter of `extent`; `None` off the cubecl backends or for a dtype other than f32 (the caller
 /// then composes the tensor version).
 pub fn slot_cell_weights(rel: &Tensor<2>, real: &Tensor<2>, extent: f32) -> Option<Tensor<2>> {
-    #[cfg(any(feature = "wgpu-base", feature = "cuda"))]
+    #[cfg(feature = "gpu")]
     {
         kernel::slot_cell_weights(rel, real, extent)
     }
-    #[cfg(not(any(feature = "wgpu-base", feature = "cuda")))]
+    #[cfg(not(feature = "gpu"))]
     {
         let _ = (rel, real, extent);
         None
     }
 }
 
-#[cfg(any(feature = "wgpu-base", feature = "cuda"))]
+#[cfg(feature = "gpu")]
 mod kernel {
     use burn::backend::autodiff::checkpoint::base::Checkpointer;
     use burn::backend::autodiff::checkpoint::strategy::NoCheckpointing;

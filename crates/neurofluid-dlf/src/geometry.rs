@@ -4,7 +4,7 @@
 //!
 //! Per neighbour pair p = (query m, input i) and trilinear corner c it holds the kernel cell
 //! `cell[p,c]` and the weight `window(p) · w_c(Λ(x_i − x_m))`; the convolution is then
-//! `out[m] = bias + Σ_p Σ_c weight[p,c] · f_i · K[cell[p,c]]` (spec/dlf.md §2.1).
+//! `out[m] = bias + Σ_p Σ_c weight[p,c] · f_i · K[cell[p,c]]` (docs/spec/dlf.md §2.1).
 
 use std::sync::{Arc, OnceLock};
 

@@ -1,4 +1,4 @@
-//! DLF's supervised loss (spec/dlf.md §5).
+//! DLF's supervised loss (docs/spec/dlf.md §5).
 
 use burn::prelude::*;
 

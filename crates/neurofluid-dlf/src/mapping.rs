@@ -1,5 +1,5 @@
 //! Host-side geometry of one neighbour pair: Open3D's volume-preserving ball→cube mapping with
-//! `align_corners`, the clamped trilinear corners and the poly6 window (spec/dlf.md §2.3–2.5).
+//! `align_corners`, the clamped trilinear corners and the poly6 window (docs/spec/dlf.md §2.3–2.5).
 //!
 //! Everything is float32 and follows the order of operations of the reference, so that the
 //! corner weights agree with Open3D's to a few ulp.

@@ -1,4 +1,4 @@
-//! The DLF network (spec/dlf.md §3) and its integrator (§4).
+//! The DLF network (docs/spec/dlf.md §3) and its integrator (§4).
 
 use burn::nn::{Initializer, Linear, LinearConfig};
 use burn::prelude::*;
@@ -8,8 +8,8 @@ use crate::config::{DlfConfig, GeometryMode};
 use crate::conv::ContinuousConv;
 use crate::diff_geometry::differentiable_weights;
 use crate::energy_cap::cap_particle_energy;
-use crate::free_flight::{free_clusters, projectile_step};
 use crate::geometry::{ConvGeometry, build_host_geometry, chunk_slots, search_radius};
+use crate::rules::EnergyCap;
 use crate::viscosity::smooth_velocities;
 use neurofluid_core::device_pairs::{device_pairs, device_pairs_from_host};
 use neurofluid_core::device_search::{NeighbourSearch, neighbour_search};
@@ -269,10 +269,7 @@ impl DlfNet {
         boundary: &Boundary,
     ) -> Option<(ConvGeometry, ConvGeometry)> {
         let device = pos_pred.device();
-        if self.config.viscosity > 0.0
-            || self.config.ballistic_free_flight
-            || neurofluid_core::device::is_host(&device)
-        {
+        if self.config.rules.viscosity > 0.0 || neurofluid_core::device::is_host(&device) {
             return None;
         }
         let extent = self.config.extent;
@@ -362,10 +359,13 @@ impl DlfNet {
         let cfg = self.config;
         let device = pos.device();
         // the state in the scene frame, which the energy cap compares the step with
-        let start = cfg.cap_particle_energy.then(|| (pos.clone(), vel.clone()));
+        let start =
+            (cfg.rules.energy_cap == EnergyCap::Particle).then(|| (pos.clone(), vel.clone()));
         let pos = self.to_model(pos);
         let vel = self.to_model(vel);
-        let g = cfg.model_gravity().map(|c| cfg.dt * cfg.gravity_scale * c);
+        let g = cfg
+            .model_gravity()
+            .map(|c| cfg.dt * cfg.rules.gravity_scale as f32 * c);
         let g: Tensor<2> =
             neurofluid_core::transfer::upload(TensorData::new(g.to_vec(), [1, 3]), &device);
         let vel_pred = vel.clone() + g;
@@ -374,29 +374,13 @@ impl DlfNet {
         let num_fluid_neighbors = fluid.counts();
         let (raw, features) = self.correction(vel_pred.clone(), boundary, &fluid, &solid);
         let shift = raw.clone() * cfg.output_scale;
-        let clusters = cfg.ballistic_free_flight.then(|| {
-            let touching: Vec<bool> = solid.counts().iter().map(|&c| c > 0).collect();
-            free_clusters(&fluid.host().pairs, &touching)
-        });
-        let (shift, velocity) = match &clusters {
-            Some(clusters) => {
-                let (shift, velocity) = projectile_step(shift, clusters, cfg);
-                (shift, Some(velocity))
-            }
-            None => (shift, None),
-        };
         let pos_new = pos_pred.clone() + shift;
         let vel_new = (pos_new.clone() - pos) / cfg.dt;
-        let vel_new = match velocity {
-            Some(velocity) => velocity(vel_new),
-            None => vel_new,
-        };
         let (pos_new, vel_new) = (self.to_scene(pos_new), self.to_scene(vel_new));
-        let (pos_new, vel_new) = if cfg.viscosity > 0.0 {
+        let (pos_new, vel_new) = if cfg.rules.viscosity > 0.0 {
             let radius = search_radius(cfg.extent);
-            let walls = cfg.no_slip.then(|| &**solid.host());
-            let smoothed =
-                smooth_velocities(vel_new.clone(), fluid.host(), walls, radius, cfg.viscosity);
+            let strength = cfg.rules.viscosity as f32;
+            let smoothed = smooth_velocities(vel_new.clone(), fluid.host(), radius, strength);
             (pos_new + (smoothed.clone() - vel_new) * cfg.dt, smoothed)
         } else {
             (pos_new, vel_new)

@@ -1,4 +1,4 @@
-//! DLF's training records `*.msgpack.zst` (spec/dlf.md §6.2): zstd of a msgpack list with one
+//! DLF's training records `*.msgpack.zst` (docs/spec/dlf.md §6.2): zstd of a msgpack list with one
 //! map per frame; arrays are msgpack-numpy maps {nd, type, kind, shape, data}.
 
 use std::io::{Cursor, Read};

@@ -1,12 +1,14 @@
-//! What supervised training of DLF needs from the model side (spec/dlf.md §5): training
+//! What supervised training of DLF needs from the model side (docs/spec/dlf.md §5): training
 //! sequences (from DLF records or scenes), the 2-step unrolled loss of one sample with γ = 0.5
 //! and exp(−n/40) weighting, rotations about the gravity axis, and DLF's validation errors
-//! (err_n1, err_n2, whole-sequence nearest-neighbour error). The loop itself (Adam, DLF's
-//! schedule, batches, checkpoints) is a trainer stage of `neurofluid-train`.
+//! (err_n1, err_n2, whole-sequence nearest-neighbour error), and DLF's learning-rate schedule
+//! ([`lr_schedule`]). The loop itself (Adam, batches, checkpoints) is a trainer stage of
+//! `neurofluid-train`.
 
 use std::path::Path;
 
 use burn::prelude::*;
+use neurofluid_core::lr_schedule::Schedule;
 
 use crate::loss::dlf_step_loss;
 use crate::net::{DlfNet, points_tensor, tensor_points};
@@ -323,6 +325,40 @@ pub fn supervised_loss(
     l1 * 0.5 + l2 * 0.5
 }
 
+/// The factors of DLF's schedule, after each of its boundaries.
+const LR_FACTORS: [f64; 5] = [0.5, 0.25, 0.125, 0.0625, 0.03125];
+
+/// The boundaries of DLF's schedule for a run of `iterations` steps: 25k/30k/35k/40k/45k of 50k
+/// steps, scaled in proportion for other run lengths.
+fn lr_boundaries(iterations: u64) -> impl Iterator<Item = u64> {
+    let scale = iterations as f64 / 50_000.0;
+    [25_000.0, 30_000.0, 35_000.0, 40_000.0, 45_000.0]
+        .into_iter()
+        .map(move |b: f64| (b * scale).floor() as u64)
+}
+
+/// DLF's training schedule (spec dlf.md §5) for a run of `iterations` steps: factor 1, then
+/// 0.5/0.25/0.125/0.0625/0.03125 after 25k/30k/35k/40k/45k of 50k steps, the boundaries
+/// scaled in proportion for other run lengths.
+pub fn lr_schedule(iterations: u64) -> Schedule {
+    Schedule::Piecewise {
+        boundaries: lr_boundaries(iterations).collect(),
+        factors: LR_FACTORS.to_vec(),
+    }
+}
+
+/// [`lr_schedule`] over the updates taken: DLF's reference steps its scheduler before each
+/// update, so an update's factor is `lr_schedule`'s at one more than the updates taken before
+/// it; here every boundary is one lower (one at 0, in a run of a single step, stays at 0).
+pub fn lr_schedule_per_update(iterations: u64) -> Schedule {
+    Schedule::Piecewise {
+        boundaries: lr_boundaries(iterations)
+            .map(|b| b.saturating_sub(1))
+            .collect(),
+        factors: LR_FACTORS.to_vec(),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -351,5 +387,49 @@ mod tests {
             }
         }
         assert_eq!(back.windows(), vec![0, 1]);
+    }
+
+    #[test]
+    fn the_lr_schedule_at_every_boundary() {
+        let s = lr_schedule(50_000);
+        let factors = [
+            (0, 1.0),
+            (25_000, 1.0),
+            (25_001, 0.5),
+            (30_000, 0.5),
+            (30_001, 0.25),
+            (35_001, 0.125),
+            (40_000, 0.125),
+            (40_001, 0.0625),
+            (45_000, 0.0625),
+            (45_001, 0.03125),
+            (50_000, 0.03125),
+        ];
+        for (step, f) in factors {
+            assert_eq!(s.factor_at(step), f, "step {step}");
+        }
+        assert!((1e-3 * s.factor_at(45_001) - 3.125e-5).abs() <= 1e-12 * 3.125e-5);
+        // other run lengths scale the boundaries (DLF's `dlf_lr_factor`)
+        let short = lr_schedule(100);
+        assert_eq!(short.factor_at(50), 1.0);
+        assert_eq!(short.factor_at(51), 0.5);
+        assert_eq!(short.factor_at(91), 0.03125);
+        assert!(s.problem().is_none());
+    }
+
+    #[test]
+    fn the_schedule_per_update_is_one_update_later() {
+        // the supervised trainer's rates before groups counted updates: `lr_at(step + 1)`
+        for iterations in [2, 3, 7, 100, 1234, 50_000] {
+            let (reference, per_update) =
+                (lr_schedule(iterations), lr_schedule_per_update(iterations));
+            for n in 0..iterations {
+                assert_eq!(
+                    per_update.factor_at(n),
+                    reference.factor_at(n + 1),
+                    "{iterations} iterations, update {n}"
+                );
+            }
+        }
     }
 }

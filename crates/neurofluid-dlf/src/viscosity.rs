@@ -1,18 +1,15 @@
 //! XSPH viscosity (Monaghan's velocity smoothing): after DLF's step, each particle's velocity
 //! moves part of the way toward its neighbours', `v_i' = v_i + Σ_j a_ij (v_j − v_i)`. DLF's
 //! published weights learned water; a viscous fluid (honey) keeps neighbouring particles moving
-//! together, which this adds as a named rule of the rollout (`DlfConfig::viscosity`). With
-//! no-slip walls (`DlfConfig::no_slip`) the box's particles count among the neighbours, at rest:
-//! fluid next to a wall is held by it, as a viscous fluid is at a wall.
+//! together, which this adds as a rule of the rollout (`StepRules::viscosity`).
 //!
-//! The pair coefficients are `a_ij = s · w_ij / max(S_i, S_j)` for two fluid particles and
-//! `a_ib = s · w_ib / S_i` for a fluid particle and a wall particle, with `w = (1 − r²/R²)³` (the
+//! The pair coefficients are `a_ij = s · w_ij / max(S_i, S_j)`, with `w = (1 − r²/R²)³` (the
 //! window of DLF's conv over the pairs it already found, self excluded), `S_i` the sum of
-//! particle i's weights (the walls' among them when they are no-slip) and `s` the strength in
-//! [0, 1]. The fluid pairs are symmetric, so without walls the step keeps the momentum; each
-//! row sums to at most `s`, so every new velocity is a convex combination of the old ones (and
-//! the walls' zero), and the kinetic energy cannot grow in sum; a uniform motion away from the
-//! walls is left as it is. The weights are constants of the step (positions get no gradient
+//! particle i's weights and `s` the strength in [0, 1]. The pairs are symmetric, so the step
+//! keeps the momentum; each row sums to at most `s`, so every new velocity is a convex
+//! combination of the old ones, and the kinetic energy cannot grow in sum; a uniform motion is
+//! left as it is. (No-slip walls, the box's particles among the neighbours at rest, were screened
+//! and retired: docs/notebook/benchmarks-history.md, "Issue 34: viscosity for honey".) The weights are constants of the step (positions get no gradient
 //! from them); gradients flow through the velocities.
 
 use burn::prelude::*;
@@ -41,51 +38,26 @@ fn row_sums(g: &HostGeometry, w: &[f32]) -> Vec<f32> {
         .collect()
 }
 
-/// The coefficients of one step: `a_ij` of every fluid pair of `fluid` (query-major, as the
-/// geometry holds them) and, per fluid particle, the share `Σ_b a_ib` its no-slip walls hold
-/// back (zeros without `walls`, a box→fluid geometry with the fluid particles as queries).
-pub fn coefficients(
-    fluid: &HostGeometry,
-    walls: Option<&HostGeometry>,
-    radius: f32,
-    strength: f32,
-) -> (Vec<f32>, Vec<f32>) {
+/// The coefficients `a_ij` of one step for every pair of `fluid` (query-major, as the geometry
+/// holds them).
+pub fn coefficients(fluid: &HostGeometry, radius: f32, strength: f32) -> Vec<f32> {
     let w = pair_weights(fluid, radius);
-    let mut sums = row_sums(fluid, &w);
-    let held: Vec<f32> = match walls {
-        Some(walls) => {
-            let wall_sums = row_sums(walls, &pair_weights(walls, radius));
-            for (s, b) in sums.iter_mut().zip(&wall_sums) {
-                *s += b;
-            }
-            wall_sums
-                .iter()
-                .zip(&sums)
-                .map(|(&b, &s)| if s > 0.0 { strength * b / s } else { 0.0 })
-                .collect()
-        }
-        None => vec![0.0; sums.len()],
-    };
-    let a = w
-        .iter()
+    let sums = row_sums(fluid, &w);
+    w.iter()
         .zip(&fluid.query_of_pair)
         .zip(&fluid.pairs.indices)
         .map(|((&w, &q), &j)| {
             let norm = sums[q as usize].max(sums[j as usize]);
             if norm > 0.0 { strength * w / norm } else { 0.0 }
         })
-        .collect();
-    (a, held)
+        .collect()
 }
 
 /// `vel` `[N, 3]` smoothed over the pairs of `fluid` (a fluid→fluid geometry over the same N
-/// points, symmetric, self excluded) and, when no-slip, held by the walls of `walls` (a
-/// box→fluid geometry, the N fluid particles as queries), with strength `strength`
-/// ([module docs](self)).
+/// points, symmetric, self excluded) with strength `strength` ([module docs](self)).
 pub fn smooth_velocities(
     vel: Tensor<2>,
     fluid: &HostGeometry,
-    walls: Option<&HostGeometry>,
     radius: f32,
     strength: f32,
 ) -> Tensor<2> {
@@ -93,10 +65,10 @@ pub fn smooth_velocities(
     if strength == 0.0 {
         return vel;
     }
-    let (a, held) = coefficients(fluid, walls, radius, strength);
+    let a = coefficients(fluid, radius, strength);
     let n = vel.dims()[0];
     let queries = &fluid.query_of_pair;
-    let mut pulled_away = held;
+    let mut pulled_away = vec![0.0f32; n];
     for (&q, &a) in queries.iter().zip(&a) {
         pulled_away[q as usize] += a;
     }
@@ -158,7 +130,6 @@ mod tests {
         tensor_points(&smooth_velocities(
             points_tensor(v, &device),
             &pairs(x),
-            None,
             RADIUS,
             s,
         ))
@@ -235,62 +206,14 @@ mod tests {
         assert_eq!(smooth(&x, &v, 0.0), v, "strength 0 is the identity");
     }
 
-    /// No-slip walls hold the fluid beside them: a uniform motion slows most next to the wall,
-    /// not at all beyond the wall's reach, and the kinetic energy cannot grow.
-    #[test]
-    fn no_slip_walls_hold_the_fluid_next_to_them() {
-        let (x, _) = cloud();
-        let device = neurofluid_core::device::cpu();
-        let floor: Vec<[f32; 3]> = (0..400)
-            .map(|k| {
-                [
-                    (k % 20) as f32 * 0.02 - 0.05,
-                    -0.05,
-                    (k / 20) as f32 * 0.02 - 0.1,
-                ]
-            })
-            .collect();
-        let walls = geometry(&floor, &x);
-        let uniform = vec![[0.5, 0.0, 0.0]; x.len()];
-        let out = tensor_points(&smooth_velocities(
-            points_tensor(&uniform, &device),
-            &pairs(&x),
-            Some(&walls),
-            RADIUS,
-            0.5,
-        ));
-        for (p, v) in x.iter().zip(&out) {
-            assert!(v[0] <= 0.5 + 1e-6 && v[0] >= 0.0, "{v:?}");
-            if p[1] - (-0.05) > RADIUS {
-                assert!(
-                    (v[0] - 0.5).abs() < 1e-6,
-                    "beyond the wall's reach: {v:?} at {p:?}"
-                );
-            }
-        }
-        let lowest = x
-            .iter()
-            .zip(&out)
-            .filter(|(p, _)| p[1] == 0.0)
-            .map(|(_, v)| v[0])
-            .fold(f32::MAX, f32::min);
-        assert!(lowest < 0.4, "the layer next to the wall keeps {lowest}");
-    }
-
     #[test]
     fn each_row_pulls_at_most_the_strength() {
         let (x, _) = cloud();
         let list = pairs(&x);
-        let floor: Vec<[f32; 3]> = (0..100)
-            .map(|k| [(k % 10) as f32 * 0.03, (k / 10) as f32 * 0.03, -0.04])
-            .collect();
-        let walls = geometry(&floor, &x);
-        for walls in [None, Some(&walls)] {
-            let (a, held) = coefficients(&list, walls, RADIUS, 0.8);
-            for (q, o) in list.pairs.offsets.windows(2).enumerate() {
-                let row: f32 = a[o[0]..o[1]].iter().sum::<f32>() + held[q];
-                assert!(row <= 0.8 + 1e-6, "{row}");
-            }
+        let a = coefficients(&list, RADIUS, 0.8);
+        for o in list.pairs.offsets.windows(2) {
+            let row: f32 = a[o[0]..o[1]].iter().sum();
+            assert!(row <= 0.8 + 1e-6, "{row}");
         }
     }
 }

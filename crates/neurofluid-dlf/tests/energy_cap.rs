@@ -6,9 +6,9 @@
 use crate::common;
 
 use common::{CaseScene, Scene, device, pretrained};
-use neurofluid_dlf::DlfConfig;
 use neurofluid_dlf::net::{points_tensor, tensor_points};
 use neurofluid_dlf::rollout::rollout;
+use neurofluid_dlf::{DlfConfig, EnergyCap, StepRules};
 
 fn energy(x: [f32; 3], v: [f32; 3], g: [f32; 3]) -> f64 {
     (0..3)
@@ -38,7 +38,10 @@ fn no_capped_step_raises_a_particles_energy() {
     let scene = Scene::load("cubedrop2197_dlfwall");
     let free = pretrained(&device);
     let capped = free.clone().with_config(DlfConfig {
-        cap_particle_energy: true,
+        rules: StepRules {
+            energy_cap: EnergyCap::Particle,
+            ..StepRules::default()
+        },
         ..DlfConfig::default()
     });
     let g = DlfConfig::default().gravity;

@@ -1,6 +1,6 @@
 //! Rollout statistics against the Open3D reference (`*_rollout200_open3d.npz`): the mean height
 //! trajectory and the number of particles outside the box. Rollouts are chaotic, so particles are
-//! not compared one by one (spec/dlf.md §7).
+//! not compared one by one (docs/spec/dlf.md §7).
 
 use crate::common;
 

@@ -9,11 +9,7 @@ use crate::commands;
 pub type Cli = Program<Command>;
 
 /// What `--help` and `--version` say the program is: its package's name, version and description.
-const IDENTITY: Identity = Identity {
-    name: "neurofluid-train",
-    version: env!("CARGO_PKG_VERSION"),
-    about: env!("CARGO_PKG_DESCRIPTION"),
-};
+const IDENTITY: Identity = neurofluid_core::package_identity!();
 
 /// The process's arguments, read as `neurofluid-train`'s.
 pub fn parse() -> Cli {
@@ -59,6 +55,26 @@ pub enum Command {
 }
 
 impl Command {
+    /// Runs the chosen subcommand.
+    pub fn run(self) -> anyhow::Result<()> {
+        match self {
+            Command::Run(args) => commands::run::run(args),
+            Command::Warmup(args) => commands::stage_cmds::run_warmup(args),
+            Command::Joint(args) => commands::stage_cmds::run_joint(args),
+            Command::Refit(args) => commands::stage_cmds::run_refit(args),
+            Command::Eval(args) => commands::stage_cmds::run_eval(args),
+            Command::Generate(args) => commands::generate::run(args),
+            Command::Info(args) => commands::info::run(args),
+            Command::Sweep(args) => commands::sweep::run(args),
+            Command::PretrainDlf(args) => commands::pretrain_dlf::run(args),
+            Command::Rollout(args) => commands::rollout::run(args),
+            Command::Devices(args) => commands::devices::run(args),
+            Command::Mesh(args) => commands::mesh::run(args),
+            Command::InitParticles(args) => commands::nerf_cmds::run_init(args),
+            Command::Baseline(args) => commands::nerf_cmds::run_baseline(args),
+        }
+    }
+
     /// Whether the command trains: SIGTERM and SIGINT then stop it between steps with a
     /// checkpoint (and exit status 75) instead of killing it.
     pub fn trains(&self) -> bool {

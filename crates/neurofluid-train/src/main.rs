@@ -1,11 +1,15 @@
 //! `neurofluid-train`: one binary for every stage of NeuroFluid-rs.
 
-use neurofluid_train::trainer::stop;
-use neurofluid_train::{cli, commands};
+use neurofluid_core::stop_request;
+use neurofluid_train::cli;
 
 fn main() -> std::process::ExitCode {
     neurofluid_core::malloc::keep_freed_memory();
     let cli = cli::parse();
+    if let Err(err) = neurofluid_core::limits::max_file_mb() {
+        eprintln!("error: {err}");
+        return std::process::ExitCode::FAILURE;
+    }
     // splashsurf narrates every reconstruction at `info`
     cli.log.init(&["splashsurf_lib"]);
     tracing::debug!(
@@ -13,16 +17,16 @@ fn main() -> std::process::ExitCode {
         neurofluid_core::malloc::allocator_setting()
     );
     if cli.command.trains()
-        && let Err(err) = stop::install_signal_handlers()
+        && let Err(err) = stop_request::install_signal_handlers()
     {
-        eprintln!("error: {err:#}");
+        eprintln!("error: {:#}", anyhow::Error::from(err));
         return std::process::ExitCode::FAILURE;
     }
-    match commands::dispatch(cli.command) {
+    match cli.command.run() {
         Ok(()) => std::process::ExitCode::SUCCESS,
-        Err(err) if stop::stopped(&err).is_some() => {
+        Err(err) if stop_request::stopped(err.as_ref()).is_some() => {
             eprintln!("stopped: {err:#}");
-            std::process::ExitCode::from(stop::REQUEUE_EXIT_CODE)
+            std::process::ExitCode::from(stop_request::REQUEUE_EXIT_CODE)
         }
         Err(err) => {
             eprintln!("error: {err:#}");

@@ -1,5 +1,5 @@
 //! One parameter group's optimiser: Adam with its learning rate, ε and a schedule that is a pure
-//! function of the step, so a resumed run is exact.
+//! function of the step ([`neurofluid_core::lr_schedule`]), so a resumed run is exact.
 //!
 //! A schedule reads one number: the updates its group has taken before this one (0 for the
 //! group's first update), which is PyTorch's `last_epoch` when the scheduler is stepped once after
@@ -14,125 +14,8 @@ use std::marker::PhantomData;
 
 use burn::module::Module;
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use neurofluid_core::lr_schedule::Schedule;
 use serde::{Deserialize, Serialize};
-
-/// The factor a learning rate is multiplied by at a given step.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
-pub enum Schedule {
-    /// factor(s) = 1.
-    Constant,
-    /// factor(s) = 0.1^(s / decay_steps): NeuroFluid's warm-up (`utils/lr_schedulers.py`).
-    Exponential {
-        /// Steps per ×0.1.
-        decay_steps: u64,
-    },
-    /// factor(s) = gamma^#{m : s > m}: NeuroFluid's joint LambdaLR (1 while s ≤ m₁, then
-    /// ×gamma for every milestone passed).
-    MultiStep {
-        /// Increasing milestones.
-        milestones: Vec<u64>,
-        /// Factor per milestone passed.
-        gamma: f64,
-    },
-    /// factor(s) = factors[k] for the last k with s > boundaries[k], else 1: DLF's piecewise
-    /// LambdaLR (`factor = v_k if step > boundary_k`).
-    Piecewise {
-        /// Increasing boundaries.
-        boundaries: Vec<u64>,
-        /// Factor after each boundary (same length as `boundaries`).
-        factors: Vec<f64>,
-    },
-}
-
-impl Schedule {
-    /// DLF's training schedule (spec dlf.md §5) for a run of `iterations` steps: factor 1, then
-    /// 0.5/0.25/0.125/0.0625/0.03125 after 25k/30k/35k/40k/45k of 50k steps, the boundaries
-    /// scaled in proportion for other run lengths.
-    pub fn dlf(iterations: u64) -> Self {
-        let scale = iterations as f64 / 50_000.0;
-        Schedule::Piecewise {
-            boundaries: [25_000.0, 30_000.0, 35_000.0, 40_000.0, 45_000.0]
-                .iter()
-                .map(|b: &f64| (b * scale).floor() as u64)
-                .collect(),
-            factors: vec![0.5, 0.25, 0.125, 0.0625, 0.03125],
-        }
-    }
-
-    /// [`Schedule::dlf`] over the updates taken: DLF's reference steps its scheduler before each
-    /// update, so an update's factor is `dlf`'s at one more than the updates taken before it;
-    /// here every boundary is one lower (one at 0, in a run of a single step, stays at 0).
-    pub fn dlf_per_update(iterations: u64) -> Self {
-        match Self::dlf(iterations) {
-            Schedule::Piecewise {
-                boundaries,
-                factors,
-            } => Schedule::Piecewise {
-                boundaries: boundaries.iter().map(|b| b.saturating_sub(1)).collect(),
-                factors,
-            },
-            _ => unreachable!("DLF's schedule is piecewise"),
-        }
-    }
-
-    /// The multiplicative factor at `step` (lr / lr0).
-    pub fn factor_at(&self, step: u64) -> f64 {
-        match self {
-            Schedule::Constant => 1.0,
-            Schedule::Exponential { decay_steps } => {
-                0.1f64.powf(step as f64 / (*decay_steps).max(1) as f64)
-            }
-            Schedule::MultiStep { milestones, gamma } => {
-                let passed = milestones.iter().filter(|&&m| step > m).count();
-                gamma.powi(passed as i32)
-            }
-            Schedule::Piecewise {
-                boundaries,
-                factors,
-            } => boundaries
-                .iter()
-                .zip(factors)
-                .rev()
-                .find(|&(&b, _)| step > b)
-                .map_or(1.0, |(_, &f)| f),
-        }
-    }
-
-    /// Why the schedule cannot be used (`None` when it can).
-    pub fn problem(&self) -> Option<&'static str> {
-        let increasing = |v: &[u64]| v.windows(2).all(|w| w[0] < w[1]);
-        match self {
-            Schedule::Constant => None,
-            Schedule::Exponential { decay_steps } => {
-                (*decay_steps == 0).then_some("decay_steps: expected at least 1")
-            }
-            Schedule::MultiStep { milestones, gamma } => {
-                if !increasing(milestones) {
-                    Some("milestones: expected strictly increasing steps")
-                } else if !(gamma.is_finite() && *gamma > 0.0 && *gamma <= 1.0) {
-                    Some("gamma: expected a factor in (0, 1]")
-                } else {
-                    None
-                }
-            }
-            Schedule::Piecewise {
-                boundaries,
-                factors,
-            } => {
-                if !increasing(boundaries) {
-                    Some("boundaries: expected strictly increasing steps")
-                } else if boundaries.len() != factors.len() {
-                    Some("factors: expected one factor per boundary")
-                } else if factors.iter().any(|f| !(f.is_finite() && *f > 0.0)) {
-                    Some("factors: expected positive factors")
-                } else {
-                    None
-                }
-            }
-        }
-    }
-}
 
 /// The defaults of one parameter group (a marker type per group).
 pub trait OptimDefaults: Debug + Clone + PartialEq + Default {
@@ -360,61 +243,6 @@ mod tests {
             assert_eq!(s.schedule.factor_at(step), f, "step {step}");
             assert!(close(s.lr_at(step), 1e-5 * f));
         }
-    }
-
-    #[test]
-    fn dlf_piecewise_at_every_boundary() {
-        let s = Schedule::dlf(50_000);
-        let factors = [
-            (0, 1.0),
-            (25_000, 1.0),
-            (25_001, 0.5),
-            (30_000, 0.5),
-            (30_001, 0.25),
-            (35_001, 0.125),
-            (40_000, 0.125),
-            (40_001, 0.0625),
-            (45_000, 0.0625),
-            (45_001, 0.03125),
-            (50_000, 0.03125),
-        ];
-        for (step, f) in factors {
-            assert_eq!(s.factor_at(step), f, "step {step}");
-        }
-        assert!(close(1e-3 * s.factor_at(45_001), 3.125e-5));
-        // other run lengths scale the boundaries (DLF's `dlf_lr_factor`)
-        let short = Schedule::dlf(100);
-        assert_eq!(short.factor_at(50), 1.0);
-        assert_eq!(short.factor_at(51), 0.5);
-        assert_eq!(short.factor_at(91), 0.03125);
-    }
-
-    #[test]
-    fn dlf_per_update_is_dlf_one_update_later() {
-        // the supervised trainer's rates before groups counted updates: `lr_at(step + 1)`
-        for iterations in [2, 3, 7, 100, 1234, 50_000] {
-            let (reference, per_update) = (
-                Schedule::dlf(iterations),
-                Schedule::dlf_per_update(iterations),
-            );
-            for n in 0..iterations {
-                assert_eq!(
-                    per_update.factor_at(n),
-                    reference.factor_at(n + 1),
-                    "{iterations} iterations, update {n}"
-                );
-            }
-        }
-    }
-
-    #[test]
-    fn schedules_serialise() {
-        let s = Schedule::dlf(50_000);
-        let json = serde_json::to_string(&s).unwrap();
-        assert!(json.contains("\"kind\":\"piecewise\""));
-        let back: Schedule = serde_json::from_str(&json).unwrap();
-        assert_eq!(back, s);
-        assert_eq!(Schedule::Constant.factor_at(123_456), 1.0);
     }
 
     #[test]

@@ -1,10 +1,8 @@
 //! One stage identity: each stage of a run (and `pretrain-dlf`) with its folder in the run
-//! folder (also the name of its metrics rows and of its random stream), its name in tables, the
-//! settings that shape its state, and the files of its checkpoints.
+//! folder (also the name of its metrics rows and of its random stream), its name in tables, and
+//! the files of its checkpoints (the settings that shape its state: `config::settings`).
 
 use std::path::{Path, PathBuf};
-
-use crate::config::{Experiment, InitialParticles, NerfTImages};
 
 /// A stage.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -76,47 +74,6 @@ impl Stage {
             .chain(Self::BASELINES)
             .chain([Stage::PretrainDlf])
             .find(|s| s.folder() == name)
-    }
-
-    /// Whether `key` (a dotted setting, not a free one) shapes the stage's state in `exp`:
-    /// - a NeRF's (the baselines, the initial particles'): the seed, the scene, `[nerf]` (not
-    ///   where it stops) and the keys its images come from: `warmup.views`, `warmup.held_out`;
-    ///   for NeRF-T also `nerf.t_images` and, under `"neurofluid"`, the joint stage's views
-    ///   (`joint.view`, `joint.extra_views`);
-    /// - the warm-up's: the seed, the scene, PhysNeRF and the warm-up (not where it stops), and
-    ///   with initial particles from images the initial particles' NeRF (where it stops too)
-    ///   and `[initial]`;
-    /// - the joint stage's: everything the warm-up's state depends on, how long the warm-up
-    ///   ran, DLF and the joint settings (not where it stops);
-    /// - the refit's: everything the joint stage's state depends on, where the joint stage stops
-    ///   (the grounded DLF it fits to) and `[refit]`.
-    ///
-    /// The other stages keep no state that settings shape.
-    pub fn shaped_by(self, key: &str, exp: &Experiment) -> bool {
-        let under = |prefix: &str| key == prefix || key.starts_with(&format!("{prefix}."));
-        let common = under("seed") || under("scene") || under("matmul");
-        let nerf_model = under("nerf") && !under("nerf.t_images");
-        let nerf_t_images = under("nerf.t_images")
-            || (exp.nerf.t_images == NerfTImages::Neurofluid
-                && (under("joint.view") || under("joint.extra_views")));
-        let warmup_views = under("warmup.views") || under("warmup.held_out");
-        let nerf = |kind_images: bool| {
-            (common || nerf_model || warmup_views || kind_images) && !under("nerf.iters")
-        };
-        let from_images = exp.scene.initial == InitialParticles::FromImages
-            && (nerf_model || under("initial") || warmup_views);
-        // the searches' place (PhysNeRF's ball query, DLF's pairs: the renderer's stages and
-        // those after them, not the NeRFs')
-        let renderer = under("physnerf") || under("neighbour_search");
-        let warmup = common || renderer || under("warmup") || from_images;
-        match self {
-            Stage::Nerf | Stage::Initial => nerf(false),
-            Stage::NerfT => nerf(nerf_t_images),
-            Stage::Warmup => warmup && !under("warmup.iters"),
-            Stage::Joint => (warmup || under("dlf") || under("joint")) && !under("joint.epochs"),
-            Stage::Refit => warmup || under("dlf") || under("joint") || under("refit"),
-            Stage::Eval | Stage::PretrainDlf => false,
-        }
     }
 }
 

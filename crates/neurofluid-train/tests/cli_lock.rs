@@ -4,7 +4,7 @@
 
 use std::process::Command;
 
-use neurofluid_train::trainer::lock::FolderLock;
+use neurofluid_core::folder_lock::FolderLock;
 
 #[test]
 fn a_second_process_on_a_locked_run_folder_is_refused() {

@@ -3,7 +3,7 @@
 use std::process::Command;
 
 use neurofluid_core::scene::Particles;
-use neurofluid_train::geometry::mesh::Mesh;
+use neurofluid_outputs::geometry::mesh::Mesh;
 
 #[test]
 fn mesh_writes_one_surface_per_particle_file() {
@@ -78,11 +78,11 @@ fn mesh_refuses_what_it_cannot_do_before_writing() {
         .collect();
     for dir in [&a, &b] {
         std::fs::create_dir_all(dir).unwrap();
-        neurofluid_train::formats::ply::write_ply(
+        neurofluid_outputs::formats::ply::write_ply(
             &dir.join("0000.ply"),
             &cube,
             None,
-            neurofluid_train::formats::ply::PlyFormat::BinaryLittleEndian,
+            neurofluid_outputs::formats::ply::PlyFormat::BinaryLittleEndian,
         )
         .unwrap();
     }

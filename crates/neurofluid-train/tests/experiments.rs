@@ -2,8 +2,8 @@
 
 use std::path::{Path, PathBuf};
 
+use neurofluid_core::sampler::Rng;
 use neurofluid_train::config::{Experiment, RESOLVED_FILE};
-use neurofluid_train::sampler::Rng;
 use neurofluid_train::sweep::Sweep;
 
 fn experiments_dir() -> PathBuf {
@@ -151,7 +151,7 @@ fn generator_settings_are_accepted_by_the_scene_generator() {
 /// of `bptt_steps` transitions and one at every epoch's end, and were converted to `[39, 57]`.
 #[test]
 fn the_quick_configs_keep_their_learning_rate_per_update() {
-    use neurofluid_train::optim::Schedule;
+    use neurofluid_core::lr_schedule::Schedule;
     use neurofluid_train::stages::joint::{updates_after, updates_before};
     // 50 training frames in every quick scene and every test-bed scene
     const TRANSITIONS: u64 = 49;
@@ -208,4 +208,41 @@ fn the_quick_configs_keep_their_learning_rate_per_update() {
         assert_eq!(updates_before(j, TRANSITIONS, total, 148), (by_148, by_148));
         assert_eq!(updates_before(j, TRANSITIONS, total, total), (all, all));
     }
+}
+
+/// The closed form against the updates counted one iteration at a time, over windows,
+/// DLF cadences, epoch lengths, stage lengths and checkpoints that fall anywhere; and a
+/// checkpoint's step of 2^64 − 1 is counted at once (it looped for ever; issue 72).
+#[test]
+fn updates_before_counts_what_updates_after_says() {
+    use neurofluid_train::config::JointSection;
+    use neurofluid_train::stages::joint::{updates_after, updates_before};
+    for bptt_steps in 1..=5 {
+        for dlf_every in 1..=3 {
+            let cfg = JointSection {
+                bptt_steps,
+                dlf_every,
+                ..JointSection::default()
+            };
+            for transitions in 1..=7u64 {
+                for total in [1, transitions, 2 * transitions + 3, 5 * transitions] {
+                    let mut counted = (0, 0);
+                    for done in 0..=total + 4 {
+                        assert_eq!(
+                            updates_before(&cfg, transitions, total, done),
+                            counted,
+                            "bptt {bptt_steps}, dlf every {dlf_every}, {transitions} a \
+                             epoch, {total} in all, {done} done"
+                        );
+                        let u = updates_after(&cfg, transitions, total, done);
+                        counted.0 += u64::from(u.physnerf);
+                        counted.1 += u64::from(u.dlf);
+                    }
+                }
+            }
+        }
+    }
+    let cfg = JointSection::default();
+    let (p, d) = updates_before(&cfg, 49, 294, u64::MAX);
+    assert!(p >= d && p > 0);
 }

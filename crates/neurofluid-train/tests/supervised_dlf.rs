@@ -9,9 +9,10 @@ use burn::prelude::*;
 use neurofluid_dlf::scene::{block_in_box, dlf_wall_spacing};
 use neurofluid_dlf::train::TrainingSequence;
 use neurofluid_dlf::{DlfConfig, DlfNet, load_dlf};
+use neurofluid_train::config::Cadence;
 use neurofluid_train::config::Settings;
 use neurofluid_train::stages::supervised_dlf::{SupervisedConfig, SupervisedDlfTrainer};
-use neurofluid_train::trainer::{Cadence, Driver, Event, EventSink};
+use neurofluid_train::trainer::{Driver, Event, EventSink};
 
 fn generated_sequence(frames: usize, seed: u64) -> TrainingSequence {
     let device = neurofluid_core::device::test_device();

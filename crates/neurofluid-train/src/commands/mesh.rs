@@ -8,8 +8,8 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use neurofluid_core::scene::Particles;
 
-use crate::formats::ply::read_ply;
-use crate::geometry::mesh::{SurfaceSettings, reconstruct};
+use neurofluid_outputs::formats::ply::read_ply;
+use neurofluid_outputs::geometry::mesh::{SurfaceSettings, reconstruct};
 
 /// Mesh formats.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]

@@ -1,10 +1,10 @@
 //! `init-particles` (the particles at t = 0 from the warm-up images of frame 0) and `baseline`
 //! (NeRF and NeRF-T, the paper's novel-view baselines).
 
-use crate::report::EvalReport;
 use crate::stage::Stage;
 use crate::stages::nerf::{self, NerfKind};
 use crate::stages::{baseline, eval, initial};
+use neurofluid_outputs::report::EvalReport;
 
 use super::experiment_args::ExperimentArgs;
 
@@ -45,7 +45,9 @@ pub fn run_baseline(args: BaselineArgs) -> anyhow::Result<()> {
     let mut log = run.open_log()?;
     let model = nerf::train(&run, &mut log, args.kind)?;
     let scores = baseline::evaluate(&run, &model, args.kind)?;
-    let report_path = run.stage_dir(eval::STAGE).join(crate::report::JSON_FILE);
+    let report_path = run
+        .stage_dir(eval::STAGE)
+        .join(neurofluid_outputs::report::JSON_FILE);
     let validation = run.exp.eval.novel_views == crate::config::NovelViews::Validation;
     // NeuroFluid's report, where it scored the same set of views (test or validation)
     let mut report = match EvalReport::read_json(&report_path) {
@@ -57,7 +59,7 @@ pub fn run_baseline(args: BaselineArgs) -> anyhow::Result<()> {
                 &run.exp.name,
                 &run.scene.manifest().name,
                 "no NeuroFluid evaluation yet",
-                crate::report::Windows::from_lengths(train.len(), test.len()),
+                neurofluid_outputs::report::Windows::from_lengths(train.len(), test.len()),
             );
             r.validation_views = validation;
             r

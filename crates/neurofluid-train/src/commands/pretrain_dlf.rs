@@ -18,12 +18,13 @@ use neurofluid_dlf::train::{TrainingSequence, load_record_dir};
 use neurofluid_dlf::{DlfConfig, DlfNet, load_dlf};
 use serde::Serialize;
 
+use crate::config::Cadence;
 use crate::config::{Experiment, Settings};
-use crate::metrics_log::MetricsLog;
 use crate::stages::supervised_dlf::{STAGE, SupervisedConfig, SupervisedDlfTrainer};
-use crate::trainer::lock::FolderLock;
 use crate::trainer::sinks::{MetricsSink, ProgressBars};
-use crate::trainer::{Cadence, Driver, Event, EventSink, Trainer};
+use crate::trainer::{Driver, Event, EventSink, Trainer};
+use neurofluid_core::folder_lock::FolderLock;
+use neurofluid_outputs::metrics_log::MetricsLog;
 
 /// Arguments of `pretrain-dlf`.
 #[derive(Debug, Serialize, clap::Args)]
@@ -124,8 +125,8 @@ fn dlf_config(frame: &DataFrame, rules: Option<&Path>) -> anyhow::Result<DlfConf
         return Ok(config);
     };
     let exp = Experiment::load(path)?;
-    exp.dlf
-        .apply_rules(config, frame.box_interior)
+    config
+        .with_rules(exp.dlf.rules, frame.box_interior)
         .with_context(|| format!("--rules {}", path.display()))
 }
 
@@ -152,7 +153,7 @@ pub fn kept_checkpoint(output: &Path, step: u64) -> PathBuf {
 /// Copies a checkpoint's weights, checked against its checksums, to `target` in one write.
 fn copy_weights(checkpoint: &Path, target: &Path) -> anyhow::Result<()> {
     let source = checkpoint.join("dlf.bpk");
-    crate::trainer::checksums::verify_file(&source)?;
+    neurofluid_core::checksums::verify_file(&source)?;
     let bytes = std::fs::read(&source).with_context(|| format!("reading {}", source.display()))?;
     neurofluid_core::atomic::write_bytes(target, &bytes)
         .with_context(|| format!("writing {}", target.display()))
@@ -379,8 +380,8 @@ mod tests {
         // its training curve and validation errors are in the checkpoints' folder, once each,
         // also when it starts over
         let rows = || {
-            crate::metrics_log::read_jsonl(
-                &checkpoint_dir(&output).join(crate::metrics_log::JSONL_FILE),
+            neurofluid_outputs::metrics_log::read_jsonl(
+                &checkpoint_dir(&output).join(neurofluid_outputs::metrics_log::JSONL_FILE),
             )
             .unwrap()
         };
@@ -461,8 +462,8 @@ mod tests {
         };
         let rules = file(
             "rules.toml",
-            "gravity_scale = 1.7\nviscosity = 0.25\nno_slip = true\nenergy_cap = \"particle\"\n\
-             free_flight = \"ballistic\"\ngeometry = \"differentiable\"\n",
+            "gravity_scale = 1.7\nviscosity = 0.25\nenergy_cap = \"particle\"\n\
+             geometry = \"differentiable\"\n",
         );
         let interior = Aabb {
             min: [-1.0, -1.0, 0.0],
@@ -475,11 +476,12 @@ mod tests {
         };
         let cfg = dlf_config(&frame(UpAxis::Z, Some(interior)), Some(&rules)).unwrap();
         let want = DlfConfig {
-            gravity_scale: 1.7,
-            viscosity: 0.25,
-            no_slip: true,
-            cap_particle_energy: true,
-            ballistic_free_flight: true,
+            rules: neurofluid_dlf::StepRules {
+                gravity_scale: 1.7,
+                viscosity: 0.25,
+                energy_cap: neurofluid_dlf::EnergyCap::Particle,
+                ..Default::default()
+            },
             ..DlfConfig::z_up()
         };
         assert_eq!(cfg, want);

@@ -8,10 +8,10 @@ use std::path::PathBuf;
 use serde::Serialize;
 
 use super::experiment_args::ExperimentArgs;
-use crate::report::{DistanceRow, EvalReport, Rollout, Windows};
 use crate::stages::Run;
-use crate::stages::eval::rollouts::Rollouts;
+use crate::stages::eval::rollouts;
 use neurofluid_core::scene::Role;
+use neurofluid_outputs::report::{DistanceRow, EvalReport, Rollout, Windows};
 
 /// Arguments of `rollout`.
 #[derive(Debug, clap::Args)]
@@ -46,7 +46,7 @@ pub struct Scores {
 /// Rolls the DLF out under `run`'s rules and scores it.
 pub fn score(run: &Run, weights: PathBuf) -> anyhow::Result<Scores> {
     let net = run.load_dlf(&weights)?;
-    let rollouts = Rollouts::of_one(run, &net, "DLF")?;
+    let rollouts = rollouts::of_one(run, &net, "DLF")?;
     let scene = &run.scene;
     let windows = Windows::from_lengths(
         scene.frames(Role::Train).len(),
@@ -69,7 +69,7 @@ pub fn score(run: &Run, weights: PathBuf) -> anyhow::Result<Scores> {
         .map_or(0, |(_, n)| *n);
     Ok(Scores {
         weights,
-        rules: run.exp.dlf.rules(),
+        rules: run.exp.dlf.rules.describe(),
         d: row(report.distance_row(Rollout::NeuroFluid))?,
         d_reverse: row(report.reverse_row(Rollout::NeuroFluid))?,
         symmetric: row(report.symmetric_row(Rollout::NeuroFluid))?,

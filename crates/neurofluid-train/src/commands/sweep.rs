@@ -9,15 +9,15 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 
 use crate::config::Experiment;
-use crate::report::{EvalReport, JSON_FILE};
 use crate::stage::Stage;
 use crate::stages::{Run, Start, run_all};
 use crate::sweep::slurm::{self, ArrayScript, SlurmOptions};
 use crate::sweep::state::{self, Phase, RunState};
-use crate::sweep::table::{DONE, TableRow, write_table};
 use crate::sweep::{ResolvedVariant, Sweep};
-use crate::trainer::lock::FolderLock;
-use crate::trainer::stop;
+use neurofluid_core::folder_lock::FolderLock;
+use neurofluid_core::stop_request;
+use neurofluid_outputs::report::{EvalReport, JSON_FILE};
+use neurofluid_outputs::sweep_table::{DONE, TableRow, write_table};
 
 /// Arguments of `sweep`.
 #[derive(Debug, Default, clap::Args)]
@@ -101,7 +101,7 @@ fn run_all_variants(sweep: &Sweep, args: &Args) -> anyhow::Result<()> {
         let outcome = run_variant(sweep, index, variant, args.device.as_deref());
         let (state, report) = match outcome {
             Ok(report) => (DONE.to_string(), Some(report)),
-            Err(e) if stop::stopped(&e).is_some() => return Err(e),
+            Err(e) if stop_request::stopped(e.as_ref()).is_some() => return Err(e),
             Err(e) if args.keep_going => {
                 tracing::error!("run {} failed: {e:#}", variant.name);
                 (Phase::Failed.as_str().to_string(), None)
@@ -152,7 +152,9 @@ fn run_variant(
     })();
     match &outcome {
         Ok(_) => record(Phase::Done, None),
-        Err(e) if stop::stopped(e).is_some() => record(Phase::Stopped, Some(format!("{e:#}"))),
+        Err(e) if stop_request::stopped(e.as_ref()).is_some() => {
+            record(Phase::Stopped, Some(format!("{e:#}")))
+        }
         Err(e) => record(Phase::Failed, Some(format!("{e:#}"))),
     }
     outcome

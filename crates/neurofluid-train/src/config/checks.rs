@@ -6,9 +6,9 @@
 use neurofluid_physnerf::{DensityActivation, PhysNerfConfig};
 
 use super::{
-    DlfSection, EvalSection, InitialSection, JointSection, NerfSection, SceneSection, WarmupSection,
+    DiagnosticsSection, DlfSection, EvalSection, InitialSection, JointSection, NerfSection,
+    SceneSection, WarmupSection,
 };
-use crate::trainer::Cadence;
 
 /// The first problem of a section: the field (dotted, relative to the section) and what was
 /// expected.
@@ -28,6 +28,18 @@ pub trait Section {
     fn problem(&self) -> Problem;
 }
 
+/// When the driver logs, evaluates and checkpoints (every this many steps; 0 = never, and
+/// for checkpoints: only at the end).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Cadence {
+    /// A metrics row every this many steps (and after the last one).
+    pub log_every: u64,
+    /// An evaluation every this many steps.
+    pub evaluate_every: u64,
+    /// A checkpoint every this many steps (and always after the last step run).
+    pub checkpoint_every: u64,
+}
+
 /// The keys of a training section's cadence (in every such section).
 pub const CADENCE_KEYS: [&str; 3] = ["log_every", "ckpt_every", "preview_every"];
 
@@ -37,6 +49,21 @@ pub const CADENCE_KEYS: [&str; 3] = ["log_every", "ckpt_every", "preview_every"]
 pub trait Cadenced: Section {
     /// When the stage logs, evaluates and checkpoints.
     fn cadence(&self) -> Cadence;
+}
+
+/// A list of views `views` (`field`): at least one when `at_least_one`, and none named twice (a
+/// view listed twice would be trained on or scored twice as if it were two).
+fn views_problem(views: &[String], field: &str, at_least_one: bool) -> Problem {
+    if at_least_one && views.is_empty() {
+        return problem(field, "expected at least one view");
+    }
+    let mut seen = std::collections::HashSet::new();
+    let twice = views.iter().find(|v| !seen.insert(v.as_str()))?;
+    let shown: String = twice.chars().take(40).collect();
+    problem(
+        field,
+        &format!("{shown:?} is listed twice; expected each view once"),
+    )
 }
 
 fn problem(field: &str, msg: &str) -> Problem {
@@ -148,10 +175,8 @@ impl Section for WarmupSection {
         under("optim", self.optim.problem())
             .or_else(|| frac(self.precrop_frac, "precrop_frac"))
             .or_else(|| {
-                self.views
-                    .as_ref()
-                    .is_some_and(Vec::is_empty)
-                    .then(|| ("views".into(), "expected at least one view".into()))
+                let views = self.views.as_deref()?;
+                views_problem(views, "views", true)
             })
     }
 }
@@ -190,32 +215,10 @@ impl Section for JointSection {
         if !(0.0..=1.0).contains(&self.foreground_rays) {
             return problem("foreground_rays", "expected a share in [0, 1]");
         }
-        if !(self.silhouette_weight.is_finite() && self.silhouette_weight >= 0.0) {
-            return problem("silhouette_weight", "expected a finite weight ≥ 0");
+        if let Some((field, msg)) = self.terms.problem() {
+            return Some((format!("terms.{field}"), msg));
         }
-        if !(self.density_weight.is_finite() && self.density_weight >= 0.0) {
-            return problem("density_weight", "expected a finite weight ≥ 0");
-        }
-        if !(self.rest_density_weight.is_finite() && self.rest_density_weight >= 0.0) {
-            return problem("rest_density_weight", "expected a finite weight ≥ 0");
-        }
-        if !(self.truth_weight.is_finite() && self.truth_weight >= 0.0) {
-            return problem("truth_weight", "expected a finite weight ≥ 0");
-        }
-        if !(self.energy_weight.is_finite() && self.energy_weight >= 0.0) {
-            return problem("energy_weight", "expected a finite weight ≥ 0");
-        }
-        if !(self.anchor_weight.is_finite() && self.anchor_weight >= 0.0) {
-            return problem("anchor_weight", "expected a finite weight ≥ 0");
-        }
-        if self.anchor_horizon > 0 && self.anchor_weight == 0.0 {
-            return problem(
-                "anchor_horizon",
-                "expected 0 without the anchor (joint.anchor_weight = 0): the horizon's steps \
-                 are anchored with that weight",
-            );
-        }
-        None
+        views_problem(&self.extra_views, "extra_views", false)
     }
 }
 
@@ -273,22 +276,9 @@ impl Section for DlfSection {
     const KEY: &'static str = "dlf";
 
     fn problem(&self) -> Problem {
-        if !(self.gravity_scale.is_finite()
-            && self.gravity_scale > 0.0
-            && self.gravity_scale <= 4.0)
-        {
-            return problem("gravity_scale", "expected a scale in (0, 4]");
-        }
-        if !(0.0..=1.0).contains(&self.viscosity) {
-            return problem("viscosity", "expected a strength in [0, 1]");
-        }
-        if self.no_slip && self.viscosity == 0.0 {
-            return problem(
-                "no_slip",
-                "no-slip walls act through the viscosity; expected dlf.viscosity > 0 with it",
-            );
-        }
-        None
+        self.rules
+            .problem()
+            .map(|e| (e.field.to_string(), e.expected))
     }
 }
 
@@ -307,9 +297,20 @@ impl Section for EvalSection {
         if self.render_every == 0 {
             return problem("render_every", "expected at least 1");
         }
-        if self.views.as_ref().is_some_and(Vec::is_empty) {
-            return problem("views", "expected at least one view");
-        }
+        let views = self.views.as_deref()?;
+        views_problem(views, "views", true)
+    }
+}
+
+impl Section for DiagnosticsSection {
+    const KEY: &'static str = "diagnostics";
+
+    /// The whole section: diagnostics never shape a training state.
+    fn free_keys() -> Vec<&'static str> {
+        vec![""]
+    }
+
+    fn problem(&self) -> Problem {
         if !(0.0..=1.0).contains(&self.weight_interpolation) {
             return problem("weight_interpolation", "expected a fraction in [0, 1]");
         }

@@ -107,6 +107,17 @@ fn dotted_key(path: &str, message: &str) -> String {
     base.to_string()
 }
 
+/// The dotted key of serde's error `message` at `path`, and the message, which for a retired
+/// option says where it went.
+fn key_and_message(path: &str, message: &str) -> (String, String) {
+    let key = dotted_key(path, message);
+    let message = match super::legacy::retired_note(&key) {
+        Some(note) => format!("{message}: {note}"),
+        None => message.to_string(),
+    };
+    (key, message)
+}
+
 /// Deserializes `T` from TOML `text`; errors name `origin`, the dotted key and line:col.
 pub fn from_toml_str<T: DeserializeOwned>(text: &str, origin: &Path) -> Result<T, ConfigError> {
     let de = toml::Deserializer::parse(text).map_err(|e| ConfigError::Invalid {
@@ -118,11 +129,12 @@ pub fn from_toml_str<T: DeserializeOwned>(text: &str, origin: &Path) -> Result<T
     serde_path_to_error::deserialize(de).map_err(|e| {
         let path = e.path().to_string();
         let inner = e.into_inner();
+        let (key, message) = key_and_message(&path, inner.message());
         ConfigError::Invalid {
             path: origin.to_path_buf(),
             location: inner.span().map(|s| line_col(text, s.start)),
-            key: dotted_key(&path, inner.message()),
-            message: inner.message().to_string(),
+            key,
+            message,
         }
     })
 }
@@ -135,11 +147,12 @@ pub(crate) fn from_table<T: DeserializeOwned>(
     serde_path_to_error::deserialize(toml::Value::Table(table)).map_err(|e| {
         let path = e.path().to_string();
         let inner = e.into_inner();
+        let (key, message) = key_and_message(&path, inner.message());
         ConfigError::Invalid {
             path: origin.to_path_buf(),
             location: None,
-            key: dotted_key(&path, inner.message()),
-            message: inner.message().to_string(),
+            key,
+            message,
         }
     })
 }

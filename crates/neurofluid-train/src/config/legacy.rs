@@ -92,7 +92,31 @@ const RENAMES: &[Rename] = &[
         schedule_of::<JointDlfGroup>,
     ),
     plain("joint.eval_every", "joint.preview_every"),
+    plain("joint.anchor_weight", "joint.terms.anchor.weight"),
+    plain("joint.energy_weight", "joint.terms.energy.weight"),
+    plain("joint.truth_weight", "joint.terms.truth.weight"),
+    plain("eval.render_truth", "diagnostics.render_truth"),
+    plain("eval.render_dlf", "diagnostics.render_dlf"),
+    plain(
+        "eval.weight_interpolation",
+        "diagnostics.weight_interpolation",
+    ),
+    plain(
+        "eval.interpolation_sweep",
+        "diagnostics.interpolation_sweep",
+    ),
 ];
+
+/// What to tell a user whose file sets `key`, when it is a retired option.
+pub(crate) fn retired_note(key: &str) -> Option<&'static str> {
+    super::settings::RETIRED_KEYS
+        .iter()
+        .any(|(retired, _)| *retired == key)
+        .then_some(
+            "an option retired on 2026-12-05 after failing its screen \
+         (docs/notebook/2026-12-05-retired-options.md); commit 96ee8cc still has it",
+        )
+}
 
 fn take(table: &mut toml::Table, path: &[&str]) -> Option<toml::Value> {
     let (last, parents) = path.split_last()?;
@@ -193,5 +217,26 @@ mod tests {
         assert_eq!(s["gamma"].as_float(), Some(0.25));
         assert_eq!(s["milestones"].as_array().unwrap().len(), 5);
         assert_eq!(t["joint"]["preview_every"].as_integer(), Some(7));
+    }
+
+    /// A retired option is refused with the key, the note and the commit that has it named.
+    #[test]
+    fn a_retired_option_says_where_it_went() {
+        let text = "name = \"t\"\n[scene]\nbuiltin = \"watercube\"\n[joint]\nanchor_horizon = 3\n";
+        let err = crate::config::Experiment::from_toml_str(text, std::path::Path::new("x.toml"))
+            .unwrap_err();
+        assert_eq!(err.key(), "joint.anchor_horizon");
+        let message = err.to_string();
+        assert!(
+            message.contains("retired")
+                && message.contains("96ee8cc")
+                && message.contains("x.toml"),
+            "{message}"
+        );
+        assert_eq!(
+            retired_note("joint.anchor_weight"),
+            None,
+            "moved, not retired"
+        );
     }
 }

@@ -34,15 +34,14 @@ use std::path::{Path, PathBuf};
 use neurofluid_physnerf::PhysNerfConfig;
 use serde::{Deserialize, Serialize};
 
-pub use checks::{Cadenced, Section};
+pub use checks::{Cadence, Cadenced, Section};
 pub use errors::{ConfigError, from_toml_str, line_col};
 pub(crate) use errors::{from_table, read_text};
 pub use preset::Preset;
 pub use sections::{
-    AnchorAlong, BuiltinScene, ColourHead, Containment, DlfSection, EnergyCap, EnergyPer,
-    EvalSection, FreeFlight, InitialParticles, InitialSection, JointSection, NerfSection,
-    NerfTImages, NovelViews, PlyEncoding, RefitSection, ReplayOf, SceneScale, SceneSection,
-    SurfaceThreshold, WarmupSection,
+    BuiltinScene, DiagnosticsSection, DlfSection, EvalSection, InitialParticles, InitialSection,
+    JointSection, NerfSection, NerfTImages, NovelViews, PlyEncoding, RefitSection, SceneScale,
+    SceneSection, SurfaceThreshold, WarmupSection,
 };
 pub use settings::Settings;
 
@@ -103,6 +102,9 @@ pub struct Experiment {
     /// Evaluation (spec §6).
     #[serde(default)]
     pub eval: EvalSection,
+    /// What a run measures to be understood, never to choose a setting (all off by default).
+    #[serde(default)]
+    pub diagnostics: DiagnosticsSection,
     /// The NeRF of the initial particles and of the novel-view baselines.
     #[serde(default)]
     pub nerf: NerfSection,
@@ -265,6 +267,7 @@ impl Experiment {
             .or_else(|| checks::problem_of(&self.nerf))
             .or_else(|| checks::problem_of(&self.initial))
             .or_else(|| checks::problem_of(&self.eval))
+            .or_else(|| checks::problem_of(&self.diagnostics))
             .or_else(|| self.refit_problem())
             .or_else(|| self.truth_problem());
         match problem {
@@ -273,12 +276,18 @@ impl Experiment {
         }
     }
 
-    /// `joint.truth_weight` matches predicted and true particles by index: the joint stage must
+    /// `joint.terms.truth` matches predicted and true particles by index: the joint stage must
     /// start from the true first state.
     fn truth_problem(&self) -> checks::Problem {
-        if self.joint.truth_weight > 0.0 && self.scene.initial == InitialParticles::FromImages {
+        let truth = self
+            .joint
+            .terms
+            .truth
+            .as_ref()
+            .is_some_and(|t| t.weight > 0.0);
+        if truth && self.scene.initial == InitialParticles::FromImages {
             return Some((
-                "joint.truth_weight".into(),
+                "joint.terms.truth.weight".into(),
                 "expected 0 with scene.initial = \"from_images\": the truth term matches \
                  predicted and true particles by index, which only a start from the true first \
                  state has"
@@ -317,6 +326,7 @@ impl Experiment {
         let mut keys: Vec<String> = ["name", "device", "out_dir"].map(String::from).to_vec();
         keys.extend(checks::free_keys_of::<SceneSection>());
         keys.extend(checks::free_keys_of::<EvalSection>());
+        keys.extend(checks::free_keys_of::<DiagnosticsSection>());
         keys.extend(checks::free_keys_of::<PhysNerfConfig>());
         keys.extend(checks::free_keys_of::<WarmupSection>());
         keys.extend(checks::free_keys_of::<JointSection>());
@@ -422,7 +432,7 @@ mod tests {
         assert_eq!((w.iters, w.rays, w.precrop_iters), (100_000, 1024, 500));
         assert_eq!(
             w.optim.schedule,
-            crate::optim::Schedule::Exponential {
+            neurofluid_core::lr_schedule::Schedule::Exponential {
                 decay_steps: 10_000
             }
         );
@@ -432,14 +442,14 @@ mod tests {
         assert_eq!((j.physnerf_optim.lr, j.dlf_optim.lr), (3e-4, 1e-5));
         assert_eq!(
             j.physnerf_optim.schedule,
-            crate::optim::Schedule::MultiStep {
+            neurofluid_core::lr_schedule::Schedule::MultiStep {
                 milestones: vec![10_000, 75_000, 150_000],
                 gamma: 0.5
             }
         );
         assert_eq!(
             j.dlf_optim.schedule,
-            crate::optim::Schedule::MultiStep {
+            neurofluid_core::lr_schedule::Schedule::MultiStep {
                 milestones: vec![10_000, 30_000, 50_000, 100_000, 300_000],
                 gamma: 0.5
             }
@@ -469,18 +479,18 @@ mod tests {
         let mut paper = quick.clone();
         paper
             .apply_overrides(&[
-                "eval.weight_interpolation=0.25",
+                "diagnostics.weight_interpolation=0.25",
                 "dlf.energy_cap=\"particle\"",
                 "dlf.gravity_scale=1.7",
                 "dlf.viscosity=0.4",
-                "dlf.no_slip=true",
-                "dlf.free_flight=\"ballistic\"",
+                "joint.terms.anchor.weight=0.1",
+                "joint.terms.energy.weight=0.005",
                 "physnerf.positions=\"relative\"",
                 "refit.enabled=true",
                 "preset=\"paper\"",
             ])
             .unwrap();
-        assert_eq!(paper.eval.weight_interpolation, 1.0);
+        assert_eq!(paper.diagnostics.weight_interpolation, 1.0);
         assert!(
             !paper.refit.enabled,
             "the paper renders with the joint PhysNeRF"
@@ -502,22 +512,9 @@ mod tests {
         assert_eq!((j.bptt_steps, j.dlf_every), (r.bptt_steps, r.dlf_every));
         assert_eq!(j.physnerf_optim, r.physnerf_optim);
         assert_eq!(j.dlf_optim, r.dlf_optim);
-        assert_eq!(
-            (
-                j.boundary_weight,
-                j.foreground_rays,
-                j.silhouette_weight,
-                j.density_weight,
-                j.rest_density_weight,
-                j.truth_weight,
-                j.energy_weight,
-                j.anchor_weight,
-                j.replay_rays as f64
-            ),
-            (1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-        );
+        assert_eq!((j.boundary_weight, j.foreground_rays), (1.0, 0.0));
+        assert_eq!(j.terms, r.terms, "no particle terms");
         assert!(j.extra_views.is_empty());
-        assert_eq!((j.colour_head, j.replay_of), (r.colour_head, r.replay_of));
         // the budgets are the file's
         assert_eq!(
             (paper.warmup.iters, paper.joint.epochs, paper.joint.rays),
@@ -584,11 +581,12 @@ mod tests {
     /// images, naming its key; with the true first state it is accepted.
     #[test]
     fn the_truth_term_needs_the_true_first_state() {
-        let text = format!("{MINIMAL}initial = \"from_images\"\n[joint]\ntruth_weight = 1.0\n");
+        let truth = "[joint.terms.truth]\nweight = 1.0\n";
+        let text = format!("{MINIMAL}initial = \"from_images\"\n{truth}");
         let err = parse(&text).unwrap_err();
-        assert_eq!(err.key(), "joint.truth_weight");
+        assert_eq!(err.key(), "joint.terms.truth.weight");
         assert!(err.to_string().contains("from_images"), "{err}");
-        assert!(parse(&format!("{MINIMAL}[joint]\ntruth_weight = 1.0\n")).is_ok());
+        assert!(parse(&format!("{MINIMAL}{truth}")).is_ok());
         assert!(parse(&format!("{MINIMAL}initial = \"from_images\"\n")).is_ok());
     }
 
@@ -638,14 +636,6 @@ mod tests {
                 "joint.foreground_rays",
             ),
             (
-                "[scene]\nbuiltin = \"watercube\"\n[joint]\nsilhouette_weight = -1.0\n",
-                "joint.silhouette_weight",
-            ),
-            (
-                "[scene]\nbuiltin = \"watercube\"\n[joint]\ndensity_weight = nan\n",
-                "joint.density_weight",
-            ),
-            (
                 "[scene]\nbuiltin = \"watercube\"\n[dlf]\ngravity_scale = 0.0\n",
                 "dlf.gravity_scale",
             ),
@@ -658,28 +648,32 @@ mod tests {
                 "dlf.viscosity",
             ),
             (
-                "[scene]\nbuiltin = \"watercube\"\n[dlf]\nno_slip = true\n",
-                "dlf.no_slip",
+                "[scene]\nbuiltin = \"watercube\"\n[joint.terms.energy]\nweight = -1.0\n",
+                "joint.terms.energy.weight",
             ),
             (
-                "[scene]\nbuiltin = \"watercube\"\n[joint]\nenergy_weight = -1.0\n",
-                "joint.energy_weight",
+                "[scene]\nbuiltin = \"watercube\"\n[eval]\nviews = [\"view_5\", \"view_5\"]\n",
+                "eval.views",
             ),
             (
-                "[scene]\nbuiltin = \"watercube\"\n[joint]\nanchor_weight = -1.0\n",
-                "joint.anchor_weight",
+                "[scene]\nbuiltin = \"watercube\"\n[warmup]\nviews = [\"view_2\", \"view_3\", \"view_2\"]\n",
+                "warmup.views",
             ),
             (
-                "[scene]\nbuiltin = \"watercube\"\n[joint]\nanchor_horizon = 5\n",
-                "joint.anchor_horizon",
+                "[scene]\nbuiltin = \"watercube\"\n[joint]\nextra_views = [\"view_2\", \"view_2\"]\n",
+                "joint.extra_views",
             ),
             (
-                "[scene]\nbuiltin = \"watercube\"\n[eval]\nweight_interpolation = 1.5\n",
-                "eval.weight_interpolation",
+                "[scene]\nbuiltin = \"watercube\"\n[joint.terms.anchor]\nweight = nan\n",
+                "joint.terms.anchor.weight",
             ),
             (
-                "[scene]\nbuiltin = \"watercube\"\n[eval]\ninterpolation_sweep = [0.5, -0.1]\n",
-                "eval.interpolation_sweep",
+                "[scene]\nbuiltin = \"watercube\"\n[diagnostics]\nweight_interpolation = 1.5\n",
+                "diagnostics.weight_interpolation",
+            ),
+            (
+                "[scene]\nbuiltin = \"watercube\"\n[diagnostics]\ninterpolation_sweep = [0.5, -0.1]\n",
+                "diagnostics.interpolation_sweep",
             ),
             (
                 "[scene]\nbuiltin = \"watercube\"\n[joint.physnerf_optim.schedule]\nkind = \"multi_step\"\nmilestones = [5, 3]\ngamma = 0.5\n",
@@ -752,7 +746,7 @@ mod tests {
         assert_eq!(e.warmup.iters, 7);
         assert_eq!(
             e.joint.physnerf_optim.schedule,
-            crate::optim::Schedule::MultiStep {
+            neurofluid_core::lr_schedule::Schedule::MultiStep {
                 milestones: vec![1, 2],
                 gamma: 0.5
             }

@@ -6,8 +6,8 @@
 //! DLF geometry, open walls, no energy cap, the published gravity and no viscosity, the
 //! lowest-index neighbour rule, ReLU density, world positions and the paper's encoding
 //! frequencies, the warm-up's and the joint stage's optimisers and schedules, one-step
-//! truncated BPTT with DLF stepping every transition, uniform rays, one view, no silhouette
-//! term, the boundary weight 1, the grounded DLF evaluated as trained and the novel views
+//! truncated BPTT with DLF stepping every transition, uniform rays, one view, no particle terms
+//! (`[joint.terms]`), the boundary weight 1, the grounded DLF evaluated as trained and the novel views
 //! rendered by the jointly trained PhysNeRF (no refit). Budgets
 //! (iterations, epochs, rays, samples, network widths) stay the file's: they are the scale of
 //! the experiment, not its rules. Each value the preset changes is logged.
@@ -16,7 +16,7 @@ use serde::{Deserialize, Serialize};
 
 use super::settings::Change;
 use super::{
-    DlfSection, EvalSection, Experiment, JointSection, RefitSection, Settings, WarmupSection,
+    DiagnosticsSection, DlfSection, Experiment, JointSection, RefitSection, Settings, WarmupSection,
 };
 use neurofluid_physnerf::PhysNerfConfig;
 
@@ -63,20 +63,9 @@ pub fn apply(exp: &mut Experiment) -> Vec<Change> {
     j.dlf_optim = paper.dlf_optim;
     j.boundary_weight = paper.boundary_weight;
     j.foreground_rays = paper.foreground_rays;
-    j.silhouette_weight = paper.silhouette_weight;
-    j.density_weight = paper.density_weight;
-    j.rest_density_weight = paper.rest_density_weight;
-    j.truth_weight = paper.truth_weight;
-    j.energy_weight = paper.energy_weight;
-    j.energy_per = paper.energy_per;
-    j.anchor_weight = paper.anchor_weight;
-    j.anchor_along = paper.anchor_along;
-    j.anchor_horizon = paper.anchor_horizon;
-    j.replay_rays = paper.replay_rays;
-    j.replay_of = paper.replay_of;
-    j.colour_head = paper.colour_head;
+    j.terms = paper.terms;
     j.extra_views = paper.extra_views;
-    exp.eval.weight_interpolation = EvalSection::default().weight_interpolation;
+    exp.diagnostics.weight_interpolation = DiagnosticsSection::default().weight_interpolation;
     exp.refit = RefitSection::default();
     Settings::all(exp).changes_since(&before)
 }

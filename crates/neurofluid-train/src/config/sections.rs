@@ -5,11 +5,12 @@
 use std::fmt;
 use std::path::PathBuf;
 
-use neurofluid_core::scene::{Aabb, Role, Scene};
-use neurofluid_dlf::{DlfConfig, GeometryMode};
+use neurofluid_core::scene::{Role, Scene};
+use neurofluid_dlf::{GeometryMode, StepRules};
 use serde::{Deserialize, Serialize};
 
 use crate::optim::{JointDlfGroup, JointPhysNerfGroup, NerfGroup, OptimConfig, WarmupGroup};
+use crate::stages::joint::terms::TermsSection;
 use neurofluid_physnerf::{NerfConfig, Positions};
 
 /// Built-in scenes the generator knows.
@@ -218,49 +219,6 @@ impl NerfSection {
     }
 }
 
-/// Which part of a grounded DLF step the anchor (`joint.anchor_weight`) holds to the pretrained
-/// step.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum AnchorAlong {
-    /// The whole difference between the two steps.
-    #[default]
-    All,
-    /// Only its component along the training camera's ray through each particle (at the frame
-    /// the step predicts): the depth that one view cannot see. Moves across the image, which
-    /// the image loss does see, go free.
-    Depth,
-}
-
-/// What the joint stage trains of the renderer's colour heads (`dir_encoding` and `rgb` of both
-/// networks: the colour as a function of the trunk's feature and the view direction).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum ColourHead {
-    /// Trained with the rest of the renderer (the reference).
-    #[default]
-    Trained,
-    /// Kept as the warm-up left them: grounding on one view cannot change how the colour
-    /// depends on the view direction, which it otherwise moves at directions off the training
-    /// cameras (the trunk, and so the colour of each place, still trains).
-    Frozen,
-}
-
-/// What the joint stage replays beside the training view (`joint.replay_rays` > 0).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum ReplayOf {
-    /// The warm-up views' images at the warm-up frame: the renderer keeps rendering the views
-    /// it was warmed up on.
-    #[default]
-    Images,
-    /// The warm-up renderer's own renders of the warm-up frame from cameras all round the fluid
-    /// above its floor ([`crate::stages::orbit`]): the renderer keeps drawing what it drew after
-    /// the warm-up from every direction, also those no camera of the rig looks from, where
-    /// grounding on one view otherwise moves the colour (a distillation).
-    Renders,
-}
-
 /// Which of the scene's views the evaluation scores as novel views (`eval.novel_views`).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -281,20 +239,6 @@ impl NovelViews {
             NovelViews::Validation => Role::Validation,
         }
     }
-}
-
-/// What the energy prior (`joint.energy_weight`) holds non-increasing from step to step.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum EnergyPer {
-    /// The fluid's energy, the mean over its particles: energy may pass between particles (a
-    /// wave's run-up up a wall), only the whole may not gain.
-    #[default]
-    Fluid,
-    /// Each particle's own energy: no particle may gain, as in a viscous fluid, where every
-    /// particle of every true honey sequence measured only loses (BENCHMARKS.md, "energy per
-    /// particle"). A particle thrown up out of the fluid is penalised even where the whole loses.
-    Particle,
 }
 
 /// Where the surface of the NeRF's density lies.
@@ -364,7 +308,7 @@ pub struct RefitSection {
     pub enabled: bool,
     /// `physnerf.positions` of the second renderer (`relative`: it moves with its particles,
     /// which carries over better from frame to frame but, trained during grounding, moved DLF
-    /// less; BENCHMARKS.md, "a renderer that moves with its particles"); the rest of
+    /// less; docs/notebook/benchmarks-history.md, "a renderer that moves with its particles"); the rest of
     /// `[physnerf]` is the first renderer's.
     pub positions: Positions,
     /// Rays per fit step replayed from the warm-up renderer's renders of the warm-up frame from
@@ -385,7 +329,9 @@ impl Default for RefitSection {
     }
 }
 
-/// `[dlf]`: where DLF's weights come from and how its conv geometry enters autodiff.
+/// `[dlf]`: where DLF's weights come from, how its conv geometry enters autodiff, and the rules
+/// of its step (`neurofluid_dlf::StepRules`: `containment`, `energy_cap`, `gravity_scale`,
+/// `viscosity`), in every rollout, the baseline DLF's too.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct DlfSection {
@@ -393,31 +339,9 @@ pub struct DlfSection {
     pub weights: PathBuf,
     /// `constant` (Open3D, the reference) or `differentiable` (gradients through the geometry).
     pub geometry: GeometryMode,
-    /// `none` (the reference: the walls act only through DLF's box convolution) or `box` (every
-    /// predicted particle is kept inside the scene's box interior, its velocity corrected to the
-    /// move it made), in every rollout: training, diagnostics and evaluation.
-    pub containment: Containment,
-    /// `none` (the reference: DLF's step as it is) or `particle` (each particle's step shortened
-    /// where it would raise that particle's mechanical energy, as no particle of a viscous fluid's
-    /// truth does; `neurofluid_dlf::energy_cap`), in every rollout, the baseline DLF's too.
-    pub energy_cap: EnergyCap,
-    /// Scale of the gravity in DLF's pre-step, in every rollout, the baseline DLF's too; the
-    /// energy cap and the scene keep the true gravity. `1.0` (the reference). The published
-    /// weights let a falling clump accelerate at about 6.3 m/s² of 9.81; 1.7 makes it 9.8
-    /// (`neurofluid_dlf::DlfConfig::gravity_scale`).
-    pub gravity_scale: f64,
-    /// Strength in [0, 1] of an XSPH viscosity on each step's velocities (each moves this share
-    /// of the way toward its neighbours'), in every rollout, the baseline DLF's too. `0.0` (the
-    /// reference): none (`neurofluid_dlf::viscosity`).
-    pub viscosity: f64,
-    /// With `viscosity`, no-slip walls: the box's particles count among each particle's
-    /// neighbours, at rest, so the fluid beside a wall is held by it. `false` (the default).
-    pub no_slip: bool,
-    /// `network` (the reference: DLF's corrections as they are) or `ballistic` (each cluster of
-    /// fluid particles out of the walls' reach moves its centre of mass as a projectile under
-    /// the true gravity, as a closed system's internal forces cancel;
-    /// `neurofluid_dlf::free_flight`), in every rollout, the baseline DLF's too.
-    pub free_flight: FreeFlight,
+    /// The rules of DLF's step, keys of this table.
+    #[serde(flatten)]
+    pub rules: StepRules,
 }
 
 impl Default for DlfSection {
@@ -425,111 +349,9 @@ impl Default for DlfSection {
         Self {
             weights: PathBuf::from("assets/dlf_pretrained/pretrained_model_weights.pt"),
             geometry: GeometryMode::Constant,
-            containment: Containment::None,
-            energy_cap: EnergyCap::None,
-            gravity_scale: 1.0,
-            viscosity: 0.0,
-            no_slip: false,
-            free_flight: FreeFlight::Network,
+            rules: StepRules::default(),
         }
     }
-}
-
-impl DlfSection {
-    /// `cfg` with this section's rules of the step (walls, cap, gravity scale, viscosity), which
-    /// change what a rollout does; not the geometry mode, which changes only the gradients.
-    /// `box_interior` is the scene's box, which `containment = "box"` keeps the particles in:
-    /// `None` where no box is known (DLF records), which only a section without walls accepts.
-    pub fn apply_rules(
-        &self,
-        mut cfg: DlfConfig,
-        box_interior: Option<Aabb>,
-    ) -> anyhow::Result<DlfConfig> {
-        if self.containment == Containment::Box {
-            let interior = box_interior.ok_or_else(|| {
-                anyhow::anyhow!(
-                    "dlf.containment = \"box\" needs a scene's box; DLF records have none"
-                )
-            })?;
-            cfg.container = Some(interior);
-        }
-        cfg.cap_particle_energy = self.energy_cap == EnergyCap::Particle;
-        cfg.gravity_scale = self.gravity_scale as f32;
-        cfg.viscosity = self.viscosity as f32;
-        cfg.no_slip = self.no_slip;
-        cfg.ballistic_free_flight = self.free_flight == FreeFlight::Ballistic;
-        Ok(cfg)
-    }
-
-    /// The rules DLF's steps follow beyond the reference's, as a report names them (in the
-    /// order a step applies them, the free flight's first).
-    pub fn rules(&self) -> Vec<String> {
-        let mut rules = Vec::new();
-        if self.free_flight == FreeFlight::Ballistic {
-            rules.push(
-                "clusters out of the walls' reach in free flight (`dlf.free_flight = \"ballistic\"`)"
-                    .to_string(),
-            );
-        }
-        if self.containment == Containment::Box {
-            rules.push("the walls (`dlf.containment = \"box\"`)".to_string());
-        }
-        if self.energy_cap == EnergyCap::Particle {
-            rules.push("the energy cap (`dlf.energy_cap = \"particle\"`)".to_string());
-        }
-        if self.gravity_scale != 1.0 {
-            rules.push(format!(
-                "the pre-step's gravity scaled by {} (`dlf.gravity_scale`)",
-                self.gravity_scale
-            ));
-        }
-        if self.viscosity != 0.0 {
-            rules.push(format!(
-                "an XSPH viscosity of strength {}{} (`dlf.viscosity`)",
-                self.viscosity,
-                if self.no_slip {
-                    ", no-slip walls (`dlf.no_slip`)"
-                } else {
-                    ""
-                }
-            ));
-        }
-        rules
-    }
-}
-
-/// `dlf.energy_cap`: whether DLF's steps may raise a particle's mechanical energy.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum EnergyCap {
-    /// The reference: DLF's step as it is.
-    #[default]
-    None,
-    /// No step raises a particle's ½|v|² − g·x; a step that would is shortened.
-    Particle,
-}
-
-/// `dlf.free_flight`: how DLF moves a cluster of fluid particles that no wall reaches.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum FreeFlight {
-    /// The reference: the network's corrections as they are.
-    #[default]
-    Network,
-    /// The cluster's centre of mass moves as a projectile; its particles' relative motion is the
-    /// network's.
-    Ballistic,
-}
-
-/// `dlf.containment`: whether the walls of the box are enforced on DLF's predictions.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Containment {
-    /// The reference: particles may cross the walls where DLF's box convolution lets them.
-    #[default]
-    None,
-    /// Predictions clamped into the scene's box interior (`box_interior` of `scene.json`).
-    Box,
 }
 
 /// `[warmup]`: PhysNeRF alone on frame 0 (spec §4.1).
@@ -656,61 +478,12 @@ pub struct JointSection {
     /// Central window fraction (0.5).
     pub precrop_frac: f64,
     /// The share of each step's rays drawn from the pixels where the target shows fluid or the
-    /// projected prediction covers ([`crate::focus`]); the rest uniform over the image. 0 = the
-    /// reference's uniform draw.
+    /// projected prediction covers ([`neurofluid_core::ray_focus`]); the rest uniform over the
+    /// image. 0 = the reference's uniform draw.
     pub foreground_rays: f64,
-    /// Weight of the silhouette term ([`crate::silhouette`]): the predicted particles projected
-    /// into every view of the loss against the pixels where its target shows fluid, pulling
-    /// particles into fluid the prediction misses and out of places the truth leaves empty.
-    /// 0 = the reference's image loss alone.
-    pub silhouette_weight: f64,
-    /// Whether the silhouette term also pulls particles into the target's fluid pixels that no
-    /// projected particle covers (true, both sides); false keeps only its spray side (particles
-    /// projected outside the fluid are pulled onto it).
-    pub silhouette_cover: bool,
-    /// Weight of the density prior ([`crate::density_prior`]): every predicted particle pulled
-    /// back to the neighbourhood a fluid particle has, where the renderer's gate cannot see it.
-    /// 0 = the reference's image loss alone.
-    pub density_weight: f64,
-    /// Weight of the rest-density prior ([`crate::rest_density`]): the predicted fluid's mean
-    /// density may not fall below the first training state's (one view does not see a pile's
-    /// particles spread thinner). 0 = the reference's image loss alone.
-    pub rest_density_weight: f64,
-    /// Weight of the true particles as a loss: each step's predicted positions held to the
-    /// truth's of the same frame (matched by index), in particle radii². A diagnostic, never a
-    /// method (the images are all NeuroFluid may see): with it, grounding at the same budget and
-    /// rules has every particle's truth, an upper reference for what the images can teach DLF.
-    /// Needs the scene's true particles of every training frame. 0 = the reference's.
-    pub truth_weight: f64,
-    /// Weight of the energy prior ([`crate::energy_prior`]): no DLF step may add mechanical
-    /// energy (kinetic + potential) to the fluid, which in a closed box only loses it; each
-    /// step's gain is penalised in units of lifting every particle by one radius.
-    /// 0 = the reference's image loss alone.
-    pub energy_weight: f64,
-    /// Whose energy the energy prior holds (`fluid`).
-    pub energy_per: EnergyPer,
-    /// Weight of the anchor term ([`crate::stages::joint::anchor_penalty`]): each grounded step
-    /// kept near the pretrained DLF's step from the same state, in particle radii², where the
-    /// images do not ask for a change. 0 = the reference's image loss alone.
-    pub anchor_weight: f64,
-    /// Which part of a grounded step the anchor holds (`all`).
-    pub anchor_along: AnchorAlong,
-    /// Steps past the training window that the anchor also holds (needs `anchor_weight` > 0):
-    /// at every DLF update the grounded DLF also rolls this many steps on from the last
-    /// prediction of its latest finished training rollout (before the first ends: the pretrained
-    /// DLF's state there), with no images there, each step anchored in full to the pretrained
-    /// DLF's step from the same state and kept inside the walls (the boundary term). The images
-    /// ground the dynamics of the frames they show; this keeps the pretrained physics where they
-    /// show nothing. 0 = the anchor on the training window alone.
-    pub anchor_horizon: usize,
-    /// Rays per iteration replayed from the warm-up (its views in turn, rendered from its
-    /// particles: PhysNeRF's gradients only), so that the renderer grounded on the training view
-    /// keeps rendering the others. 0 = the reference's training view alone.
-    pub replay_rays: usize,
-    /// What is replayed (`images`).
-    pub replay_of: ReplayOf,
-    /// Whether the renderer's colour heads train in the joint stage (`trained`).
-    pub colour_head: ColourHead,
+    /// The particle terms, each under its own table (`[joint.terms.anchor]`, …): none = the
+    /// paper's loss ([`crate::stages::joint::terms`]).
+    pub terms: TermsSection,
     /// Training view; unset = the scene manifest's (view_1).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub view: Option<String>,
@@ -739,19 +512,7 @@ impl Default for JointSection {
             precrop_iters: 500,
             precrop_frac: 0.5,
             foreground_rays: 0.0,
-            silhouette_weight: 0.0,
-            silhouette_cover: true,
-            density_weight: 0.0,
-            rest_density_weight: 0.0,
-            truth_weight: 0.0,
-            energy_weight: 0.0,
-            energy_per: EnergyPer::Fluid,
-            anchor_weight: 0.0,
-            anchor_along: AnchorAlong::All,
-            anchor_horizon: 0,
-            replay_rays: 0,
-            replay_of: ReplayOf::Images,
-            colour_head: ColourHead::Trained,
+            terms: TermsSection::default(),
             view: None,
             extra_views: Vec::new(),
             log_every: 49,
@@ -833,28 +594,6 @@ pub struct EvalSection {
     /// Test views; unset = the scene manifest's (view_5).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub views: Option<Vec<String>>,
-    /// Also render the true particles of every rendered step with the grounded renderer and
-    /// score them beside NeuroFluid's (a row of the novel-view table): what the renderer would
-    /// score with perfect dynamics, which splits a novel-view gap into the renderer's part and
-    /// the dynamics' part. One more render per rendered step.
-    pub render_truth: bool,
-    /// Also render the rollouts of the pretrained DLF (`eval.baseline`) and of DLF†
-    /// (`eval.supervised_dlf`), where evaluated, with the grounded renderer and score them beside
-    /// NeuroFluid's (rows of the novel-view table): the novel views the same renderer gives on
-    /// dynamics not grounded, and on dynamics supervised with the true particles. One more
-    /// render per rendered step and rollout.
-    pub render_dlf: bool,
-    /// NeuroFluid's DLF as evaluated: the pretrained weights (`dlf.weights`) plus this fraction
-    /// of what grounding changed, parameter by parameter (a weight-space interpolation, as
-    /// WiSE-FT does for fine-tuned networks). 1 = the grounded DLF as trained (the paper), 0 =
-    /// the pretrained DLF. The renderer stays the grounded one.
-    pub weight_interpolation: f64,
-    /// Also roll out NeuroFluid's DLF at these `weight_interpolation` fractions (d and d′ only,
-    /// no renders) and draw d against d′ in both windows from the pretrained DLF to the
-    /// grounded one (`eval/interpolation.png`, a table in the report): how much of grounding's
-    /// change fits the truth and where it starts to throw spray. Empty = none.
-    #[serde(skip_serializing_if = "Vec::is_empty")]
-    pub interpolation_sweep: Vec<f64>,
     /// Which views are scored as novel views: the test views, or the scene's validation views
     /// (to choose settings with; the report says which).
     pub novel_views: NovelViews,
@@ -900,11 +639,49 @@ impl Default for EvalSection {
             animate: true,
             viewer: true,
             views: None,
+            novel_views: NovelViews::Test,
+        }
+    }
+}
+
+/// `[diagnostics]`: what a run measures to be understood, never to choose a setting: more
+/// renders and rollouts at the evaluation. Nothing here changes what is trained (no key shapes a
+/// stage's state) nor the evaluation's own rows; each adds rows, pictures or tables beside them.
+/// All off by default and in the quick configs.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DiagnosticsSection {
+    /// Also render the true particles of every rendered step with the grounded renderer and
+    /// score them beside NeuroFluid's (a row of the novel-view table): what the renderer would
+    /// score with perfect dynamics, which splits a novel-view gap into the renderer's part and
+    /// the dynamics' part. One more render per rendered step.
+    pub render_truth: bool,
+    /// Also render the rollouts of the pretrained DLF (`eval.baseline`) and of DLF†
+    /// (`eval.supervised_dlf`), where evaluated, with the grounded renderer and score them beside
+    /// NeuroFluid's (rows of the novel-view table): the novel views the same renderer gives on
+    /// dynamics not grounded, and on dynamics supervised with the true particles. One more
+    /// render per rendered step and rollout.
+    pub render_dlf: bool,
+    /// NeuroFluid's DLF as evaluated: the pretrained weights (`dlf.weights`) plus this fraction
+    /// of what grounding changed, parameter by parameter (a weight-space interpolation, as
+    /// WiSE-FT does for fine-tuned networks). 1 = the grounded DLF as trained (the paper), 0 =
+    /// the pretrained DLF. The renderer stays the grounded one.
+    pub weight_interpolation: f64,
+    /// Also roll out NeuroFluid's DLF at these `diagnostics.weight_interpolation` fractions (d and d′ only,
+    /// no renders) and draw d against d′ in both windows from the pretrained DLF to the
+    /// grounded one (`eval/interpolation.png`, a table in the report): how much of grounding's
+    /// change fits the truth and where it starts to throw spray. Empty = none.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub interpolation_sweep: Vec<f64>,
+}
+
+impl Default for DiagnosticsSection {
+    fn default() -> Self {
+        Self {
             render_truth: false,
             render_dlf: false,
             weight_interpolation: 1.0,
             interpolation_sweep: Vec::new(),
-            novel_views: NovelViews::Test,
         }
     }
 }

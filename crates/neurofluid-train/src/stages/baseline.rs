@@ -12,10 +12,11 @@ use neurofluid_physnerf::{Nerf, save_png};
 
 use super::nerf::{NerfKind, time_of};
 use super::run_folder::Run;
-use super::scoring::{as_image, rendered_steps, scaled_truth, score};
-use super::views::{ViewFrame, side_by_side};
+use super::views::ViewFrame;
 use crate::config::{NerfTImages, NovelViews};
-use crate::report::BaselineScores;
+use neurofluid_outputs::pictures::side_by_side;
+use neurofluid_outputs::report::BaselineScores;
+use neurofluid_outputs::scoring::{as_image, rendered_steps, scaled_truth, score};
 
 /// A baseline's scores on the test views inside its stage folder.
 pub const SCORES_FILE: &str = "scores.json";
@@ -52,7 +53,7 @@ pub fn evaluate(run: &Run, nerf: &Nerf, kind: NerfKind) -> anyhow::Result<Baseli
         for &t in &frames {
             let frame = test.start + t;
             let vf = ViewFrame::load(scene, cfg.novel_views.role(), &view, frame)?;
-            let truth = scaled_truth(&vf, cfg.image_scale)?;
+            let truth = scaled_truth(vf.camera, &vf.image, cfg.image_scale)?;
             let cam = truth.camera;
             let time = (kind == NerfKind::NerfT).then(|| time_of(frame, &train));
             let rendered = nerf.render_image(&cam, time)?;

@@ -1,10 +1,11 @@
 //! How the CLI drives a training stage: the [`crate::trainer::Driver`] with its sinks.
 
 use super::run_folder::{CURVES_FILE, Run};
-use crate::metrics_log::MetricsLog;
+use crate::config::Cadence;
 use crate::stage::Stage;
 use crate::trainer::sinks::{CurvesPlot, MetricsSink, PreviewWriter, ProgressBars};
-use crate::trainer::{Cadence, Driver, Trainer};
+use crate::trainer::{Driver, Trainer};
+use neurofluid_outputs::metrics_log::MetricsLog;
 
 /// Runs `trainer` in its stage folder of `run` up to `stop`, with the sinks of the CLI: a
 /// progress bar, the run's metrics log, the preview pictures and the curves.

@@ -14,13 +14,13 @@ use serde::{Deserialize, Serialize};
 
 use super::nerf::{self, NerfKind};
 use super::run_folder::Run;
-use super::scoring::{at_least_wide, particle_row};
 use super::views::load_particles;
 use crate::config::{InitialParticles, Settings};
-use crate::geometry::silhouette_iso::{Coverage, IsoChoice, silhouette_iso};
-use crate::geometry::volume_fill::{DensityGrid, FillSettings, surface_and_fill};
-use crate::metrics_log::MetricsLog;
 use crate::stage::Stage;
+use neurofluid_outputs::geometry::silhouette_iso::{Coverage, IsoChoice, silhouette_iso};
+use neurofluid_outputs::geometry::volume_fill::{DensityGrid, FillSettings, surface_and_fill};
+use neurofluid_outputs::metrics_log::MetricsLog;
+use neurofluid_outputs::scoring::{at_least_wide, particle_row};
 
 /// Folder of the recovered initial state inside the run folder.
 pub const STAGE: Stage = Stage::Initial;

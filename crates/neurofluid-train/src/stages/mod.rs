@@ -14,18 +14,20 @@ mod prepare;
 pub mod refit;
 pub mod run_folder;
 pub mod scene_source;
-pub mod scoring;
 pub mod supervised_dlf;
 pub mod views;
 pub mod warmup;
 
 pub use run_folder::{CURVES_FILE, Run, Start};
 
-use crate::metrics_log::MetricsLog;
+use neurofluid_outputs::metrics_log::MetricsLog;
 
 /// Every stage of `run` in order (the initial particles from images first, when asked for),
 /// resuming where the run folder says; returns the evaluation.
-pub fn run_all(run: &Run, log: &mut MetricsLog) -> anyhow::Result<crate::report::EvalReport> {
+pub fn run_all(
+    run: &Run,
+    log: &mut MetricsLog,
+) -> anyhow::Result<neurofluid_outputs::report::EvalReport> {
     if run.exp.scene.initial == crate::config::InitialParticles::FromImages {
         initial::recover(run, log)?;
     }

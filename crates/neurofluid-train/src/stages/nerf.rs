@@ -9,22 +9,22 @@ use std::path::Path;
 
 use anyhow::Context;
 use burn::optim::GradientsParams;
+use neurofluid_core::gradients;
 use neurofluid_core::metrics::{RgbImage, psnr};
 use neurofluid_core::scene::{Role, Scene};
+use neurofluid_outputs::pictures::side_by_side;
 use neurofluid_physnerf::{Nerf, NerfConfig};
 
 use super::run_folder::Run;
-use super::views::{
-    ViewFrame, batch_of, joint_sources, ray_share, require_warmup_every_frame, side_by_side,
-};
+use super::views::{ViewFrame, batch_of, joint_sources, ray_share, require_warmup_every_frame};
 use crate::config::Cadenced;
 use crate::config::{Experiment, NerfSection, NerfTImages};
-use crate::metrics_log::{MetricsLog, psnr_from_mse};
 use crate::optim::{Group, NerfGroup};
-use crate::sampler::Rng;
 use crate::stage::{Stage, files};
 use crate::trainer::checkpoint;
-use crate::trainer::{Evaluation, StageState, StepStats, Trainer, guard};
+use crate::trainer::{Evaluation, StageState, StepStats, Trainer};
+use neurofluid_core::sampler::Rng;
+use neurofluid_outputs::metrics_log::{MetricsLog, psnr_from_mse};
 
 /// Which NeRF.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -205,11 +205,11 @@ impl Trainer for NerfTrainer {
         let loss = out.loss(target);
         // one read for the step: the MSEs, the loss and the gradients' squares (a non-finite
         // loss is not used to update: the guard stops the run on it)
-        let grads =
-            guard::backward(loss.total.clone()).map(|g| GradientsParams::from_grads(g, &self.nerf));
+        let grads = gradients::backward(loss.total.clone())
+            .map(|g| GradientsParams::from_grads(g, &self.nerf));
         let mut parts = vec![loss.fine, loss.coarse, loss.total];
         if let Some(g) = &grads {
-            parts.extend(guard::grad_square_sums(g, &self.nerf));
+            parts.extend(gradients::grad_square_sums(g, &self.nerf));
         }
         let values = neurofluid_core::transfer::read_together(parts)?;
         let (fine_mse, coarse_mse, value) = (values[0], values[1], values[2]);
@@ -217,7 +217,7 @@ impl Trainer for NerfTrainer {
         if value.is_finite()
             && let Some(grads) = grads
         {
-            grad_norm = guard::norm_of(&values[3..]);
+            grad_norm = gradients::norm_of(&values[3..]);
             if grad_norm.is_finite() {
                 self.nerf = self.opt.step(self.nerf.clone(), grads);
             }

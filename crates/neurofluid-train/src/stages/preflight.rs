@@ -11,9 +11,9 @@ use super::nerf::{NerfData, NerfKind};
 use super::run_folder::{Run, Start};
 use super::views::{check_sequence, load_particles, ray_share, require_warmup_every_frame};
 use crate::config::InitialParticles;
-use crate::sampler::Rng;
 use crate::stage::Stage;
 use crate::trainer::checkpoint;
+use neurofluid_core::sampler::Rng;
 
 /// Problems found so far.
 #[derive(Default)]
@@ -244,7 +244,7 @@ pub fn check(run: &Run, stages: &[Stage], start: Start) -> anyhow::Result<()> {
         }
         if exp.eval.render {
             let frames: Vec<usize> =
-                super::scoring::rendered_steps(test.len(), exp.eval.render_every)
+                neurofluid_outputs::scoring::rendered_steps(test.len(), exp.eval.render_every)
                     .into_iter()
                     .map(|t| test.start + t)
                     .collect();
@@ -257,12 +257,12 @@ pub fn check(run: &Run, stages: &[Stage], start: Start) -> anyhow::Result<()> {
     }
     // every stage logs to the run's metrics: a damaged log stops the run now, not after hours
     // (the evaluation reads it for its curves after the renders)
-    let log = run.dir.join(crate::metrics_log::JSONL_FILE);
+    let log = run.dir.join(neurofluid_outputs::metrics_log::JSONL_FILE);
     let log_removed = start == Start::Fresh && stages.contains(&Stage::ALL[0]);
     if !log_removed && log.is_file() {
         p.check(
             || "the run's metrics log".to_string(),
-            crate::metrics_log::read_jsonl(&log),
+            neurofluid_outputs::metrics_log::read_jsonl(&log),
         );
     }
     p.0.dedup();

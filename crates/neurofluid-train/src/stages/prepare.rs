@@ -5,7 +5,7 @@ use super::run_folder::{Run, Start, check_ours};
 use super::scene_source::generate_scene_if_missing;
 use crate::config::Experiment;
 use crate::stage::Stage;
-use crate::trainer::lock::FolderLock;
+use neurofluid_core::folder_lock::FolderLock;
 
 impl Run {
     /// Everything before `stages` run: locks the run folder (one process per folder),

@@ -8,7 +8,7 @@
 //! every transition (`joint.physnerf_optim`'s schedule counts these updates, `bptt_steps` times
 //! as many as the joint stage's renderer takes). The evaluation then renders NeuroFluid's views,
 //! and the renderer on the true particles, with it; d and d′ are the joint stage's. It is fitted
-//! to the grounded DLF as trained: with `eval.weight_interpolation` below 1 the evaluation rolls
+//! to the grounded DLF as trained: with `diagnostics.weight_interpolation` below 1 the evaluation rolls
 //! out another DLF than the one it was fitted to. Made from the stages before it alone, it starts
 //! over when its settings changed ([`start_over_if_stale`]).
 //!
@@ -19,7 +19,7 @@
 //!
 //! Why: a renderer that moves with its particles (`positions = "relative"`) carries over from the
 //! warm-up's frame to the others better than the paper's, but trained during grounding it moved
-//! DLF less (BENCHMARKS.md, "a renderer that moves with its particles"). Fitted afterwards, it
+//! DLF less (docs/notebook/benchmarks-history.md, "a renderer that moves with its particles"). Fitted afterwards, it
 //! cannot change the dynamics.
 
 use std::path::Path;
@@ -30,17 +30,17 @@ use neurofluid_core::scene::Role;
 use neurofluid_dlf::DlfNet;
 use neurofluid_physnerf::PhysNerf;
 
-use super::joint::{self, JointData, psnr_on_truth, replay_loss, training_rays};
+use super::joint::{self, JointData, psnr_on_truth, training_rays};
 use super::run_folder::Run;
 use super::views::{points_tensor, render_beside_truth};
 use super::warmup::{self, WarmupData, WarmupTrainer, renderer_update};
 use crate::config::{Cadenced, JointSection, WarmupSection};
-use crate::metrics_log::MetricsLog;
 use crate::optim::{Group, JointPhysNerfGroup};
-use crate::sampler::Rng;
 use crate::stage::{Stage, files};
 use crate::trainer::checkpoint;
 use crate::trainer::{Evaluation, StageState, StepStats, Trainer};
+use neurofluid_core::sampler::Rng;
+use neurofluid_outputs::metrics_log::MetricsLog;
 
 /// Folder of the stage inside the run folder.
 pub const STAGE: Stage = Stage::Refit;
@@ -84,21 +84,35 @@ struct Replay {
     rays: usize,
 }
 
+/// What a refit fits to: the warm-up's images, the joint stage's images with the grounded
+/// rollout's particles, and the orbit replayed beside them.
+pub struct RefitInputs {
+    /// The warm-up's views and particles (the refit's first phase).
+    pub warmup_data: WarmupData,
+    /// The joint stage's images.
+    pub data: JointData,
+    /// The grounded rollout over the training frames (index 0: the first state).
+    pub rollout: Vec<Vec<[f32; 3]>>,
+    /// An orbit's views and the rays of them replayed at every fit step (none without it).
+    pub replay: Option<(WarmupData, usize)>,
+}
+
 impl RefitTrainer {
-    /// A refit of the fresh renderer `physnerf`: its warm-up as `warmup` says on `warmup_data`,
-    /// then the joint stage's images `data` with the particles of `rollout`; `replay`: an orbit's
-    /// views and the rays of them replayed at every fit step (none without it).
-    #[allow(clippy::too_many_arguments)]
+    /// A refit of the fresh renderer `physnerf` to `inputs`: its warm-up as `warmup` says, then
+    /// the joint stage's images with the rollout's particles, at `joint`'s rays and rates.
     pub fn new(
         warmup: &WarmupSection,
         joint: &JointSection,
         physnerf: PhysNerf,
-        warmup_data: WarmupData,
-        data: JointData,
-        rollout: Vec<Vec<[f32; 3]>>,
-        replay: Option<(WarmupData, usize)>,
+        inputs: RefitInputs,
         seed: u64,
     ) -> anyhow::Result<Self> {
+        let RefitInputs {
+            warmup_data,
+            data,
+            rollout,
+            replay,
+        } = inputs;
         anyhow::ensure!(
             rollout.len() == data.views[0].len(),
             "the grounded rollout has {} states for {} training frames",
@@ -346,10 +360,12 @@ pub fn run_until(
         &exp.warmup,
         &exp.joint,
         new_renderer(run)?,
-        warmup_data,
-        data,
-        rollout,
-        replay,
+        RefitInputs {
+            warmup_data,
+            data,
+            rollout,
+            replay,
+        },
         exp.seed,
     )?;
     // the joint stage's cadence, through both phases
@@ -367,4 +383,25 @@ pub fn for_views(run: &Run, mut grounded: joint::Grounded) -> anyhow::Result<joi
     let model = PhysNerf::new(run.refit_physnerf_config(), &run.device)?;
     grounded.physnerf = checkpoint::load_module(model, &files::PHYSNERF.load_path(&ckpt))?;
     Ok(grounded)
+}
+
+/// The replayed loss of iteration `step`: `rays` pixels of one of `replay`'s views in turn,
+/// rendered by `physnerf` from `replay`'s particles (`particles`, on the device), against the
+/// view's image: the warm-up's images or the warm-up renderer's own renders from all round
+/// ([`super::orbit`]).
+fn replay_loss(
+    physnerf: &PhysNerf,
+    replay: &WarmupData,
+    particles: &Tensor<2>,
+    rays: usize,
+    rng: &mut Rng,
+    step: u64,
+) -> anyhow::Result<Tensor<1>> {
+    let device = physnerf.device();
+    let view = &replay.views[(step % replay.views.len() as u64) as usize];
+    let pixels = rng.sample_pixels(rays, view.camera.width, view.camera.height, None)?;
+    let (rays, colours) = view.batch(&pixels, &device);
+    let jitter = super::warmup::jitter(physnerf, rng);
+    let out = physnerf.render_rays_with_host(particles, &replay.particles, &rays, jitter)?;
+    Ok(physnerf.loss(&out, colours).total)
 }

@@ -16,10 +16,10 @@ use neurofluid_dlf::{DlfConfig, DlfNet};
 use neurofluid_physnerf::PhysNerfConfig;
 
 use crate::config::{Experiment, RESOLVED_FILE, Settings};
-use crate::metrics_log::{CSV_FILE, JSONL_FILE, MetricsLog};
 use crate::stage::Stage;
 use crate::trainer::checkpoint;
-use crate::trainer::lock::FolderLock;
+use neurofluid_core::folder_lock::{FolderLock, LOCK_FILE};
+use neurofluid_outputs::metrics_log::{CSV_FILE, JSONL_FILE, MetricsLog};
 
 /// The loss and PSNR curves inside a run folder.
 pub const CURVES_FILE: &str = "curves.png";
@@ -225,7 +225,8 @@ impl Run {
         cfg.dt = 1.0 / self.scene.manifest().fps;
         cfg.geometry = self.exp.dlf.geometry;
         let interior = self.scene.manifest().box_interior;
-        (self.exp.dlf.apply_rules(cfg, Some(interior))).expect("a scene has a box")
+        cfg.with_rules(self.exp.dlf.rules, Some(interior))
+            .expect("a scene has a box, and the experiment's rules were validated")
     }
 
     /// Loads DLF from `path` (`.pt`, `.safetensors` or one of our checkpoints).
@@ -269,8 +270,10 @@ impl Run {
 }
 
 /// Refuses a run folder this tool did not make before anything is written to it: one that
-/// holds files of other names and no resolved config (a user's folder given as `out_dir`), and,
-/// under `--fresh`, one that is a symbolic link (its removals would reach the link's target).
+/// holds files of other names and no resolved config (a user's folder given as `out_dir`), one
+/// whose stage folders, logs or lock are symbolic links (what the tool writes there would land
+/// wherever the links point, outside the run folder), and, under `--fresh`, one that is a
+/// symbolic link itself (its removals would reach the link's target).
 pub(super) fn check_ours(dir: &Path, start: Start) -> anyhow::Result<()> {
     let Ok(meta) = std::fs::symlink_metadata(dir) else {
         return Ok(());
@@ -281,6 +284,16 @@ pub(super) fn check_ours(dir: &Path, start: Start) -> anyhow::Result<()> {
          the link's target as the run folder)",
         dir.display()
     );
+    for name in RUN_CONTENTS.iter().chain([&LOCK_FILE]) {
+        let path = dir.join(name);
+        let linked = std::fs::symlink_metadata(&path).is_ok_and(|m| m.file_type().is_symlink());
+        anyhow::ensure!(
+            !linked,
+            "{} is a symbolic link: the tool writes only into the run folder itself, not through \
+             links in it (remove the link, or give its target as a run folder of its own)",
+            path.display()
+        );
+    }
     if dir.join(RESOLVED_FILE).is_file() {
         return Ok(());
     }
@@ -289,7 +302,7 @@ pub(super) fn check_ours(dir: &Path, start: Start) -> anyhow::Result<()> {
     let foreign: Vec<String> = entries
         .filter_map(Result::ok)
         .map(|e| e.file_name().to_string_lossy().into_owned())
-        .filter(|n| n != crate::trainer::lock::LOCK_FILE && !RUN_CONTENTS.contains(&n.as_str()))
+        .filter(|n| n != LOCK_FILE && !RUN_CONTENTS.contains(&n.as_str()))
         .collect();
     anyhow::ensure!(
         foreign.is_empty(),

@@ -8,7 +8,7 @@ use neurofluid_core::scene::{MANIFEST_FILE, Role, SceneManifest};
 use neurofluid_scenegen::{Preset, SceneConfig};
 
 use crate::config::Experiment;
-use crate::trainer::lock::FolderLock;
+use neurofluid_core::folder_lock::FolderLock;
 
 /// The generator settings of an experiment's `[scene]` (`None` when it names an existing folder).
 pub fn generator_config(exp: &Experiment) -> anyhow::Result<Option<SceneConfig>> {

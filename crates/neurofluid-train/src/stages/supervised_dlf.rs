@@ -1,4 +1,4 @@
-//! Supervised DLF training (spec/dlf.md §5; the paper's DLF† when started from weights): each
+//! Supervised DLF training (docs/spec/dlf.md §5; the paper's DLF† when started from weights): each
 //! step averages DLF's 2-step unrolled loss over a batch of random windows, each rotated by a
 //! random angle about the gravity axis, and takes one Adam step (ε = 1e-6) on DLF's piecewise
 //! schedule. Its evaluation is DLF's validation errors.
@@ -7,17 +7,21 @@ use std::path::Path;
 
 use burn::optim::{GradientsAccumulator, GradientsParams};
 use burn::prelude::*;
+use neurofluid_core::gradients;
+use neurofluid_core::lr_schedule::Schedule;
 use neurofluid_dlf::DlfNet;
 use neurofluid_dlf::loss::LOSS_SCALE;
-use neurofluid_dlf::train::{TrainingSequence, rotation_about, supervised_loss, validate};
+use neurofluid_dlf::train::{
+    TrainingSequence, lr_schedule_per_update, rotation_about, supervised_loss, validate,
+};
 use rand::Rng as _;
 use serde::Serialize;
 
-use crate::optim::{Group, OptimConfig, OptimDefaults, Schedule};
-use crate::sampler::Rng;
+use crate::optim::{Group, OptimConfig, OptimDefaults};
 use crate::stage::{Stage, files};
 use crate::trainer::checkpoint;
-use crate::trainer::{Evaluation, StageState, StepStats, Trainer, guard};
+use crate::trainer::{Evaluation, StageState, StepStats, Trainer};
+use neurofluid_core::sampler::Rng;
 
 /// Folder of the stage.
 pub const STAGE: Stage = Stage::PretrainDlf;
@@ -35,8 +39,9 @@ pub struct SupervisedConfig {
     /// Base learning rate (DLF: 1e-3; the piecewise decay is applied on top).
     #[arg(long, default_value_t = SupervisedConfig::DLF.lr, value_parser = positive_finite)]
     pub lr: f64,
-    /// Validate (and checkpoint) every this many steps.
-    #[arg(long, default_value_t = SupervisedConfig::DLF.validate_every)]
+    /// Validate and checkpoint every this many steps (at least 1; a checkpoint is also written
+    /// after the last step).
+    #[arg(long, default_value_t = SupervisedConfig::DLF.validate_every, value_parser = clap::value_parser!(u64).range(1..))]
     pub validate_every: u64,
     /// Frame skip of the validation errors (DLF training: 20, `evaluate_network.py`: 5).
     #[arg(long, default_value_t = SupervisedConfig::DLF.frame_skip, value_parser = at_least_one)]
@@ -80,7 +85,7 @@ impl OptimDefaults for SupervisedDlfGroup {
     const LR: f64 = 1e-3;
     const EPSILON: f64 = 1e-6;
     fn schedule() -> Schedule {
-        Schedule::dlf_per_update(50_000)
+        lr_schedule_per_update(50_000)
     }
 }
 
@@ -101,7 +106,7 @@ impl SupervisedConfig {
     pub fn optim(&self) -> OptimConfig<SupervisedDlfGroup> {
         let mut optim = OptimConfig::default();
         optim.lr = self.lr;
-        optim.schedule = Schedule::dlf_per_update(self.iterations);
+        optim.schedule = lr_schedule_per_update(self.iterations);
         optim
     }
 }
@@ -210,10 +215,10 @@ impl Trainer for SupervisedDlfTrainer {
         // one read: the samples' losses and the gradients' squares
         let n = losses.len();
         let mut parts = losses;
-        parts.extend(guard::grad_square_sums(&grads, &self.net));
+        parts.extend(gradients::grad_square_sums(&grads, &self.net));
         let values = neurofluid_core::transfer::read_together(parts)?;
         let batch_loss = values[..n].iter().fold(0.0, |sum, v| sum + v);
-        let grad_norm = guard::norm_of(&values[n..]);
+        let grad_norm = gradients::norm_of(&values[n..]);
         if batch_loss.is_finite() && grad_norm.is_finite() {
             self.net = self.opt.step(self.net.clone(), grads);
         }

@@ -7,10 +7,11 @@ use burn::prelude::*;
 use neurofluid_core::camera::Camera;
 use neurofluid_core::metrics::{RgbImage, psnr};
 use neurofluid_core::scene::{Image, Particles, Role, Scene};
+use neurofluid_outputs::pictures::side_by_side;
 use neurofluid_physnerf::{PhysNerf, RayBatch, render_image};
 
 use crate::config::JointSection;
-use crate::trainer::{Evaluation, Picture};
+use crate::trainer::Evaluation;
 
 /// One view of one frame: camera and target image.
 #[derive(Debug, Clone)]
@@ -141,21 +142,6 @@ pub fn check_sequence(frames: &[Particles], first: usize) -> anyhow::Result<()> 
 /// Scalar value of a one-element tensor.
 pub fn scalar(t: &Tensor<1>) -> f64 {
     neurofluid_core::transfer::read_scalar(t.clone())
-}
-
-/// `[a | b]`: two images of the same size side by side.
-pub fn side_by_side(a: &RgbImage, b: &RgbImage) -> Picture {
-    let (w, h) = (a.width, a.height);
-    let mut rgb = Vec::with_capacity(2 * w * h * 3);
-    for row in 0..h {
-        rgb.extend_from_slice(&a.data[row * w * 3..(row + 1) * w * 3]);
-        rgb.extend_from_slice(&b.data[row * w * 3..(row + 1) * w * 3]);
-    }
-    Picture {
-        width: 2 * w as u32,
-        height: h as u32,
-        rgb,
-    }
 }
 
 /// Renders `particles` (`[N, 3]`) from `view` with PhysNeRF (no gradients) and compares the

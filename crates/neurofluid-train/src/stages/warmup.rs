@@ -10,6 +10,7 @@ use std::path::Path;
 use anyhow::Context;
 use burn::optim::GradientsParams;
 use burn::prelude::*;
+use neurofluid_core::gradients;
 use neurofluid_core::scene::{Role, Scene};
 use neurofluid_core::transfer::read_together;
 use neurofluid_physnerf::{Loss, PhysNerf, RayBatch};
@@ -18,12 +19,12 @@ use super::run_folder::Run;
 use super::views::{ViewFrame, batch_of, load_particles, points_tensor, render_beside_truth};
 use crate::config::Cadenced;
 use crate::config::WarmupSection;
-use crate::metrics_log::{MetricsLog, psnr_from_mse};
 use crate::optim::{Group, WarmupGroup};
-use crate::sampler::Rng;
 use crate::stage::{Stage, files};
 use crate::trainer::checkpoint;
-use crate::trainer::{Evaluation, StageState, StepStats, Trainer, guard};
+use crate::trainer::{Evaluation, StageState, StepStats, Trainer};
+use neurofluid_core::sampler::Rng;
+use neurofluid_outputs::metrics_log::{MetricsLog, psnr_from_mse};
 
 /// Folder of the stage inside the run folder.
 pub const STAGE: Stage = Stage::Warmup;
@@ -202,11 +203,12 @@ pub fn renderer_update<G: crate::optim::OptimDefaults>(
     total: Tensor<1>,
 ) -> anyhow::Result<RendererUpdate> {
     let batches = fine.len();
-    let grads = guard::backward(total.clone()).map(|g| GradientsParams::from_grads(g, physnerf));
+    let grads =
+        gradients::backward(total.clone()).map(|g| GradientsParams::from_grads(g, physnerf));
     let mut parts = fine;
     parts.push(total);
     if let Some(g) = &grads {
-        parts.extend(guard::grad_square_sums(g, physnerf));
+        parts.extend(gradients::grad_square_sums(g, physnerf));
     }
     let values = read_together(parts)?;
     // each term divided first, in the order the warm-up has always logged its PSNR
@@ -222,7 +224,7 @@ pub fn renderer_update<G: crate::optim::OptimDefaults>(
     if loss.is_finite()
         && let Some(grads) = grads
     {
-        update.grad_norm = guard::norm_of(&values[batches + 1..]);
+        update.grad_norm = gradients::norm_of(&values[batches + 1..]);
         if update.grad_norm.is_finite() {
             update.physnerf = Some(opt.step(physnerf.clone(), grads));
         }

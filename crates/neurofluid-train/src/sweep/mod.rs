@@ -19,11 +19,10 @@
 //!
 //! A sweep runs in one process (`sweep FILE`), one run at a time (`sweep FILE --variant I`, what
 //! each task of a Slurm array runs: [`slurm`]), and records each run's state in its folder
-//! ([`state`]); [`table`] collects whatever has finished.
+//! ([`state`]); `neurofluid_outputs::sweep_table` collects whatever has finished.
 
 pub mod slurm;
 pub mod state;
-pub mod table;
 
 use std::path::{Path, PathBuf};
 

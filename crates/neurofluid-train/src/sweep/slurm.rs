@@ -3,13 +3,12 @@
 //!
 //! Preemption and time limits: the script asks for `--requeue` and `--signal=B:TERM@<s>` (SIGTERM
 //! to the batch shell that many seconds before the time limit). The shell passes SIGTERM on to
-//! the trainer, which finishes its step, checkpoints and exits with
-//! [`REQUEUE_EXIT_CODE`](crate::trainer::stop::REQUEUE_EXIT_CODE); the shell then requeues its
-//! own array task, `scontrol requeue <array job>_<task>` (the task's own id: the array job's id
-//! alone would requeue every task of the array), but only while Slurm still reports the task
-//! RUNNING: after `scancel` it is COMPLETING and stays cancelled, and on preemption Slurm
-//! requeues it itself. The requeued task resumes from the checkpoint (Slurm holds a requeued
-//! job back for about two minutes before it may start again).
+//! the trainer, which finishes its step, checkpoints and exits with [`REQUEUE_EXIT_CODE`]; the
+//! shell then requeues its own array task, `scontrol requeue <array job>_<task>` (the task's own
+//! id: the array job's id alone would requeue every task of the array), but only while Slurm
+//! still reports the task RUNNING: after `scancel` it is COMPLETING and stays cancelled, and on
+//! preemption Slurm requeues it itself. The requeued task resumes from the checkpoint (Slurm
+//! holds a requeued job back for about two minutes before it may start again).
 //!
 //! Files in the sweep folder: [`SCRIPT_FILE`] (the array script), [`JOB_FILE`] (the latest
 //! submission), `logs/task-<i>.out` (each task's output, appended across requeues),
@@ -25,7 +24,7 @@ use serde::{Deserialize, Serialize};
 use super::Sweep;
 use super::state::{self, Phase, RunState};
 use crate::config::ConfigError;
-use crate::trainer::stop::REQUEUE_EXIT_CODE;
+use neurofluid_core::stop_request::REQUEUE_EXIT_CODE;
 
 /// The array script inside the sweep folder.
 pub const SCRIPT_FILE: &str = "sweep.sbatch";

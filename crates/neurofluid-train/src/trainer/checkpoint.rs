@@ -4,7 +4,7 @@
 //! A checkpoint folder holds the models (burnpack), the optimiser states (burnpack), the carried
 //! particle state where there is one (`.npz`), `state.json` ([`CheckpointState`]: stage, step,
 //! the settings that shaped the state with their digest, and the stage's own small state such as
-//! its random stream) and the seal of them all ([`super::checksums`]), checked on every load. The learning-rate schedules are pure functions of the step, so the step
+//! its random stream) and the seal of them all ([`neurofluid_core::checksums`]), checked on every load. The learning-rate schedules are pure functions of the step, so the step
 //! restores them.
 
 use std::path::{Path, PathBuf};
@@ -66,7 +66,7 @@ pub fn write(
         std::fs::remove_dir_all(&tmp).with_context(|| format!("removing {}", tmp.display()))?;
     }
     std::fs::create_dir_all(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
-    if let Err(e) = fill(&tmp).and_then(|()| super::checksums::seal(&tmp)) {
+    if let Err(e) = fill(&tmp).and_then(|()| Ok(neurofluid_core::checksums::seal(&tmp)?)) {
         let _ = std::fs::remove_dir_all(&tmp);
         return Err(e);
     }
@@ -174,7 +174,7 @@ pub fn save_module<M: Module>(module: &M, path: &Path) -> anyhow::Result<()> {
 /// parameters that are not finite.
 pub fn load_module<M: Module>(module: M, path: &Path) -> anyhow::Result<M> {
     anyhow::ensure!(path.is_file(), "{}: no such file", path.display());
-    super::checksums::verify_file(path)?;
+    neurofluid_core::checksums::verify_file(path)?;
     let loaded = module
         .try_load_file(path)
         .map_err(|e| anyhow::anyhow!("{}: not a checkpoint of this model: {e}", path.display()))?;
@@ -261,7 +261,7 @@ pub fn load_optimizer<M: Module>(
     );
     // what the file is for is checked first (a clearer message for a swapped file), then
     // that it holds the bytes it was written with
-    super::checksums::verify_file(path)?;
+    neurofluid_core::checksums::verify_file(path)?;
     opt.load(path)
         .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
 }
@@ -290,7 +290,7 @@ pub fn load_matching(
     stage: &str,
     settings: &Settings,
 ) -> anyhow::Result<CheckpointState> {
-    super::checksums::verify_file(&dir.join("state.json"))?;
+    neurofluid_core::checksums::verify_file(&dir.join("state.json"))?;
     let state: CheckpointState = load_state(dir)?;
     match &state.settings {
         Some(saved) => {

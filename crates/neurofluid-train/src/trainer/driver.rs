@@ -7,23 +7,11 @@ use std::time::Instant;
 
 use super::checkpoint::{self, CheckpointState};
 use super::guard::Guard;
-use super::stop::{self, Stopped};
 use super::{Event, EventSink, StepStats, Trainer};
-use crate::config::Settings;
-use crate::metrics_log::MetricsRow;
+use crate::config::{Cadence, Settings};
+use neurofluid_core::stop_request::{self, Stopped};
 use neurofluid_core::transfer::{self, Counts};
-
-/// When the driver logs, evaluates and checkpoints (every this many steps; 0 = never, and
-/// for checkpoints: only at the end).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Cadence {
-    /// A metrics row every this many steps (and after the last one).
-    pub log_every: u64,
-    /// An evaluation every this many steps.
-    pub evaluate_every: u64,
-    /// A checkpoint every this many steps (and always after the last step run).
-    pub checkpoint_every: u64,
-}
+use neurofluid_outputs::metrics_log::MetricsRow;
 
 /// Runs a [`Trainer`] in a stage folder, telling its sinks what happens.
 pub struct Driver<'s> {
@@ -107,12 +95,12 @@ impl<'s> Driver<'s> {
             cadence,
             settings,
             sinks: Vec::new(),
-            stop: stop::process_flag(),
+            stop: stop_request::process_flag(),
         }
     }
 
     /// Stops between steps once `flag` is set (by default the process's flag, which SIGTERM and
-    /// SIGINT set once [`stop::install_signal_handlers`] ran).
+    /// SIGINT set once [`stop_request::install_signal_handlers`] ran).
     pub fn with_stop(mut self, flag: Arc<AtomicBool>) -> Self {
         self.stop = flag;
         self
@@ -145,7 +133,7 @@ impl<'s> Driver<'s> {
         let state = checkpoint::load_matching(&dir, trainer.stage(), &self.settings)?;
         trainer.load(&dir, state.step, state.trainer)?;
         // the files the stage read without its own check (carried particle state) too
-        super::checksums::verify(&dir)?;
+        neurofluid_core::checksums::verify(&dir)?;
         Ok((state.step, Some(dir)))
     }
 
@@ -212,13 +200,13 @@ impl<'s> Driver<'s> {
         }
         let last = match checkpoint::latest(&self.stage_dir) {
             None => "there is no checkpoint of this stage yet".to_string(),
-            Some(dir) => match super::checksums::verify(&dir) {
+            Some(dir) => match neurofluid_core::checksums::verify(&dir) {
                 Ok(()) => format!(
                     "the last good checkpoint is {} (after {} steps)",
                     dir.display(),
                     checkpoint::saved_step(&self.stage_dir)
                 ),
-                Err(e) => format!("there is no good checkpoint: {e:#}"),
+                Err(e) => format!("there is no good checkpoint: {:#}", anyhow::Error::from(e)),
             },
         };
         let message = format!(
@@ -288,7 +276,7 @@ impl<'s> Driver<'s> {
         // by an earlier session still has its predecessor beside it)
         let mut unconfirmed = checkpoint::has_previous(&self.stage_dir);
         let mut saved = start;
-        if start < end && stop::requested(&self.stop) {
+        if start < end && stop_request::requested(&self.stop) {
             return Err(self.stopped(stage, start));
         }
         for step in start..end {
@@ -335,7 +323,7 @@ impl<'s> Driver<'s> {
                 unconfirmed = true;
                 saved = done;
             }
-            if done < end && stop::requested(&self.stop) {
+            if done < end && stop_request::requested(&self.stop) {
                 if saved < done {
                     // left unconfirmed, as at the end of any session
                     self.checkpoint_or_stop(trainer, done, unconfirmed)?;
@@ -525,7 +513,7 @@ mod tests {
             let dir = tmp.path().join("stopped");
             let (out, _) = drive(&dir, window, Some(stop_at));
             let err = out.unwrap_err();
-            let stopped = stop::stopped(&err).expect("a Stopped error");
+            let stopped = stop_request::stopped(err.as_ref()).expect("a Stopped error");
             assert_eq!(
                 (stopped.stage, stopped.done),
                 ("summing", stopped_after),
@@ -549,7 +537,7 @@ mod tests {
             .with_stop(stop)
             .run(&mut t, None)
             .unwrap_err();
-        assert_eq!(stop::stopped(&err).unwrap().done, 0);
+        assert_eq!(stop_request::stopped(err.as_ref()).unwrap().done, 0);
         assert_eq!(t.total, 0.0);
     }
 

@@ -3,7 +3,7 @@
 use std::path::Path;
 
 use super::{Evaluation, StepStats};
-use crate::metrics_log::MetricsRow;
+use neurofluid_outputs::metrics_log::MetricsRow;
 
 /// One thing that happened in a stage.
 #[derive(Debug)]

@@ -1,5 +1,5 @@
-//! The divergence guard every stage shares: what counts as a step gone wrong, and the checks on
-//! parameters and gradients it needs.
+//! The divergence guard every stage shares: what counts as a step gone wrong (the gradient norms
+//! it reads: [`neurofluid_core::gradients`]).
 //!
 //! The [`Driver`](super::Driver) asks the [`Guard`] after every step, before anything is logged
 //! or checkpointed. A step is bad when its loss or a gradient norm is not finite, when the loss
@@ -10,12 +10,6 @@
 //! nothing can be learned). The loss of a step is computed before its update, so a checkpoint is
 //! trusted only once a healthy update followed it; the driver rolls back one that did not.
 
-use burn::module::{Module, ModuleVisitor, Param};
-use burn::optim::GradientsParams;
-use burn::prelude::*;
-use neurofluid_core::square_sums::square_sums;
-use neurofluid_core::transfer::read_together;
-
 use super::StepStats;
 
 /// A loss (or gradient norm) this many times the session's first counts as exploding.
@@ -24,47 +18,6 @@ pub const EXPLOSION_FACTOR: f64 = 1e4;
 /// Updates in a row without any gradient for a group after which the run stops (a shorter
 /// session stops at its end when a group received no gradient in any update).
 pub const NO_GRADIENT_PATIENCE: u64 = 10;
-
-/// The global L2 norm of the gradients `grads` holds for `module`'s parameters (0 when it holds
-/// none: the loss did not depend on the module), with one read from the device.
-pub fn grad_norm<M: Module>(grads: &GradientsParams, module: &M) -> f64 {
-    let sums = grad_square_sums(grads, module);
-    if sums.is_empty() {
-        return 0.0;
-    }
-    norm_of(&read_together(sums).expect("float gradients"))
-}
-
-/// The sums of the squares of the gradients `grads` holds for `module`'s parameters, one value
-/// per parameter in the module's visiting order, on the device (none when it holds none;
-/// `neurofluid_core::square_sums`: one kernel for many parameters on a GPU): read them back
-/// together with whatever else the step reads (`transfer::read_together`; they hold
-/// `square_sums::count` values), then [`norm_of`].
-pub fn grad_square_sums<M: Module>(grads: &GradientsParams, module: &M) -> Vec<Tensor<1>> {
-    struct Flat<'a> {
-        grads: &'a GradientsParams,
-        flat: Vec<Tensor<1>>,
-    }
-    impl ModuleVisitor for Flat<'_> {
-        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
-            if let Some(g) = self.grads.get::<D>(param.id) {
-                let n = g.shape().num_elements();
-                self.flat.push(g.reshape([n]));
-            }
-        }
-    }
-    let mut v = Flat {
-        grads,
-        flat: Vec::new(),
-    };
-    module.visit(&mut v);
-    square_sums(v.flat)
-}
-
-/// The L2 norm from [`grad_square_sums`] read back: their sum in order, in f64, and its root.
-pub fn norm_of(square_sums: &[f64]) -> f64 {
-    square_sums.iter().fold(0.0, |sum, s| sum + s).sqrt()
-}
 
 /// Losses and gradient norms below this count as this for the explosion test (a loss near
 /// zero at the start of a fine-tuning must not make ordinary noise an explosion).
@@ -171,12 +124,6 @@ impl Guard {
     }
 }
 
-/// The loss's gradients, or none when the loss depends on no parameter (every sample was
-/// masked out): such a step has nothing to update.
-pub fn backward(loss: Tensor<1>) -> Option<burn::tensor::Gradients> {
-    loss.is_tracked().then(|| loss.backward())
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -241,58 +188,6 @@ mod tests {
             g.at_end()
                 .unwrap()
                 .contains("dlf received no gradient in 2")
-        );
-    }
-
-    #[test]
-    fn gradient_norm_of_a_module() {
-        use burn::nn::LinearConfig;
-        let device = neurofluid_core::device::cpu().autodiff();
-        let layer = LinearConfig::new(2, 1).init(&device);
-        let x = Tensor::<2>::from_data([[3.0f32, 4.0]], &device);
-        let loss = layer.forward(x).sum();
-        let grads = GradientsParams::from_grads(loss.backward(), &layer);
-        // d/dw = x, d/db = 1: |(3, 4, 1)| = √26
-        assert!((grad_norm(&grads, &layer) - 26f64.sqrt()).abs() < 1e-6);
-        assert_eq!(grad_norm(&GradientsParams::new(), &layer), 0.0);
-        let untracked = Tensor::<1>::from_data([1.0f32], &device);
-        assert!(backward(untracked).is_none());
-    }
-
-    #[test]
-    fn the_gradient_norm_of_many_parameters_is_one_read() {
-        use burn::nn::{Linear, LinearConfig};
-        use neurofluid_core::transfer::counts;
-        let device = neurofluid_core::device::cpu().autodiff();
-        let layers: Vec<Linear> = vec![
-            LinearConfig::new(2, 3).init(&device),
-            LinearConfig::new(3, 3).init(&device),
-            LinearConfig::new(3, 1).init(&device),
-        ];
-        let x = Tensor::<2>::from_data([[3.0f32, 4.0], [-1.0, 0.5]], &device);
-        let y = layers.iter().fold(x, |h, l| l.forward(h).tanh());
-        let grads = GradientsParams::from_grads(y.sum().backward(), &layers);
-        // the norm written out: every gradient read on its own, squared and summed in f64
-        let mut want = 0.0f64;
-        for l in &layers {
-            let mut each = vec![grads.get::<2>(l.weight.id).unwrap().into_data()];
-            each.push(
-                grads
-                    .get::<1>(l.bias.as_ref().unwrap().id)
-                    .unwrap()
-                    .into_data(),
-            );
-            for d in each {
-                want += d.iter::<f64>().map(|v| v * v).sum::<f64>();
-            }
-        }
-        let before = counts();
-        let norm = grad_norm(&grads, &layers);
-        assert_eq!(counts().since(before).reads, 1, "six parameters, one read");
-        assert!(
-            (norm - want.sqrt()).abs() <= 1e-6 * want.sqrt(),
-            "{norm} vs {}",
-            want.sqrt()
         );
     }
 }

@@ -9,17 +9,14 @@
 //! [`EventSink`]s, never code inside a loop.
 
 pub mod checkpoint;
-pub mod checksums;
 mod driver;
 mod events;
 pub mod guard;
-pub mod lock;
 pub mod sinks;
-pub mod stop;
 
 use std::path::Path;
 
-pub use driver::{Cadence, Driver};
+pub use driver::Driver;
 pub use events::{Event, EventSink};
 
 /// A stage's own small state (e.g. its random stream), stored in its checkpoint's `state.json`.
@@ -40,6 +37,9 @@ pub struct StepStats {
     /// The L2 norm of each parameter group's gradients in the update (`grad_norm/<group>`),
     /// 0 for a group the loss did not depend on.
     pub grad_norms: Vec<(&'static str, f64)>,
+    /// The value of each particle term over the window (`loss/<term>`; the joint stage's
+    /// `[joint.terms]`).
+    pub losses: Vec<(&'static str, f64)>,
     /// Further named scalars of the step, logged under their names.
     pub scalars: Vec<(&'static str, f64)>,
     /// Whether the step ended with an optimiser update. A step inside a window of several
@@ -50,7 +50,7 @@ pub struct StepStats {
 
 impl StepStats {
     /// The step's scalars as the metrics log names them: `psnr`, `lr/<group>`,
-    /// `grad_norm/<group>`, then the further ones.
+    /// `grad_norm/<group>`, `loss/<term>`, then the further ones.
     pub fn named(&self) -> Vec<(String, f64)> {
         let psnr = self.psnr.map(|p| ("psnr".to_string(), p));
         let family = |family: &str, of: &[(&str, f64)]| -> Vec<(String, f64)> {
@@ -61,21 +61,14 @@ impl StepStats {
         psnr.into_iter()
             .chain(family("lr", &self.lrs))
             .chain(family("grad_norm", &self.grad_norms))
+            .chain(family("loss", &self.losses))
             .chain(self.scalars.iter().map(|(n, v)| (n.to_string(), *v)))
             .collect()
     }
 }
 
-/// A picture: `[render | truth]` side by side, RGB in [0, 1], row-major.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Picture {
-    /// Width in pixels.
-    pub width: u32,
-    /// Height in pixels.
-    pub height: u32,
-    /// `width · height · 3` values.
-    pub rgb: Vec<f32>,
-}
+/// A picture: `[render | truth]` side by side (the outputs crate draws and writes it).
+pub use neurofluid_outputs::pictures::Picture;
 
 /// A look at the model on data it does not train on.
 #[derive(Debug, Clone, Default, PartialEq)]

@@ -6,7 +6,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use neurofluid_physnerf::save_png;
 
 use super::{Event, EventSink};
-use crate::metrics_log::{MetricsLog, MetricsRow};
+use neurofluid_outputs::metrics_log::{MetricsLog, MetricsRow};
 
 /// A progress bar per stage with the latest loss, PSNR and throughput (hidden when stderr is
 /// not a terminal, e.g. in CI logs).
@@ -195,7 +195,7 @@ impl CurvesPlot {
 impl EventSink for CurvesPlot {
     fn on_event(&mut self, event: &Event<'_>) -> anyhow::Result<()> {
         if let Event::Finished { .. } | Event::Stopped { .. } = event {
-            crate::pictures::plot::plot_metrics_file(&self.jsonl, &self.png)?;
+            neurofluid_outputs::pictures::plot::plot_metrics_file(&self.jsonl, &self.png)?;
         }
         Ok(())
     }

@@ -5,9 +5,10 @@
 //! PSNR/SSIM/LPIPS of the renders of the held-out views, renders beside ground truth (PNG) and the
 //! predicted particles of every frame (PLY).
 //!
-//! Its rooms: [`rollouts`] (the models' rollouts and their distances), [`super::scoring`]
-//! (images and particle sets against the truth, shared with the baselines) and [`artifacts`]
-//! (what is written). Imports go one way: this module → rollouts, artifacts → scoring.
+//! Its rooms: [`rollouts`] (the models' rollouts; what they are measured by is
+//! [`neurofluid_outputs::sequences`]'s) and [`artifacts`] (what is written; images and
+//! particle sets against the truth are [`neurofluid_outputs::scoring`]'s, shared with the
+//! baselines). Imports go one way: this module → rollouts, artifacts.
 
 pub mod artifacts;
 pub mod rollouts;
@@ -16,17 +17,12 @@ use anyhow::Context;
 use burn::module::Module;
 use neurofluid_core::scene::Role;
 
-pub use super::scoring::rendered_steps;
-pub use artifacts::{
-    ANIMATIONS, DISTANCE_PLOT, INTERPOLATION_PLOT, RENDERER_ON_DLF, RENDERER_ON_SUPERVISED_DLF,
-    RENDERER_ON_TRUTH, VIEWER_FILE, picture_frames,
-};
-use rollouts::Rollouts;
+pub use artifacts::{ANIMATIONS, DISTANCE_PLOT, INTERPOLATION_PLOT, VIEWER_FILE};
 
 use super::joint::Grounded;
 use super::run_folder::Run;
-use crate::report::{EvalReport, Windows};
 use crate::stage::Stage;
+use neurofluid_outputs::report::{EvalReport, Windows};
 
 /// Folder of the stage inside the run folder.
 pub const STAGE: Stage = Stage::Eval;
@@ -37,7 +33,7 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
     let cfg = &run.exp.eval;
     let test = scene.frames(Role::Test);
     let train_len = scene.frames(Role::Train).len();
-    let rollouts = Rollouts::of(run, models)?;
+    let rollouts = rollouts::of(run, models)?;
     let mut report = EvalReport::new(
         &run.exp.name,
         &scene.manifest().name,
@@ -45,8 +41,9 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
         Windows::from_lengths(train_len, test.len()),
     );
     report.scored_seal = scored_seal(run)?;
-    report.weight_interpolation = Some(cfg.weight_interpolation).filter(|&f| f != 1.0);
-    report.dlf_rules = run.exp.dlf.rules();
+    report.weight_interpolation =
+        Some(run.exp.diagnostics.weight_interpolation).filter(|&f| f != 1.0);
+    report.dlf_rules = run.exp.dlf.rules.describe();
     report.renderer = run.exp.refit.enabled.then(|| {
         // the value as the experiment file writes it
         let positions = serde_json::to_value(run.exp.refit.positions).unwrap_or_default();
@@ -59,18 +56,10 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
     report.initial_from_images =
         run.exp.scene.initial == crate::config::InitialParticles::FromImages;
     report.nvs_baselines = super::baseline::read_all(run)?;
-    report.frames = rollouts.frame_distances();
-    report.interpolation = rollouts.interpolation_points(&report, cfg.weight_interpolation);
     // the frame interval and gravity DLF steps with (the scene's), as the joint stage's own
     let dlf = run.dlf_config();
-    report.energy = rollouts.energy_gains(&report.windows, dlf.dt, dlf.gravity);
-    let manifest = scene.manifest();
-    report.escaped = rollouts.escaped(&manifest.box_interior, manifest.particle_radius);
-    report.alone = rollouts.alone_shares(&report.windows, manifest.particle_radius);
-    report.density = rollouts.density_ratios(&report.windows, manifest.particle_radius);
-    let mut up = [0.0; 3];
-    up[manifest.up_axis.index()] = 1.0;
-    report.far = rollouts.far_shares(&report.windows, manifest.particle_radius, up);
+    let fraction = run.exp.diagnostics.weight_interpolation;
+    rollouts.measure(&mut report, scene.manifest(), fraction, dlf.dt, dlf.gravity);
 
     let dir = run.stage_dir(STAGE);
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
@@ -94,7 +83,7 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
 /// stage's, and with `refit.enabled` the refit's after it.
 fn scored_seal(run: &Run) -> anyhow::Result<Option<String>> {
     let seal = |stage| match crate::trainer::checkpoint::latest(&run.stage_dir(stage)) {
-        Some(dir) => crate::trainer::checksums::seal_digest(&dir),
+        Some(dir) => neurofluid_core::checksums::seal_digest(&dir),
         None => Ok(None),
     };
     let joint = seal(super::joint::STAGE)?;
@@ -123,4 +112,30 @@ pub fn check_current(run: &Run, report: &EvalReport) -> anyhow::Result<()> {
         crate::trainer::checkpoint::saved_step(&run.stage_dir(super::joint::STAGE))
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::config::DlfSection;
+    use neurofluid_dlf::{Containment, EnergyCap};
+
+    /// The report names the rules every DLF rollout stepped under as `[dlf]` words them: none for
+    /// the reference, the walls and the energy cap when asked.
+    #[test]
+    fn the_reports_rules_are_the_dlf_sections() {
+        let mut dlf = DlfSection::default();
+        assert!(
+            dlf.rules.describe().is_empty(),
+            "the reference has no rules"
+        );
+        dlf.rules.containment = Containment::Box;
+        dlf.rules.energy_cap = EnergyCap::Particle;
+        assert_eq!(
+            dlf.rules.describe(),
+            [
+                "the walls (`dlf.containment = \"box\"`)",
+                "the energy cap (`dlf.energy_cap = \"particle\"`)"
+            ]
+        );
+    }
 }
