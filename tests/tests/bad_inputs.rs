@@ -313,6 +313,19 @@ fn fresh_removes_nothing_when_the_cameras_or_ray_counts_are_wrong() {
             "transform_matrix",
             serde_json::json!({"transform_matrix": vec![[0.0; 4]; 4]}),
         ),
+        // a camera 10^30 m away, and a rotation whose columns are nearly parallel (issue 72)
+        (
+            "camera position",
+            serde_json::json!({"transform_matrix": [
+                [1.0, 0.0, 0.0, 1e30], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0],
+                [0.0, 0.0, 0.0, 1.0]]}),
+        ),
+        (
+            "right angles",
+            serde_json::json!({"transform_matrix": [
+                [1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.999, 0.0], [0.0, 0.0, 0.0447, 4.0],
+                [0.0, 0.0, 0.0, 1.0]]}),
+        ),
         ("fl_x", serde_json::json!({"fl_x": 1e-30})),
         ("cx", serde_json::json!({"cx": 1e30})),
     ] {

@@ -121,6 +121,7 @@ fn the_ci_experiment_learns() {
     for _ in 0..rendered {
         apng.next_frame(&mut buf).unwrap();
     }
+    let picture = eval::particle_picture_path(&run.stage_dir(eval::STAGE), view);
     // the image scores (with LPIPS) are in the metrics log, once per render
     let rows = neurofluid_outputs::metrics_log::read_jsonl(&run.dir.join("metrics.jsonl")).unwrap();
     let eval_rows: Vec<_> = rows
@@ -156,7 +157,7 @@ fn the_ci_experiment_learns() {
     let training: Vec<&str> = rec.training.iter().map(|c| c.name.as_str()).collect();
     assert_eq!(training, ["warmup loss", "joint loss"]);
     assert_eq!(rec.training[0].points.len() as u64, run.exp.warmup.iters);
-    let (w, h) = image::image_dimensions(dir.join(format!("{view}_particles.png"))).unwrap();
+    let (w, h) = image::image_dimensions(&picture).unwrap();
     let panel = 240u32.max(cam.width);
     let rows = picture_frames(run.scene.frames(Role::Train).len(), test_frames - 1).len();
     assert_eq!(w, 3 * panel);

@@ -51,6 +51,8 @@ fn loading_weights_leaves_the_backends_rng_where_it_was() {
     );
     physnerf.save(&nerf_st).unwrap();
     save_module(&physnerf, &nerf_ckpt).unwrap();
+    // sealed, as a stage's checkpoint is (an unsealed one is refused)
+    neurofluid_core::checksums::seal(dir.path()).unwrap();
 
     let expected = draw_after(&device, || {});
     // the check can fail: building DLF from scratch between the seed and the draw moves it

@@ -86,15 +86,40 @@ fn write_released(root: &Path) {
     }
 }
 
+/// A test view whose camera is a training view's is not a novel view: the scene is refused
+/// with the field and the training view named (issue 72: it was scored as a novel view).
 #[test]
-fn released_layout_loads_with_defaults() {
-    let root = tmp("watercube");
+fn a_test_view_with_a_training_camera_is_refused() {
+    let root = released_scene("seen_test_view");
+    Scene::open(&root).unwrap();
+    let path = transforms_path(&root, "view_5", "test");
+    let mut t = TransformsFile::read(&path).unwrap();
+    for f in &mut t.frames {
+        f.transform_matrix = c2w(1);
+    }
+    t.write(&path).unwrap();
+    let err = Scene::open(&root).unwrap_err().to_string();
+    assert!(
+        err.contains("transforms_test.json") && err.contains("view_1") && err.contains("novel"),
+        "{err}"
+    );
+}
+
+/// The released-layout fixture with the released box, in a fresh folder `name`.
+fn released_scene(name: &str) -> PathBuf {
+    let root = tmp(name);
     write_released(&root);
     std::fs::copy(
         neurofluid_tests::workspace_root().join("tests/data/box/box_joblib-1.1.pt"),
         root.join("box.pt"),
     )
     .unwrap();
+    root
+}
+
+#[test]
+fn released_layout_loads_with_defaults() {
+    let root = released_scene("watercube");
     let scene = Scene::open(&root).unwrap();
     assert!(!scene.has_manifest_file());
     assert_eq!(

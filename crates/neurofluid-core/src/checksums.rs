@@ -6,6 +6,7 @@
 use std::collections::BTreeMap;
 use std::io::Read;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use sha2::{Digest, Sha256};
 
@@ -31,6 +32,17 @@ pub enum ChecksumError {
         /// How it differs.
         what: String,
     },
+    /// The checkpoint has no seal, and unsealed checkpoints were not trusted.
+    #[error(
+        "{}: a checkpoint without {CHECKSUMS_FILE} (written before checkpoints were sealed, or its \
+         seal was removed): its files cannot be checked, so it is not loaded; pass \
+         --trust-unsealed to load it unchecked, or start the stage over with --fresh",
+        dir.display()
+    )]
+    Unsealed {
+        /// The checkpoint folder.
+        dir: PathBuf,
+    },
     /// The seal itself is not a map of file names to digests.
     #[error("{}: a damaged checkpoint (malformed seal)", path.display())]
     MalformedSeal {
@@ -44,9 +56,19 @@ pub enum ChecksumError {
     Io(#[from] PathIoError),
 }
 
-/// SHA-256 of a file, as 64 hex digits.
+/// Whether checkpoints without a seal are loaded (unchecked, with a warning); the programs'
+/// `--trust-unsealed` sets it. Off, such a checkpoint is refused with [`ChecksumError::Unsealed`].
+static TRUST_UNSEALED: AtomicBool = AtomicBool::new(false);
+
+/// Sets whether checkpoints without a seal are loaded (`--trust-unsealed`).
+pub fn set_trust_unsealed(trust: bool) {
+    TRUST_UNSEALED.store(trust, Ordering::SeqCst);
+}
+
+/// SHA-256 of a file, as 64 hex digits (a regular file within the per-file limit:
+/// [`crate::input_file`]).
 pub fn file_sha256(path: &Path) -> Result<String, ChecksumError> {
-    let mut file = std::fs::File::open(path).map_err(PathIoError::on("reading", path))?;
+    let mut file = crate::input_file::open(path).map_err(PathIoError::on("reading", path))?;
     let mut hasher = Sha256::new();
     let mut buf = vec![0u8; 1 << 16];
     loop {
@@ -87,7 +109,7 @@ fn read_seal(dir: &Path) -> Result<Option<BTreeMap<String, String>>, ChecksumErr
     if !path.is_file() {
         return Ok(None);
     }
-    let text = std::fs::read_to_string(&path).map_err(PathIoError::on("reading", &path))?;
+    let text = crate::input_file::read_string(&path).map_err(PathIoError::on("reading", &path))?;
     serde_json::from_str(&text)
         .map(Some)
         .map_err(|source| ChecksumError::MalformedSeal { path, source })
@@ -100,16 +122,18 @@ fn damaged(path: &Path, what: &str) -> ChecksumError {
     }
 }
 
-/// Checks the file `path` of a checkpoint against its folder's seal (unsealed checkpoints of
-/// earlier releases pass with a warning).
+/// Checks the file `path` of a checkpoint against its folder's seal. A checkpoint without a
+/// seal is refused unless `--trust-unsealed` was given ([`set_trust_unsealed`]).
 pub fn verify_file(path: &Path) -> Result<(), ChecksumError> {
+    verify_file_trusting(path, TRUST_UNSEALED.load(Ordering::SeqCst))
+}
+
+/// [`verify_file`], with `trust_unsealed` saying whether an unsealed checkpoint is loaded
+/// (with a warning) or refused.
+fn verify_file_trusting(path: &Path, trust_unsealed: bool) -> Result<(), ChecksumError> {
     let dir = path.parent().unwrap_or(Path::new("."));
     let Some(seal) = read_seal(dir)? else {
-        tracing::warn!(
-            "{}: the checkpoint has no {CHECKSUMS_FILE}; loading it unchecked",
-            dir.display()
-        );
-        return Ok(());
+        return unsealed(dir, trust_unsealed);
     };
     let name = path
         .file_name()
@@ -128,12 +152,36 @@ pub fn verify_file(path: &Path) -> Result<(), ChecksumError> {
     Ok(())
 }
 
-/// Checks every file the seal of `dir` lists.
+/// The checkpoint `dir` has no seal: refused, or with `trust_unsealed` loaded with a warning.
+fn unsealed(dir: &Path, trust_unsealed: bool) -> Result<(), ChecksumError> {
+    if !trust_unsealed {
+        return Err(ChecksumError::Unsealed {
+            dir: dir.to_path_buf(),
+        });
+    }
+    tracing::warn!(
+        "{}: the checkpoint has no {CHECKSUMS_FILE}; loading it unchecked (--trust-unsealed)",
+        dir.display()
+    );
+    Ok(())
+}
+
+/// Checks every file the seal of `dir` lists (an unsealed `dir` as [`verify_file`] does).
 pub fn verify(dir: &Path) -> Result<(), ChecksumError> {
     let Some(seal) = read_seal(dir)? else {
-        return Ok(());
+        return unsealed(dir, TRUST_UNSEALED.load(Ordering::SeqCst));
     };
     for name in seal.keys() {
+        // a seal names the checkpoint's own files: a path elsewhere is a forged seal
+        if crate::paths::one_component(name).is_err() {
+            return Err(damaged(
+                &dir.join(CHECKSUMS_FILE),
+                &format!(
+                    "its seal names {}, not a file of the checkpoint",
+                    crate::paths::shown(name)
+                ),
+            ));
+        }
         let path = dir.join(name);
         if !path.is_file() {
             return Err(damaged(&path, "missing"));
@@ -179,5 +227,31 @@ mod tests {
         std::fs::remove_file(dir.path().join("a.bpk")).unwrap();
         let e = verify(dir.path()).unwrap_err().to_string();
         assert!(e.contains("missing"), "{e}");
+        // a seal that names a file outside the checkpoint is refused without reading it
+        std::fs::write(
+            dir.path().join(CHECKSUMS_FILE),
+            r#"{"../../etc/passwd": "00"}"#,
+        )
+        .unwrap();
+        let e = verify(dir.path()).unwrap_err().to_string();
+        assert!(e.contains("not a file of the checkpoint"), "{e}");
+    }
+
+    /// Without its seal a checkpoint is refused, unless trusted (issue 72: with
+    /// `checksums.json` deleted, damaged weights loaded with a warning and eval said rc 0).
+    #[test]
+    fn an_unsealed_checkpoint_is_refused_unless_trusted() {
+        let dir = tempfile::tempdir().unwrap();
+        let weights = dir.path().join("nerf.bpk");
+        std::fs::write(&weights, vec![7u8; 100]).unwrap();
+        let e = verify_file_trusting(&weights, false)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains(CHECKSUMS_FILE) && e.contains("--trust-unsealed"),
+            "{e}"
+        );
+        assert!(verify(dir.path()).is_err());
+        verify_file_trusting(&weights, true).unwrap();
     }
 }

@@ -22,6 +22,7 @@ pub mod flex_host;
 pub mod folder_lock;
 pub mod gradients;
 pub mod half_matmul;
+pub mod input_file;
 pub mod io_error;
 pub mod limits;
 pub mod logging;

@@ -2,16 +2,24 @@
 //! declares (array shapes, image dimensions, vertex counts, decompressed lengths) before the
 //! allocation, so a hostile or damaged file gets a clear error instead of exhausting memory.
 //!
-//! One knob raises them: `NEUROFLUID_MAX_FILE_MB` (default 1024) is the most one file's decoded
+//! Two knobs raise them: `NEUROFLUID_MAX_FILE_MB` (default 1024) is the most one file's decoded
 //! content may take, in MiB; an image may hold at most that many bytes at 16 bytes a pixel
-//! (8192 × 8192 by default). Nesting depth and pickle value counts are fixed: the files this
-//! tool reads need a handful of each.
+//! (8192 × 8192 by default). `NEUROFLUID_MAX_DATASET_MB` (default 3072) is the most the decoded
+//! images a scene's views use may take together, checked when the scene is opened. Nesting
+//! depth and pickle value counts are fixed: the files this tool reads need a handful of each.
 
 /// The environment variable that sets [`max_decoded_bytes`] in MiB.
 pub const MAX_FILE_MB_ENV: &str = "NEUROFLUID_MAX_FILE_MB";
 
 /// The default of [`max_decoded_bytes`], in MiB.
 pub const DEFAULT_MAX_FILE_MB: u64 = 1024;
+
+/// The environment variable that sets [`max_dataset_bytes`] in MiB.
+pub const MAX_DATASET_MB_ENV: &str = "NEUROFLUID_MAX_DATASET_MB";
+
+/// The default of [`max_dataset_bytes`], in MiB: five times the 240 decoded 400² images of a
+/// built-in scene's four views (614 MB).
+pub const DEFAULT_MAX_DATASET_MB: u64 = 3072;
 
 /// The deepest nesting of containers a structured file may hold (pickles).
 pub const MAX_NESTING: usize = 64;
@@ -20,42 +28,98 @@ pub const MAX_NESTING: usize = 64;
 pub const MAX_PICKLE_VALUES: usize = 1 << 20;
 
 /// Bytes a decoded image pixel takes (RGBA, float32).
-const BYTES_PER_PIXEL: u64 = 16;
+pub const BYTES_PER_PIXEL: u64 = 16;
+
+/// A size limit set in MiB by an environment variable: its name, default and meaning.
+struct MibSetting {
+    var: &'static str,
+    default: u64,
+    meaning: &'static str,
+}
+
+const MAX_FILE: MibSetting = MibSetting {
+    var: MAX_FILE_MB_ENV,
+    default: DEFAULT_MAX_FILE_MB,
+    meaning: "the most one file's decoded content may take",
+};
+
+const MAX_DATASET: MibSetting = MibSetting {
+    var: MAX_DATASET_MB_ENV,
+    default: DEFAULT_MAX_DATASET_MB,
+    meaning: "the most a scene's decoded images may take together",
+};
+
+impl MibSetting {
+    /// `text` read as MiB: a whole number ≥ 1, or an error that names the variable, what it
+    /// holds (cut to 40 characters) and what was expected.
+    fn parse(&self, text: &str) -> Result<u64, String> {
+        match text.trim().parse::<u64>() {
+            Ok(mb) if mb > 0 => Ok(mb),
+            _ => {
+                let shown: String = text.chars().take(40).collect();
+                let cut = if text.chars().count() > 40 { "…" } else { "" };
+                Err(format!(
+                    "{}={shown:?}{cut}: expected a whole number of MiB ≥ 1 ({}; unset: {})",
+                    self.var, self.meaning, self.default
+                ))
+            }
+        }
+    }
+
+    /// The setting in MiB: the default when unset, an error when set to anything but a whole
+    /// number ≥ 1.
+    fn mib(&self) -> Result<u64, String> {
+        match std::env::var(self.var) {
+            Err(std::env::VarError::NotPresent) => Ok(self.default),
+            Err(std::env::VarError::NotUnicode(v)) => self.parse(&v.to_string_lossy()),
+            Ok(v) => self.parse(&v),
+        }
+    }
+
+    /// The setting in bytes (a bad value, which the programs refuse when they start, counts as
+    /// the default here).
+    fn bytes(&self) -> u64 {
+        self.mib().unwrap_or(self.default).saturating_mul(1 << 20)
+    }
+}
 
 /// `NEUROFLUID_MAX_FILE_MB`'s value `text` read as MiB: a whole number ≥ 1, or an error that
 /// names the variable, what it holds (cut to 40 characters) and what was expected.
 pub fn parse_max_file_mb(text: &str) -> Result<u64, String> {
-    match text.trim().parse::<u64>() {
-        Ok(mb) if mb > 0 => Ok(mb),
-        _ => {
-            let shown: String = text.chars().take(40).collect();
-            let cut = if text.chars().count() > 40 { "…" } else { "" };
-            Err(format!(
-                "{MAX_FILE_MB_ENV}={shown:?}{cut}: expected a whole number of MiB ≥ 1 (the most \
-                 one file's decoded content may take; unset: {DEFAULT_MAX_FILE_MB})"
-            ))
-        }
-    }
+    MAX_FILE.parse(text)
 }
 
-/// The setting of `NEUROFLUID_MAX_FILE_MB` in MiB: [`DEFAULT_MAX_FILE_MB`] when unset, an error
-/// when set to anything but a whole number ≥ 1. The programs check it when they start, so a
-/// bad value stops them with that error instead of being ignored.
-pub fn max_file_mb() -> Result<u64, String> {
-    match std::env::var(MAX_FILE_MB_ENV) {
-        Err(std::env::VarError::NotPresent) => Ok(DEFAULT_MAX_FILE_MB),
-        Err(std::env::VarError::NotUnicode(v)) => parse_max_file_mb(&v.to_string_lossy()),
-        Ok(v) => parse_max_file_mb(&v),
-    }
+/// Checks the limits' environment variables; the programs call it when they start, so a bad
+/// value stops them with its error instead of being ignored.
+pub fn check_environment() -> Result<(), String> {
+    MAX_FILE.mib()?;
+    MAX_DATASET.mib()?;
+    Ok(())
 }
 
 /// The most bytes one file's decoded content may take: `NEUROFLUID_MAX_FILE_MB` MiB (default
-/// [`DEFAULT_MAX_FILE_MB`]; a bad value, which the programs refuse when they start, counts as
-/// the default here).
+/// [`DEFAULT_MAX_FILE_MB`]).
 pub fn max_decoded_bytes() -> u64 {
-    max_file_mb()
-        .unwrap_or(DEFAULT_MAX_FILE_MB)
-        .saturating_mul(1 << 20)
+    MAX_FILE.bytes()
+}
+
+/// The most bytes the decoded images of a scene's views may take together:
+/// `NEUROFLUID_MAX_DATASET_MB` MiB (default [`DEFAULT_MAX_DATASET_MB`]).
+pub fn max_dataset_bytes() -> u64 {
+    MAX_DATASET.bytes()
+}
+
+/// Checks that the decoded images of a dataset (`what`) take at most [`max_dataset_bytes`].
+pub fn check_dataset(what: &str, bytes: u64) -> Result<(), String> {
+    let limit = max_dataset_bytes();
+    if bytes <= limit {
+        return Ok(());
+    }
+    Err(format!(
+        "{what} would take {bytes} bytes decoded, over the limit of {limit} bytes per scene \
+         ({MAX_DATASET_MB_ENV}={}; set it higher for larger scenes)",
+        limit >> 20
+    ))
 }
 
 /// The most pixels one image may hold.
@@ -135,5 +199,17 @@ mod tests {
         let long = "9".repeat(10_000) + "x";
         let e = parse_max_file_mb(&long).unwrap_err();
         assert!(e.len() < 300, "{} bytes", e.len());
+        let e = MAX_DATASET.parse("0").unwrap_err();
+        assert!(e.contains(MAX_DATASET_MB_ENV), "{e}");
+    }
+
+    #[test]
+    fn the_dataset_budget_is_named() {
+        assert!(check_dataset("x", 600 << 20).is_ok());
+        let e = check_dataset("4 views", 4 * 8000 * 8000 * BYTES_PER_PIXEL).unwrap_err();
+        assert!(
+            e.contains(MAX_DATASET_MB_ENV) && e.contains("4 views"),
+            "{e}"
+        );
     }
 }

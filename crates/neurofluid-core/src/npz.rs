@@ -268,10 +268,15 @@ fn read_npy(r: &mut impl Read, declared: u64) -> Result<RawArray, String> {
 /// compressed size.
 const DEFLATE_MAX_RATIO: u64 = 1032;
 
-/// Reads arrays from an `.npz` archive by name.
+/// Reads arrays from an `.npz` archive by name. The arrays read from one archive take at most
+/// [`crate::limits::max_decoded_bytes`] together, as one file's content.
 pub struct NpzReader {
     path: PathBuf,
     zip: zip::ZipArchive<File>,
+    /// Bytes of the arrays read so far.
+    taken: u64,
+    /// The most bytes the arrays read may take together.
+    budget: u64,
 }
 
 impl std::fmt::Debug for NpzReader {
@@ -286,7 +291,7 @@ impl NpzReader {
     /// Opens an archive.
     pub fn open(path: impl AsRef<Path>) -> Result<Self, NpzError> {
         let path = path.as_ref().to_path_buf();
-        let file = File::open(&path).map_err(|error| NpzError::Io {
+        let file = crate::input_file::open(&path).map_err(|error| NpzError::Io {
             path: path.clone(),
             error,
         })?;
@@ -294,7 +299,12 @@ impl NpzReader {
             path: path.clone(),
             message: e.to_string(),
         })?;
-        Ok(Self { path, zip })
+        Ok(Self {
+            path,
+            zip,
+            taken: 0,
+            budget: crate::limits::max_decoded_bytes(),
+        })
     }
 
     /// The path the archive was opened from.
@@ -329,6 +339,7 @@ impl NpzReader {
 
     fn raw(&mut self, name: &str) -> Result<RawArray, NpzError> {
         let found = self.names().join(", ");
+        let budget = self.budget;
         let mut entry = match self.zip.by_name(&format!("{name}.npy")) {
             Ok(e) => e,
             Err(zip::result::ZipError::FileNotFound) => {
@@ -350,8 +361,20 @@ impl NpzReader {
         let declared = entry.size();
         let stored = entry.compressed_size();
         let what = format!("{declared} bytes declared from {stored} stored");
-        let read =
-            crate::limits::check_decoded(&format!("the array ({what})"), declared).and_then(|()| {
+        let taken = self.taken.saturating_add(declared);
+        let read = crate::limits::check_decoded(&format!("the array ({what})"), declared)
+            .and_then(|()| {
+                if taken <= budget {
+                    return Ok(());
+                }
+                Err(format!(
+                    "with the arrays read before it ({what}), the archive's arrays would take \
+                     {taken} bytes, over the limit of {budget} bytes per file ({}; set it \
+                     higher for larger files)",
+                    crate::limits::MAX_FILE_MB_ENV
+                ))
+            })
+            .and_then(|()| {
                 if declared > stored.saturating_mul(DEFLATE_MAX_RATIO) {
                     return Err(format!(
                         "{what}: more than deflate's {DEFLATE_MAX_RATIO}:1 (a damaged archive)"
@@ -360,6 +383,7 @@ impl NpzReader {
                 read_npy(&mut entry, declared)
             });
         drop(entry);
+        self.taken = taken;
         read.map_err(|m| self.invalid(name, m))
     }
 
@@ -603,6 +627,27 @@ mod tests {
                 "{e}"
             );
         }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// Arrays each within the limit are refused once together they pass it, before the one
+    /// that passes it is read (issue 72: two 1,000 MiB arrays in a 2 MB archive took 3.1 GB).
+    #[test]
+    fn the_arrays_of_one_archive_share_the_limit() {
+        let dir = tempfile_dir("total");
+        let path = dir.join("two.npz");
+        let mut w = NpzWriter::new();
+        w.add_f32("a", &[250], &[1.0; 250]);
+        w.add_f32("b", &[250], &[2.0; 250]);
+        w.write(&path).unwrap();
+        let mut r = NpzReader::open(&path).unwrap();
+        r.budget = 1500;
+        assert_eq!(r.f32("a").unwrap().len(), 250);
+        let e = r.f32("b").unwrap_err().to_string();
+        assert!(
+            e.contains("two.npz") && e.contains("`b`") && e.contains("limit of 1500"),
+            "{e}"
+        );
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

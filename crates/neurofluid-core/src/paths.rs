@@ -5,10 +5,14 @@
 
 use std::path::{Component, Path};
 
+/// The longest name a file system takes for one path component, in bytes.
+const MAX_NAME_BYTES: usize = 255;
+
 /// Checks that `name` is exactly one ordinary path component: not empty, not `.` or `..`, and
 /// without `/`, `\` or NUL, so joining it to a folder names something inside that folder.
 pub fn one_component(name: &str) -> Result<(), String> {
     let ok = !name.is_empty()
+        && name.len() <= MAX_NAME_BYTES
         && name != "."
         && name != ".."
         && !name.contains(['/', '\\', '\0'])
@@ -20,8 +24,43 @@ pub fn one_component(name: &str) -> Result<(), String> {
         return Ok(());
     }
     Err(format!(
-        "a plain name (one path component, no `/`, `\\` or `..`), found {name:?}"
+        "a plain name (one path component of at most {MAX_NAME_BYTES} bytes, no `/`, `\\` or \
+         `..`), found {}",
+        shown(name)
     ))
+}
+
+/// The first name of `names` that an earlier one repeats.
+pub fn first_repeated(names: &[String]) -> Option<&str> {
+    let mut seen = std::collections::HashSet::new();
+    names
+        .iter()
+        .map(String::as_str)
+        .find(|name| !seen.insert(*name))
+}
+
+/// The characters of a name a message shows at most.
+const SHOWN_CHARS: usize = 60;
+
+/// `name` quoted for a message, cut to its first 60 characters with its length said, so a
+/// name of any length makes a message of bounded length.
+pub fn shown(name: &str) -> String {
+    let count = name.chars().count();
+    if count <= SHOWN_CHARS {
+        return format!("{name:?}");
+    }
+    let head: String = name.chars().take(SHOWN_CHARS).collect();
+    format!("{head:?}… ({count} characters)")
+}
+
+/// `text` cut to its first `chars` characters, its length said when it was cut.
+pub fn cut(text: &str, chars: usize) -> String {
+    let count = text.chars().count();
+    if count <= chars {
+        return text.to_string();
+    }
+    let head: String = text.chars().take(chars).collect();
+    format!("{head}… ({count} characters)")
 }
 
 /// Checks that `rel`, joined to a folder `depth` levels below the dataset folder, names
@@ -67,9 +106,21 @@ mod tests {
             "a\\b",
             "x/",
             "a\0",
+            &"v".repeat(256),
         ] {
             assert!(one_component(bad).is_err(), "{bad:?}");
         }
+    }
+
+    #[test]
+    fn repeats_are_found_and_long_names_cut() {
+        let names = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+        assert_eq!(first_repeated(&names(&["a", "b", "a", "b"])), Some("a"));
+        assert_eq!(first_repeated(&names(&["a", "b"])), None);
+        assert_eq!(shown("view_1"), "\"view_1\"");
+        let long = "x".repeat(100 << 20);
+        let s = shown(&long);
+        assert!(s.len() < 120 && s.contains("104857600 characters"), "{s}");
     }
 
     #[test]

@@ -12,6 +12,10 @@ pub struct Program<C: Subcommand> {
     /// The log's verbosity.
     #[command(flatten)]
     pub log: LogArgs,
+    /// Load checkpoints that have no `checksums.json` (written before checkpoints were sealed,
+    /// or with the seal removed) without checking their files; they are refused otherwise.
+    #[arg(long, global = true)]
+    pub trust_unsealed: bool,
     /// What to run.
     #[command(subcommand)]
     pub command: C,
@@ -49,6 +53,16 @@ impl<C: Subcommand> Program<C> {
             .about(id.about)
             .subcommand_required(true)
             .arg_required_else_help(true)
+    }
+
+    /// Applies what the command line and the environment set for the whole process: the limits'
+    /// variables are checked (a bad value is the error to print before anything runs),
+    /// unsealed checkpoints trusted or not, and the log started (`quiet`: crates kept quiet).
+    pub fn start(&self, quiet: &[&str]) -> Result<(), String> {
+        crate::limits::check_environment()?;
+        crate::checksums::set_trust_unsealed(self.trust_unsealed);
+        self.log.init(quiet);
+        Ok(())
     }
 
     /// The process's arguments as the program `id` reads them; on bad arguments or `--help`

@@ -4,9 +4,11 @@
 //! [`REQUEUE_EXIT_CODE`], which says "requeue me": a rerun resumes exactly from that checkpoint.
 //!
 //! The signal handlers only set a flag; the trainer's driver checks it between steps
-//! ([`requested`]), so no model code sees a signal. A second Ctrl-C ends the process at once (a
-//! stage stuck outside the driver's loop, e.g. generating a scene, can still be interrupted by
-//! hand).
+//! ([`requested`]), so no model code sees a signal. A second SIGINT or SIGTERM, a second or more
+//! after the first, ends the process at once (status 130 or 143), so a stage stuck outside the
+//! driver's loop (generating a scene, a long fit, a hung read) can always be stopped without
+//! SIGKILL; its last checkpoint stays. Signals that come together count as one: Slurm's
+//! preemption signals both the batch shell, which passes it on, and the trainer.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, OnceLock};
@@ -31,16 +33,37 @@ pub struct SignalHandlerError {
     pub source: std::io::Error,
 }
 
-/// Makes SIGTERM and SIGINT set [`process_flag`] instead of ending the process (a second
-/// SIGINT still ends it, with status 130).
+/// How long after the first stop request a second signal ends the process.
+pub const SECOND_SIGNAL_AFTER: std::time::Duration = std::time::Duration::from_secs(1);
+
+/// Makes SIGTERM and SIGINT set [`process_flag`] instead of ending the process; one that comes
+/// [`SECOND_SIGNAL_AFTER`] or later after the first still ends it, with status 128 + the
+/// signal's number (130 or 143).
 pub fn install_signal_handlers() -> Result<(), SignalHandlerError> {
     use signal_hook::consts::{SIGINT, SIGTERM};
     use signal_hook::flag;
     let requested = process_flag();
+    let armed = Arc::new(AtomicBool::new(false));
     let refused = |handler: String| move |source| SignalHandlerError { handler, source };
-    // registered first, so it sees the flag as it was before this signal set it
-    flag::register_conditional_shutdown(SIGINT, 130, Arc::clone(&requested))
-        .map_err(refused("the SIGINT handler".into()))?;
+    // registered first, so they see `armed` as it was before this signal
+    for signal in [SIGINT, SIGTERM] {
+        flag::register_conditional_shutdown(signal, 128 + signal, Arc::clone(&armed)).map_err(
+            refused(format!("the second-signal handler of signal {signal}")),
+        )?;
+    }
+    // a watcher arms the shutdown a while after the first request (the handlers themselves
+    // may only set flags)
+    let (watched, arming) = (Arc::clone(&requested), Arc::clone(&armed));
+    std::thread::Builder::new()
+        .name("stop-request".into())
+        .spawn(move || {
+            while !watched.load(Ordering::SeqCst) {
+                std::thread::sleep(std::time::Duration::from_millis(50));
+            }
+            std::thread::sleep(SECOND_SIGNAL_AFTER);
+            arming.store(true, Ordering::SeqCst);
+        })
+        .map_err(refused("the stop-request watcher".into()))?;
     for signal in [SIGINT, SIGTERM] {
         flag::register(signal, Arc::clone(&requested))
             .map_err(refused(format!("the handler of signal {signal}")))?;
@@ -80,6 +103,43 @@ mod tests {
     #[derive(Debug, thiserror::Error)]
     #[error("running the stages")]
     struct Context(#[source] Stopped);
+
+    /// The first SIGTERM asks for a stop, and one that comes with it changes nothing; a later
+    /// one ends the process at once with status 143, whatever it is doing (issue 72: a run
+    /// stuck in a loop outside the driver ignored SIGTERM and only SIGKILL ended it). The test
+    /// runs itself again as a child that signals itself.
+    #[test]
+    fn a_second_signal_ends_the_process() {
+        const CHILD: &str = "NEUROFLUID_SIGNAL_TEST_CHILD";
+        if std::env::var_os(CHILD).is_some() {
+            use signal_hook::consts::SIGTERM;
+            use signal_hook::low_level::raise;
+            install_signal_handlers().unwrap();
+            // preemption: the batch shell passes its SIGTERM on as the trainer gets its own
+            raise(SIGTERM).unwrap();
+            raise(SIGTERM).unwrap();
+            assert!(requested(&process_flag()));
+            std::thread::sleep(SECOND_SIGNAL_AFTER * 2);
+            // a stuck loop: only the later signal ends it
+            raise(SIGTERM).unwrap();
+            std::thread::sleep(std::time::Duration::from_secs(30));
+            std::process::exit(0);
+        }
+        let out = std::process::Command::new(std::env::current_exe().unwrap())
+            .args([
+                "--exact",
+                "stop_request::tests::a_second_signal_ends_the_process",
+            ])
+            .env(CHILD, "1")
+            .output()
+            .unwrap();
+        assert_eq!(
+            out.status.code(),
+            Some(143),
+            "{}",
+            String::from_utf8_lossy(&out.stdout)
+        );
+    }
 
     #[test]
     fn a_stop_is_found_under_the_errors_that_wrap_it() {

@@ -5,11 +5,10 @@ use neurofluid_dev::cli;
 fn main() -> std::process::ExitCode {
     neurofluid_core::malloc::keep_freed_memory();
     let cli = cli::parse();
-    if let Err(err) = neurofluid_core::limits::max_file_mb() {
+    if let Err(err) = cli.start(&[]) {
         eprintln!("error: {err}");
         return std::process::ExitCode::FAILURE;
     }
-    cli.log.init(&[]);
     match cli.command.run() {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(err) => {

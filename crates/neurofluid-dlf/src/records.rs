@@ -329,7 +329,7 @@ pub fn read_record(path: &Path) -> Result<Vec<RecordFrame>, RecordError> {
         path: path.to_path_buf(),
         error,
     };
-    let compressed = std::fs::read(path).map_err(io)?;
+    let compressed = neurofluid_core::input_file::read(path).map_err(io)?;
     let limit = neurofluid_core::limits::max_decoded_bytes().min(
         (compressed.len() as u64)
             .saturating_mul(ZSTD_MAX_RATIO)

@@ -144,7 +144,7 @@ pub fn read_pytorch(path: &Path) -> Result<BTreeMap<String, NamedTensor>, Weight
 /// Reads every tensor of a `.safetensors` file by name.
 pub fn read_safetensors(path: &Path) -> Result<BTreeMap<String, NamedTensor>, WeightsError> {
     use safetensors::{Dtype, SafeTensors};
-    let bytes = std::fs::read(path).map_err(|e| read_err(path, e))?;
+    let bytes = neurofluid_core::input_file::read(path).map_err(|e| read_err(path, e))?;
     let st = SafeTensors::deserialize(&bytes).map_err(|e| read_err(path, e))?;
     let mut out = BTreeMap::new();
     for (name, view) in st.tensors() {
@@ -360,7 +360,7 @@ pub fn load_checkpoint(
     config: DlfConfig,
     device: &Device,
 ) -> Result<DlfNet, WeightsError> {
-    let bytes = std::fs::read(path).map_err(|e| read_err(path, e))?;
+    let bytes = neurofluid_core::input_file::read(path).map_err(|e| read_err(path, e))?;
     let record = burn::store::ModuleRecord::from_bytes(burn::tensor::Bytes::from_bytes_vec(bytes))
         .map_err(|e| read_err(path, e))?;
     let net = DlfNet::zeros(config, device)

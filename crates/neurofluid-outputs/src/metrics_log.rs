@@ -417,7 +417,7 @@ pub fn read_csv(path: &Path) -> Result<Vec<MetricsRow>, MetricsError> {
 /// Reads every row of a `metrics.jsonl` file (blank lines skipped). A last line without its
 /// newline that is not a row (a write in progress, or cut short by a crash) is left out.
 pub fn read_jsonl(path: &Path) -> Result<Vec<MetricsRow>, MetricsError> {
-    let text = std::fs::read(path).map_err(io(path))?;
+    let text = neurofluid_core::input_file::read(path).map_err(io(path))?;
     let text = String::from_utf8_lossy(&text);
     let torn = !text.is_empty() && !text.ends_with('\n');
     let lines: Vec<&str> = text.lines().collect();

@@ -11,6 +11,7 @@ use neurofluid_core::metrics::FarSplit;
 use serde::{Deserialize, Serialize};
 
 use crate::formats::csv_text::{cell, csv_text};
+use crate::formats::markup::markdown_text;
 
 /// JSON file name of the report inside an eval folder.
 pub const JSON_FILE: &str = "report.json";
@@ -778,7 +779,9 @@ impl EvalReport {
         let _ = writeln!(
             md,
             "## Evaluation: {} ({}, {})\n",
-            self.experiment, self.scene, self.checkpoint
+            markdown_text(&self.experiment),
+            markdown_text(&self.scene),
+            markdown_text(&self.checkpoint)
         );
         let _ = writeln!(
             md,
@@ -793,15 +796,18 @@ impl EvalReport {
             };
             let (label, images) = match Rollout::of_label(&model) {
                 Some(Rollout::Dlf) if from_images => {
-                    ("DLF (pretrained, from the same particles)", None)
+                    ("DLF (pretrained, from the same particles)".into(), None)
                 }
-                Some(Rollout::Dlf) => ("DLF (pretrained baseline)", None),
-                Some(Rollout::SupervisedDlf) => ("DLF† (supervised on the training frames)", None),
-                Some(Rollout::NeuroFluid) if from_images => {
-                    ("NeuroFluid, initial particles from images", Some(&s.all))
+                Some(Rollout::Dlf) => ("DLF (pretrained baseline)".into(), None),
+                Some(Rollout::SupervisedDlf) => {
+                    ("DLF† (supervised on the training frames)".into(), None)
                 }
-                Some(Rollout::NeuroFluid) => ("NeuroFluid", Some(&s.all)),
-                None => (model.as_str(), None),
+                Some(Rollout::NeuroFluid) if from_images => (
+                    "NeuroFluid, initial particles from images".into(),
+                    Some(&s.all),
+                ),
+                Some(Rollout::NeuroFluid) => ("NeuroFluid".into(), Some(&s.all)),
+                None => (markdown_text(&model), None),
             };
             let image = |f: fn(&WindowMeans) -> Option<f64>, digits| {
                 images.map_or_else(|| "–".to_string(), |m| fmt_opt(f(m), digits))
@@ -847,7 +853,7 @@ impl EvalReport {
             let counts: Vec<String> = self
                 .escaped
                 .iter()
-                .map(|(model, n)| format!("{model} {n}"))
+                .map(|(model, n)| format!("{} {n}", markdown_text(model)))
                 .collect();
             let _ = writeln!(
                 md,
@@ -888,7 +894,7 @@ impl EvalReport {
                 let _ = writeln!(
                     md,
                     "| {} | {} | {:.2} | {:.4} | {} |",
-                    v.view,
+                    markdown_text(&v.view),
                     v.images,
                     v.psnr,
                     v.ssim,
@@ -1002,7 +1008,7 @@ impl EvalReport {
             g.0, g.1, p.0, p.1
         );
         for f in &self.far {
-            let _ = write!(md, "| {} |", f.model);
+            let _ = write!(md, "| {} |", markdown_text(&f.model));
             for s in [f.grounding, f.prediction] {
                 for share in [s.total(), s.beside, s.above, s.within] {
                     let _ = write!(md, " {:.1} % |", 100.0 * share);
@@ -1042,7 +1048,7 @@ impl EvalReport {
             let _ = writeln!(
                 md,
                 "| {} | {} | {} | {} | {} | {} | {} |",
-                model,
+                markdown_text(&model),
                 fmt_opt(row.grounding_mean, 2),
                 fmt_opt(row.grounding_last, 2),
                 fmt_opt(row.prediction_mean, 2),
@@ -1090,7 +1096,8 @@ impl EvalReport {
             let [a, b] = [seen, p].map(|w| image_means(images, w));
             let _ = writeln!(
                 md,
-                "| {model} | {} | {} | {} | {} | {} | {} |",
+                "| {} | {} | {} | {} | {} | {} | {} |",
+                markdown_text(model),
                 fmt_opt(a[0], 2),
                 fmt_opt(a[1], 4),
                 fmt_opt(a[2], 4),
@@ -1115,7 +1122,13 @@ impl EvalReport {
                     Some((on, around)) => format!("{:.2} | {:.2}", 1e3 * on, 1e3 * around),
                     None => "– | –".into(),
                 });
-                let _ = writeln!(md, "| {model} | {} | {} |", cells[0], cells[1]);
+                let _ = writeln!(
+                    md,
+                    "| {} | {} | {} |",
+                    markdown_text(model),
+                    cells[0],
+                    cells[1]
+                );
             }
             let _ = writeln!(
                 md,
@@ -1199,10 +1212,11 @@ impl EvalReport {
 
     /// Reads a `report.json` written by [`EvalReport::write_all`].
     pub fn read_json(path: &Path) -> Result<Self, ReportError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ReportError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let text =
+            neurofluid_core::input_file::read_string(path).map_err(|source| ReportError::Io {
+                path: path.to_path_buf(),
+                source,
+            })?;
         serde_json::from_str(&text).map_err(|e| ReportError::Parse {
             path: path.to_path_buf(),
             message: e.to_string(),
@@ -1258,6 +1272,33 @@ mod tests {
             }
         }
         r
+    }
+
+    /// Scene, experiment and view names reach `report.md` as text: no markup, no extra rows
+    /// (issue 72: `<script>` went in raw, and a name with a newline added a results row).
+    #[test]
+    fn names_in_the_markdown_are_text() {
+        let mut r = sample_report();
+        r.scene = "<script>alert(1)</script>".into();
+        r.experiment = "e\n| NeuroFluid | 0.00 | 0 | 0 | 0 | 99 | 1 | 0 |".into();
+        for i in &mut r.images {
+            if i.view == "view_6" {
+                i.view = "<svg onload=alert(1)>\n| fake |".into();
+            }
+        }
+        let md = r.markdown();
+        assert!(!md.contains("<script") && !md.contains("<svg"), "{md}");
+        let table_rows = |md: &str| {
+            md.lines()
+                .filter(|l| l.starts_with("| NeuroFluid |"))
+                .count()
+        };
+        assert_eq!(
+            table_rows(&md),
+            table_rows(&sample_report().markdown()),
+            "{md}"
+        );
+        assert!(!md.lines().any(|l| l.starts_with("| fake")), "{md}");
     }
 
     #[test]

@@ -7,6 +7,7 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use crate::formats::csv_text::{cell as csv_cell, csv_text};
+use crate::formats::markup::markdown_text;
 use crate::report::{ReportError, Rollout, Summary, write_atomic};
 
 /// Markdown table file name inside the sweep folder.
@@ -105,7 +106,8 @@ fn cell(v: Option<f64>, digits: usize) -> String {
 pub fn table_markdown(title: &str, rows: &[TableRow]) -> String {
     let headers: Vec<&str> = COLUMNS.iter().map(|c| c.0).collect();
     let mut md = format!(
-        "## {title}\n\n| variant | seed | state | {} |\n|---|---|---|{}\n",
+        "## {}\n\n| variant | seed | state | {} |\n|---|---|---|{}\n",
+        markdown_text(title),
         headers.join(" | "),
         "---:|".repeat(COLUMNS.len())
     );
@@ -116,7 +118,7 @@ pub fn table_markdown(title: &str, rows: &[TableRow]) -> String {
             let _ = writeln!(
                 md,
                 "| {} | {} | {} | {} |",
-                r.label,
+                markdown_text(&r.label),
                 r.seed,
                 r.state,
                 cells.join(" | ")
@@ -136,7 +138,7 @@ pub fn table_markdown(title: &str, rows: &[TableRow]) -> String {
             let _ = writeln!(
                 md,
                 "| **{}** | mean ± sd | {} | {} |",
-                group[0].label,
+                markdown_text(&group[0].label),
                 a.count(),
                 cells.join(" | ")
             );

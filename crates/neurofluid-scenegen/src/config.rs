@@ -156,7 +156,7 @@ impl SceneConfig {
 
     /// Reads the `[scene]` table of an experiment TOML file.
     pub fn from_toml_file(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|e| ConfigError::Io {
+        let text = neurofluid_core::input_file::read_string(path).map_err(|e| ConfigError::Io {
             path: path.to_path_buf(),
             error: e,
         })?;

@@ -166,7 +166,7 @@ pub fn render_warmup_frames(
 
     // the manifest: the one `generate` writes for this preset, with or without the flag
     let mpath = out.join(MANIFEST_FILE);
-    let text = std::fs::read_to_string(&mpath).map_err(|e| {
+    let text = neurofluid_core::input_file::read_string(&mpath).map_err(|e| {
         SceneError::io(
             &mpath,
             std::io::Error::new(

@@ -6,12 +6,11 @@ use neurofluid_train::cli;
 fn main() -> std::process::ExitCode {
     neurofluid_core::malloc::keep_freed_memory();
     let cli = cli::parse();
-    if let Err(err) = neurofluid_core::limits::max_file_mb() {
+    // splashsurf narrates every reconstruction at `info`
+    if let Err(err) = cli.start(&["splashsurf_lib"]) {
         eprintln!("error: {err}");
         return std::process::ExitCode::FAILURE;
     }
-    // splashsurf narrates every reconstruction at `info`
-    cli.log.init(&["splashsurf_lib"]);
     tracing::debug!(
         "allocator: {}",
         neurofluid_core::malloc::allocator_setting()

@@ -6,6 +6,7 @@ mod cli_lock;
 mod cli_mesh;
 mod common;
 mod experiments;
+mod slurm_submission;
 mod slurm_sweep;
 mod supervised_dlf;
 mod sweep_signals;

@@ -127,6 +127,15 @@ pub enum Role {
 }
 
 /// The validation set of a manifest that has none: no views.
+/// Particle radii a scene may give, in metres (the built-in scenes' and NeuroFluid's: 0.025).
+const RADIUS_RANGE: std::ops::RangeInclusive<f32> = 1e-4..=1.0;
+
+/// Frame rates a scene may give (the built-in scenes' and NeuroFluid's: 50).
+const FPS_RANGE: std::ops::RangeInclusive<f32> = 1.0..=1e4;
+
+/// How far from the origin a scene's box and far plane may reach, in metres.
+const SCENE_EXTENT: f32 = 1e4;
+
 static NO_VIEWS: ViewSet = ViewSet {
     views: Vec::new(),
     split: String::new(),
@@ -226,7 +235,7 @@ impl SceneManifest {
 
     /// Reads `path`.
     pub fn read(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path).map_err(|e| SceneError::io(path, e))?;
+        let text = crate::input_file::read_string(path).map_err(|e| SceneError::io(path, e))?;
         let m: Self = serde_json::from_str(&text).map_err(|e| SceneError::Parse {
             path: path.to_path_buf(),
             message: e.to_string(),
@@ -263,6 +272,13 @@ impl SceneManifest {
                     path,
                     format!("{name}.views"),
                     "at least one view",
+                ));
+            }
+            if let Some(v) = crate::paths::first_repeated(&set.views) {
+                return Err(SceneError::field(
+                    path,
+                    format!("{name}.views"),
+                    format!("each view once, found {} twice", crate::paths::shown(v)),
                 ));
             }
             if set.frames.start >= set.frames.end {
@@ -302,18 +318,48 @@ impl SceneManifest {
         }
         crate::paths::confined(&self.box_file, 0)
             .map_err(|expected| SceneError::field(path, "box_file", expected))?;
-        if !(self.particle_radius.is_finite() && self.particle_radius > 0.0) {
+        if !RADIUS_RANGE.contains(&self.particle_radius) {
             return Err(SceneError::field(
                 path,
                 "particle_radius",
-                "a positive radius",
+                format!(
+                    "a radius from {} to {} m, found {}",
+                    RADIUS_RANGE.start(),
+                    RADIUS_RANGE.end(),
+                    self.particle_radius
+                ),
             ));
         }
-        if !(self.fps.is_finite() && self.fps > 0.0) {
-            return Err(SceneError::field(path, "fps", "a positive frame rate"));
+        if !FPS_RANGE.contains(&self.fps) {
+            return Err(SceneError::field(
+                path,
+                "fps",
+                format!(
+                    "a frame rate from {} to {} per second, found {}",
+                    FPS_RANGE.start(),
+                    FPS_RANGE.end(),
+                    self.fps
+                ),
+            ));
         }
-        if !(self.near >= 0.0 && self.far > self.near) {
-            return Err(SceneError::field(path, "near/far", "0 ≤ near < far"));
+        if !(self.near >= 0.0 && self.far > self.near && self.far <= SCENE_EXTENT) {
+            return Err(SceneError::field(
+                path,
+                "near/far",
+                format!("0 ≤ near < far ≤ {SCENE_EXTENT} m"),
+            ));
+        }
+        let corners = [self.box_interior.min, self.box_interior.max];
+        if let Some(v) = corners
+            .iter()
+            .flatten()
+            .find(|v| v.is_nan() || v.abs() > SCENE_EXTENT)
+        {
+            return Err(SceneError::field(
+                path,
+                "box_interior",
+                format!("corners within ±{SCENE_EXTENT} m of the origin, found {v}"),
+            ));
         }
         if (0..3).any(|a| {
             self.box_interior.min[a].partial_cmp(&self.box_interior.max[a])
@@ -336,5 +382,37 @@ impl SceneManifest {
         })?;
         text.push('\n');
         crate::atomic::write_bytes(path, text.as_bytes()).map_err(|e| SceneError::io(path, e))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Values no real scene has are refused with the field named (issue 72: fps 1e-30, a box of
+    /// ±1e30 and a view listed twice were accepted).
+    #[test]
+    fn values_out_of_range_are_refused() {
+        let path = Path::new("scene.json");
+        let good = SceneManifest::released("watercube");
+        good.validate(path).unwrap();
+        type Edit = fn(&mut SceneManifest);
+        let cases: [(&str, Edit); 6] = [
+            ("fps", |m| m.fps = 1e-30),
+            ("fps", |m| m.fps = 1e30),
+            ("particle_radius", |m| m.particle_radius = 1e30),
+            ("box_interior", |m| m.box_interior.min[1] = -1e30),
+            ("near/far", |m| m.far = 1e30),
+            ("test.views", |m| {
+                let v = m.test.views[0].clone();
+                m.test.views.push(v);
+            }),
+        ];
+        for (field, edit) in cases {
+            let mut m = good.clone();
+            edit(&mut m);
+            let e = m.validate(path).unwrap_err().to_string();
+            assert!(e.contains(field), "{field}: {e}");
+        }
     }
 }

@@ -160,7 +160,8 @@ impl ViewSplit {
 
 /// The first field of `c` no real camera has, and what was expected: a focal length between
 /// 1/1000 and 10 000 image widths (fields of view from 0.006° to 179.9°), the principal point
-/// within an image size of the image, and a camera-to-world rotation that is invertible.
+/// within an image size of the image, a camera-to-world rotation (uniformly scaled) and a
+/// position within 10 km of the origin.
 fn degenerate(c: &Camera) -> Option<(&'static str, String)> {
     let size = c.width.max(c.height) as f32;
     let (lo, hi) = (size * 1e-3, size * 1e4);
@@ -188,23 +189,60 @@ fn degenerate(c: &Camera) -> Option<(&'static str, String)> {
         }
     }
     let r = |i: usize, j: usize| c.c2w[i][j] as f64;
-    let det = r(0, 0) * (r(1, 1) * r(2, 2) - r(1, 2) * r(2, 1))
-        - r(0, 1) * (r(1, 0) * r(2, 2) - r(1, 2) * r(2, 0))
-        + r(0, 2) * (r(1, 0) * r(2, 1) - r(1, 1) * r(2, 0));
-    // scale-free: the volume of the unit columns (1 for a rotation, 0 for a flat matrix)
-    let norm = |j: usize| (r(0, j).powi(2) + r(1, j).powi(2) + r(2, j).powi(2)).sqrt();
-    let volume = det.abs() / (norm(0) * norm(1) * norm(2));
-    if volume.is_nan() || volume <= 1e-3 {
+    let column = |j: usize| [r(0, j), r(1, j), r(2, j)];
+    let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    // a rotation, uniformly scaled as the released scenes' are: columns of one length at right
+    // angles (to a tolerance far above float32's rounding)
+    let length = |j: usize| dot(column(j), column(j)).sqrt();
+    let expected = "a camera-to-world rotation, uniformly scaled (3×3 block of columns of one \
+                    length, 10⁻³ to 10³, at right angles)";
+    let scale = length(0);
+    for j in 0..3 {
+        let l = length(j);
+        if !((1e-3..=1e3).contains(&l) && (l / scale - 1.0).abs() <= ROTATION_TOLERANCE) {
+            return Some((
+                "transform_matrix",
+                format!("{expected}, found column {j} of length {l:e} (column 0: {scale:e})"),
+            ));
+        }
+        for k in j + 1..3 {
+            let cos = dot(column(j), column(k)) / (l * length(k));
+            if cos.is_nan() || cos.abs() > ROTATION_TOLERANCE {
+                return Some((
+                    "transform_matrix",
+                    format!("{expected}, found columns {j} and {k} at cosine {cos:e}"),
+                ));
+            }
+        }
+    }
+    if let Some(v) = (0..3)
+        .map(|i| r(i, 3))
+        .find(|v| v.is_nan() || v.abs() > CAMERA_REACH)
+    {
         return Some((
             "transform_matrix",
-            format!(
-                "an invertible camera-to-world rotation (3×3 block of independent columns), \
-                 found determinant {det:e}"
-            ),
+            format!("a camera position within ±{CAMERA_REACH} m of the origin, found {v:e}"),
         ));
     }
     None
 }
+
+/// Whether two cameras see the same image: the same size, intrinsics and pose (to float32's
+/// rounding of a pose written twice).
+fn same_camera(a: &Camera, b: &Camera) -> bool {
+    let close = |x: f32, y: f32| (x - y).abs() <= 1e-5 * (1.0 + x.abs().max(y.abs()));
+    (a.width, a.height) == (b.width, b.height)
+        && [(a.fx, b.fx), (a.fy, b.fy), (a.cx, b.cx), (a.cy, b.cy)]
+            .iter()
+            .all(|&(x, y)| close(x, y))
+        && (0..3).all(|i| (0..4).all(|j| close(a.c2w[i][j], b.c2w[i][j])))
+}
+
+/// How far a rotation's columns may be from unit length and right angles.
+const ROTATION_TOLERANCE: f64 = 1e-2;
+
+/// How far from the origin a camera may stand, in metres.
+const CAMERA_REACH: f64 = 1e4;
 
 /// An opened scene directory.
 #[derive(Debug, Clone)]
@@ -218,8 +256,10 @@ pub struct Scene {
 impl Scene {
     /// Opens the scene at `dir`: reads `scene.json` (or uses the released-layout defaults named
     /// after the directory), parses every transforms file of the warm-up, training and test
-    /// views, and checks that each has the frames the manifest asks for and that their first
-    /// image exists. A scene without images (its particles only: for DLF rollouts and DLF
+    /// views, and checks that each has the frames the manifest asks for, that their first
+    /// image exists with the size the transforms give, that every frame's camera is one a real
+    /// scene has, that no test camera is a training camera, and that the images the roles use
+    /// fit `NEUROFLUID_MAX_DATASET_MB` decoded. A scene without images (its particles only: for DLF rollouts and DLF
     /// training) opens where its transforms give the images' size (`w`, `h`); loading an image
     /// it lacks is then the error that names it.
     pub fn open(dir: impl AsRef<Path>) -> Result<Self> {
@@ -231,7 +271,8 @@ impl Scene {
             ));
         }
         let mpath = root.join(MANIFEST_FILE);
-        let manifest_found = mpath.is_file();
+        // anything at the manifest's path is read as one (its reader refuses a FIFO or a device)
+        let manifest_found = mpath.symlink_metadata().is_ok();
         let manifest = if manifest_found {
             SceneManifest::read(&mpath)?
         } else {
@@ -267,17 +308,103 @@ impl Scene {
                 let first = vs.image_path(set.frames.start)?;
                 vs.image_size = match vs.declared_size(set.frames.start) {
                     Some(size) if !first.exists() => size,
-                    _ => png_size(&first)?,
+                    Some(size) => {
+                        // the header against the transforms' size, before any image is decoded
+                        let found = png_size(&first)?;
+                        if found != size {
+                            return Err(SceneError::field(
+                                &vs.json_path,
+                                "w, h",
+                                format!(
+                                    "the size of the view's images ({}×{} pixels in {}), found \
+                                     {}×{}",
+                                    found.0,
+                                    found.1,
+                                    first.display(),
+                                    size.0,
+                                    size.1
+                                ),
+                            ));
+                        }
+                        found
+                    }
+                    None => png_size(&first)?,
                 };
                 splits.insert(key, vs);
             }
         }
-        Ok(Self {
+        let scene = Self {
             root,
             manifest,
             manifest_found,
             splits,
-        })
+        };
+        crate::limits::check_dataset(
+            &format!("the images of {}", scene.root.display()),
+            scene.decoded_image_bytes(),
+        )
+        .map_err(SceneError::Lookup)?;
+        // every camera a role uses is one a real scene has (a matter of a few numbers each)
+        for role in [Role::Warmup, Role::Train, Role::Test, Role::Validation] {
+            for view in scene.views(role) {
+                for t in scene.frames(role) {
+                    scene.camera(role, view, t)?;
+                }
+            }
+        }
+        scene.check_test_views_are_novel()?;
+        Ok(scene)
+    }
+
+    /// A test view must see the fluid from a camera no training view has: one that is a
+    /// training view's camera scores images the model was fitted to as novel views.
+    fn check_test_views_are_novel(&self) -> Result<()> {
+        let first = |role: Role| self.frames(role).start;
+        for test in self.views(Role::Test) {
+            let Ok(seen) = self.camera(Role::Test, test, first(Role::Test)) else {
+                continue;
+            };
+            for train in self.views(Role::Train) {
+                let Ok(trained) = self.camera(Role::Train, train, first(Role::Train)) else {
+                    continue;
+                };
+                if same_camera(&seen, &trained) {
+                    let split = self.view_split(Role::Test, test)?;
+                    return Err(SceneError::field(
+                        &split.json_path,
+                        format!("frames[{}].transform_matrix", first(Role::Test)),
+                        format!(
+                            "a test camera apart from the training views' (a novel view), \
+                             found the camera of training view {}",
+                            crate::paths::shown(train)
+                        ),
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The bytes the images the manifest's roles use take once decoded (each view's frames
+    /// counted once, whichever roles use them).
+    pub fn decoded_image_bytes(&self) -> u64 {
+        let mut frames: BTreeMap<(&str, &str), std::collections::BTreeSet<usize>> = BTreeMap::new();
+        for role in [Role::Warmup, Role::Train, Role::Test, Role::Validation] {
+            let set = self.manifest.role(role);
+            for view in &set.views {
+                frames
+                    .entry((view.as_str(), set.split.as_str()))
+                    .or_default()
+                    .extend(set.frames.range());
+            }
+        }
+        frames
+            .iter()
+            .map(|((view, split), ts)| {
+                let (w, h) = self.splits[&(view.to_string(), split.to_string())].image_size;
+                ts.len() as u64 * w as u64 * h as u64 * crate::limits::BYTES_PER_PIXEL
+            })
+            .sum()
     }
 
     /// The scene root.

@@ -94,7 +94,7 @@ impl BoxParticles {
             if npz.is_file() {
                 return Self::read(&npz);
             }
-            let bytes = std::fs::read(path).map_err(|e| SceneError::io(path, e))?;
+            let bytes = crate::input_file::read(path).map_err(|e| SceneError::io(path, e))?;
             let arrays = super::unpickle::pickled_arrays(&bytes)
                 .map_err(|message| SceneError::field(path, "box", message))?;
             let rows = |key: &str| -> Result<Vec<[f32; 3]>> {
@@ -170,7 +170,7 @@ impl BoxParticles {
 }
 
 fn open(path: &Path) -> Result<NpzReader> {
-    if !path.is_file() {
+    if path.symlink_metadata().is_err() {
         return Err(SceneError::io(
             path,
             std::io::Error::new(std::io::ErrorKind::NotFound, "no such file"),

@@ -136,7 +136,7 @@ pub struct TransformsFile {
 impl TransformsFile {
     /// Reads and checks `path`.
     pub fn read(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path).map_err(|e| SceneError::io(path, e))?;
+        let text = crate::input_file::read_string(path).map_err(|e| SceneError::io(path, e))?;
         let t: Self = serde_json::from_str(&text).map_err(|e| SceneError::Parse {
             path: path.to_path_buf(),
             message: e.to_string(),

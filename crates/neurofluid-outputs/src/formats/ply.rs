@@ -115,7 +115,7 @@ pub fn write_ply(
 /// Reads a PLY file with one `vertex` element of float32 properties including `x y z`
 /// (and `vx vy vz` if present), ASCII or binary little-endian.
 pub fn read_ply(path: &Path) -> Result<PlyData, PlyError> {
-    let bytes = std::fs::read(path).map_err(|source| PlyError::Io {
+    let bytes = neurofluid_core::input_file::read(path).map_err(|source| PlyError::Io {
         path: path.to_path_buf(),
         source,
     })?;

@@ -35,7 +35,9 @@ impl Default for SurfaceSettings {
 }
 
 impl SurfaceSettings {
-    /// Every setting finite and > 0 (the command line takes any float).
+    /// Every setting > 0 and at most [`MAX_RELATIVE_SETTING`] (the command line takes any
+    /// float; a threshold of 10³⁰ rest densities finds no surface, a kernel of 10³⁰ radii one
+    /// blob).
     pub fn check(&self) -> anyhow::Result<()> {
         for (flag, v) in [
             ("--smoothing-length", self.smoothing_length),
@@ -43,10 +45,45 @@ impl SurfaceSettings {
             ("--threshold", self.threshold),
         ] {
             anyhow::ensure!(
-                v.is_finite() && v > 0.0,
-                "{flag} must be a finite number > 0, got {v}"
+                v > 0.0 && v <= MAX_RELATIVE_SETTING,
+                "{flag} must be a number > 0 and ≤ {MAX_RELATIVE_SETTING}, got {v}"
             );
         }
+        Ok(())
+    }
+
+    /// The neighbour pairs of `particles` within the kernel's support stay within
+    /// [`neurofluid_core::limits::max_decoded_bytes`] at 8 bytes a pair, counted from above by
+    /// a grid of cells as wide as the support (each particle against the 27 cells around its
+    /// own), so particles piled on one another are an error rather than neighbour lists that
+    /// exhaust memory (200 000 at one point would make 4·10¹⁰ pairs).
+    fn check_neighbours(&self, particles: &[[f32; 3]], radius: f64) -> anyhow::Result<()> {
+        let support = 2.0 * self.smoothing_length * radius;
+        let cell_of = |p: &[f32; 3]| p.map(|v| (v as f64 / support).floor() as i64);
+        let mut cells: HashMap<[i64; 3], u64> = HashMap::new();
+        for p in particles {
+            *cells.entry(cell_of(p)).or_default() += 1;
+        }
+        let mut pairs: u64 = 0;
+        for (c, &n) in &cells {
+            let mut around = 0;
+            for d in 0..27_i64 {
+                let offset = [d % 3 - 1, d / 3 % 3 - 1, d / 9 - 1];
+                let key = [c[0] + offset[0], c[1] + offset[1], c[2] + offset[2]];
+                around += cells.get(&key).copied().unwrap_or(0);
+            }
+            pairs = pairs.saturating_add(n.saturating_mul(around));
+        }
+        let limit = neurofluid_core::limits::max_decoded_bytes() / 8;
+        let (cell, most) = cells.iter().max_by_key(|(_, n)| **n).expect("particles");
+        anyhow::ensure!(
+            pairs <= limit,
+            "the particles make up to {pairs} neighbour pairs within the kernel's support \
+             ({support} m), over the limit of {limit} ({}); the fullest cell holds {most} \
+             particles near {:?}: particles piled on one another (a collapsed or damaged set)",
+            neurofluid_core::limits::MAX_FILE_MB_ENV,
+            cell.map(|i| i as f64 * support)
+        );
         Ok(())
     }
 
@@ -76,6 +113,13 @@ impl SurfaceSettings {
     }
 }
 
+/// The largest particle radius a surface is made for, in metres.
+pub const MAX_RADIUS: f32 = 1e3;
+
+/// The largest smoothing length, cube size or threshold (each relative to the radius or the
+/// rest density).
+pub const MAX_RELATIVE_SETTING: f64 = 10.0;
+
 /// A triangle mesh.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Mesh {
@@ -92,8 +136,8 @@ pub fn reconstruct(
     settings: &SurfaceSettings,
 ) -> anyhow::Result<Mesh> {
     anyhow::ensure!(
-        radius.is_finite() && radius > 0.0,
-        "the particle radius must be > 0, got {radius}"
+        radius > 0.0 && radius <= MAX_RADIUS,
+        "the particle radius must be > 0 and ≤ {MAX_RADIUS} m, got {radius}"
     );
     settings.check()?;
     anyhow::ensure!(
@@ -105,6 +149,7 @@ pub fn reconstruct(
     }
     let r = radius as f64;
     settings.check_grid(particles, r)?;
+    settings.check_neighbours(particles, r)?;
     let params = splashsurf_lib::Parameters {
         particle_radius: r,
         rest_density: 1000.0,
@@ -256,6 +301,27 @@ mod tests {
         let mut open = mesh.clone();
         open.triangles.pop();
         assert!(!open.is_closed());
+    }
+
+    /// Particles piled at one point, a radius of 10³⁰ m and a threshold of 10³⁰ are errors
+    /// before splashsurf runs (issue 72: 200k coincident particles took 3.8 GB).
+    #[test]
+    fn piled_particles_and_absurd_settings_are_refused() {
+        let settings = SurfaceSettings::default();
+        let piled = vec![[0.1f32, 0.2, 0.3]; 20_000];
+        let e = reconstruct(&piled, 0.025, &settings)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("neighbour pairs") && e.contains("20000"), "{e}");
+        let one = [[0.0f32; 3]];
+        let e = reconstruct(&one, 1e30, &settings).unwrap_err().to_string();
+        assert!(e.contains("radius"), "{e}");
+        let high = SurfaceSettings {
+            threshold: 1e30,
+            ..settings
+        };
+        let e = reconstruct(&one, 0.025, &high).unwrap_err().to_string();
+        assert!(e.contains("--threshold"), "{e}");
     }
 
     #[test]

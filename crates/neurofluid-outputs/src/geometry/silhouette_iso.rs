@@ -143,6 +143,38 @@ pub fn silhouette_iso(grid: &DensityGrid, views: &[Coverage<'_>]) -> anyhow::Res
         max > 0.0,
         "the NeRF's density is zero everywhere in the box: no surface to place"
     );
+    let used: Vec<_> = usable_views(views)?
+        .into_iter()
+        .map(|(v, mask)| (ray_maxima(grid, v.camera), mask))
+        .collect();
+    let candidates: Vec<(f64, f64)> = (0..CANDIDATES)
+        .map(|k| {
+            let iso = max * 1e-3f64.powf(1.0 - k as f64 / (CANDIDATES - 1) as f64);
+            let mean =
+                used.iter().map(|(m, mask)| iou(m, mask, iso)).sum::<f64>() / used.len() as f64;
+            (iso, mean)
+        })
+        .collect();
+    // the best mean IoU; among equals, the lowest iso (the fullest body)
+    let (iso, iou) = candidates
+        .iter()
+        .copied()
+        .fold((0.0, f64::NEG_INFINITY), |best, c| {
+            if c.1 > best.1 { c } else { best }
+        });
+    Ok(IsoChoice {
+        iso,
+        iou,
+        candidates,
+    })
+}
+
+/// The views whose alpha shows both fluid and background, with their coverage masks (alpha ≥
+/// ½); an error when a view's size does not match its camera's, or when none has both: the
+/// silhouette rule then has nothing to match (known from the images alone, before any fit).
+pub fn usable_views<'a, 'b>(
+    views: &'b [Coverage<'a>],
+) -> anyhow::Result<Vec<(&'b Coverage<'a>, Vec<bool>)>> {
     let mut used = Vec::new();
     for v in views {
         anyhow::ensure!(
@@ -164,7 +196,7 @@ pub fn silhouette_iso(grid: &DensityGrid, views: &[Coverage<'_>]) -> anyhow::Res
             );
             continue;
         }
-        used.push((ray_maxima(grid, v.camera), mask));
+        used.push((v, mask));
     }
     anyhow::ensure!(
         !used.is_empty(),
@@ -173,26 +205,7 @@ pub fn silhouette_iso(grid: &DensityGrid, views: &[Coverage<'_>]) -> anyhow::Res
          without alpha read as covered everywhere): use \"half_max\" or \"opacity\"",
         views.len()
     );
-    let candidates: Vec<(f64, f64)> = (0..CANDIDATES)
-        .map(|k| {
-            let iso = max * 1e-3f64.powf(1.0 - k as f64 / (CANDIDATES - 1) as f64);
-            let mean =
-                used.iter().map(|(m, mask)| iou(m, mask, iso)).sum::<f64>() / used.len() as f64;
-            (iso, mean)
-        })
-        .collect();
-    // the best mean IoU; among equals, the lowest iso (the fullest body)
-    let (iso, iou) = candidates
-        .iter()
-        .copied()
-        .fold((0.0, f64::NEG_INFINITY), |best, c| {
-            if c.1 > best.1 { c } else { best }
-        });
-    Ok(IsoChoice {
-        iso,
-        iou,
-        candidates,
-    })
+    Ok(used)
 }
 
 #[cfg(test)]

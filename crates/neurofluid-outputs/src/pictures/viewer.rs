@@ -261,7 +261,7 @@ impl Recording {
             .replace('>', "\\u003e")
             .replace('&', "\\u0026");
         let html = PAGE
-            .replace("{{TITLE}}", &html_escape(&self.title))
+            .replace("{{TITLE}}", &crate::formats::markup::html_text(&self.title))
             .replace("{{DATA}}", &json);
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
@@ -272,8 +272,8 @@ impl Recording {
 
     /// Reads the recording back from a viewer page.
     pub fn read(path: &Path) -> anyhow::Result<Self> {
-        let html =
-            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let html = neurofluid_core::input_file::read_string(path)
+            .with_context(|| format!("reading {}", path.display()))?;
         let start = html
             .find(DATA_OPEN)
             .with_context(|| format!("{}: no recording in the page", path.display()))?
@@ -285,14 +285,6 @@ impl Recording {
         serde_json::from_str(&html[start..end])
             .with_context(|| format!("{}: malformed recording", path.display()))
     }
-}
-
-fn html_escape(s: &str) -> String {
-    s.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
-        .replace('"', "&quot;")
-        .replace('\'', "&#39;")
 }
 
 const DATA_OPEN: &str = "<script id=\"recording\" type=\"application/json\">";

@@ -57,7 +57,8 @@ fn particle_files(inputs: &[PathBuf]) -> anyhow::Result<Vec<PathBuf>> {
             );
             files.extend(found);
         } else {
-            anyhow::ensure!(input.is_file(), "{}: no such file", input.display());
+            // anything but a folder is read as a file: its reader refuses what is not one
+            anyhow::ensure!(input.exists(), "{}: no such file", input.display());
             files.push(input.clone());
         }
     }

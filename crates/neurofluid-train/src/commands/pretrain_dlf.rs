@@ -154,7 +154,8 @@ pub fn kept_checkpoint(output: &Path, step: u64) -> PathBuf {
 fn copy_weights(checkpoint: &Path, target: &Path) -> anyhow::Result<()> {
     let source = checkpoint.join("dlf.bpk");
     neurofluid_core::checksums::verify_file(&source)?;
-    let bytes = std::fs::read(&source).with_context(|| format!("reading {}", source.display()))?;
+    let bytes = neurofluid_core::input_file::read(&source)
+        .with_context(|| format!("reading {}", source.display()))?;
     neurofluid_core::atomic::write_bytes(target, &bytes)
         .with_context(|| format!("writing {}", target.display()))
 }

@@ -52,6 +52,11 @@ pub struct Args {
     /// With --slurm: write the script only, submit nothing (`sbatch <script>` submits it)
     #[arg(long, requires = "slurm")]
     pub dry_run: bool,
+    /// Start the runs over: their run folders' checkpoints and results are deleted first (with
+    /// --slurm, once, when submitting: the tasks then resume as usual, and done runs are
+    /// submitted again)
+    #[arg(long, conflicts_with_all = ["table", "status"])]
+    pub fresh: bool,
     /// Scheduling of each task (with --slurm; the sweep file's `[slurm]` table gives defaults).
     #[command(flatten)]
     pub slurm_options: SlurmOptions,
@@ -70,6 +75,25 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         anyhow::bail!("the scheduling options (--partition, --time, …) go with --slurm");
     }
     let sweep = Sweep::load(&args.sweep)?;
+    if args.table || args.status {
+        // reading a sweep folder creates nothing: one that is not there was started elsewhere
+        anyhow::ensure!(
+            sweep.out_dir.is_dir(),
+            "sweep {}: no sweep folder {} (relative to the working directory {}): nothing has \
+             run yet, or the sweep was started from another folder (run this there, or give the \
+             sweep an absolute out_dir)",
+            sweep.name,
+            sweep.out_dir.display(),
+            std::env::current_dir()
+                .map(|d| d.display().to_string())
+                .unwrap_or_default()
+        );
+    }
+    let start = if args.fresh {
+        Start::Fresh
+    } else {
+        Start::Resume
+    };
     if args.table {
         table(&sweep, args.device.as_deref())
     } else if args.status {
@@ -78,7 +102,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         submit(&sweep, &args)
     } else if let Some(key) = &args.variant {
         let (index, variant) = sweep.find(key)?;
-        let report = run_variant(&sweep, index, variant, args.device.as_deref())?;
+        let report = run_variant(&sweep, index, variant, args.device.as_deref(), start)?;
         println!("{}", report.markdown());
         println!("results in {}", variant.experiment.out_dir().display());
         Ok(())
@@ -96,14 +120,21 @@ fn run_all_variants(sweep: &Sweep, args: &Args) -> anyhow::Result<()> {
         sweep.out_dir.display()
     );
     let _lock = FolderLock::acquire(&sweep.out_dir)?;
+    let start = if args.fresh {
+        Start::Fresh
+    } else {
+        Start::Resume
+    };
     let mut rows = Vec::new();
+    let mut failed = Vec::new();
     for (index, variant) in sweep.variants.iter().enumerate() {
-        let outcome = run_variant(sweep, index, variant, args.device.as_deref());
+        let outcome = run_variant(sweep, index, variant, args.device.as_deref(), start);
         let (state, report) = match outcome {
             Ok(report) => (DONE.to_string(), Some(report)),
             Err(e) if stop_request::stopped(e.as_ref()).is_some() => return Err(e),
             Err(e) if args.keep_going => {
                 tracing::error!("run {} failed: {e:#}", variant.name);
+                failed.push(variant.name.as_str());
                 (Phase::Failed.as_str().to_string(), None)
             }
             Err(e) => return Err(e).with_context(|| format!("run {}", variant.name)),
@@ -113,6 +144,21 @@ fn run_all_variants(sweep: &Sweep, args: &Args) -> anyhow::Result<()> {
     let table = write_table(&sweep.out_dir, &sweep.name, &rows)?;
     println!("{table}");
     println!("table written to {}", sweep.out_dir.display());
+    some_failed(sweep, &failed)
+}
+
+/// An error when runs of the sweep failed (the programs then exit with status 1: a script or a
+/// dependent job sees it), naming them.
+fn some_failed(sweep: &Sweep, failed: &[&str]) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        failed.is_empty(),
+        "{} of the {} runs of sweep {} failed: {} (`sweep {} --status` shows why)",
+        failed.len(),
+        sweep.variants.len(),
+        sweep.name,
+        failed.join(", "),
+        sweep.name
+    );
     Ok(())
 }
 
@@ -123,6 +169,7 @@ fn run_variant(
     index: usize,
     variant: &ResolvedVariant,
     device: Option<&str>,
+    start: Start,
 ) -> anyhow::Result<EvalReport> {
     let mut exp = variant.experiment.clone();
     if let Some(d) = device {
@@ -146,7 +193,7 @@ fn run_variant(
     };
     record(Phase::Running, None);
     let outcome = (|| {
-        let run = Run::prepare_locked(exp, Start::Resume, &Stage::ALL, lock)?;
+        let run = Run::prepare_locked(exp, start, &Stage::ALL, lock)?;
         let mut log = run.open_log()?;
         run_all(&run, &mut log)
     })();
@@ -173,6 +220,7 @@ fn row(variant: &ResolvedVariant, state: String, report: Option<EvalReport>) -> 
 /// recorded state (`missing` without one).
 fn table(sweep: &Sweep, device: Option<&str>) -> anyhow::Result<()> {
     let mut rows = Vec::new();
+    let mut failed = Vec::new();
     for variant in &sweep.variants {
         let mut exp = variant.experiment.clone();
         // reading reports computes nothing: any device will do
@@ -189,6 +237,9 @@ fn table(sweep: &Sweep, device: Option<&str>) -> anyhow::Result<()> {
                 if state != Phase::Pending.as_str() && state != Phase::Running.as_str() {
                     tracing::warn!("run {}: no row: {e:#}", variant.name);
                 }
+                if state == Phase::Failed.as_str() || state == "unreadable" {
+                    failed.push(variant.name.as_str());
+                }
                 (state.to_string(), None)
             }
         };
@@ -197,7 +248,7 @@ fn table(sweep: &Sweep, device: Option<&str>) -> anyhow::Result<()> {
     let table = write_table(&sweep.out_dir, &sweep.name, &rows)?;
     println!("{table}");
     println!("table written to {}", sweep.out_dir.display());
-    Ok(())
+    some_failed(sweep, &failed)
 }
 
 /// The evaluation report in `exp`'s run folder, provided the folder holds `exp`'s finished joint
@@ -215,7 +266,7 @@ fn saved_report(exp: &Experiment) -> anyhow::Result<EvalReport> {
 fn status(sweep: &Sweep) -> anyhow::Result<()> {
     let now = state::now();
     println!("sweep {} ({})", sweep.name, sweep.out_dir.display());
-    if let Ok(text) = std::fs::read_to_string(sweep.out_dir.join(slurm::JOB_FILE))
+    if let Ok(text) = neurofluid_core::input_file::read_string(sweep.out_dir.join(slurm::JOB_FILE))
         && let Ok(s) = serde_json::from_str::<slurm::Submission>(&text)
     {
         println!(
@@ -229,22 +280,27 @@ fn status(sweep: &Sweep) -> anyhow::Result<()> {
         "\n| # | run | state | job | start | since | reason | log |\n|---|---|---|---|---|---|---|---|"
     );
     let mut counts: Vec<(String, usize)> = Vec::new();
+    let mut failed = Vec::new();
+    let mut reasons = Vec::new();
     for (i, variant) in sweep.variants.iter().enumerate() {
         let (word, cells) = match state::read(&sweep.out_dir, &variant.name) {
-            Ok(Some(s)) => (
-                s.state.as_str().to_string(),
-                [
-                    s.job.clone().unwrap_or_default(),
-                    s.attempt.map(|a| a.to_string()).unwrap_or_default(),
-                    format!("{} ago", age(now.saturating_sub(s.since))),
-                    s.reason
-                        .as_deref()
-                        .and_then(|r| r.lines().next())
-                        .unwrap_or_default()
-                        .to_string(),
-                    s.log.map(|p| p.display().to_string()).unwrap_or_default(),
-                ],
-            ),
+            Ok(Some(s)) => {
+                let reason = s.reason.clone().unwrap_or_default();
+                let first = reason.lines().next().unwrap_or_default().to_string();
+                if reason.lines().nth(1).is_some() {
+                    reasons.push((variant.name.as_str(), reason));
+                }
+                (
+                    s.state.as_str().to_string(),
+                    [
+                        s.job.clone().unwrap_or_default(),
+                        s.attempt.map(|a| a.to_string()).unwrap_or_default(),
+                        format!("{} ago", age(now.saturating_sub(s.since))),
+                        neurofluid_outputs::formats::markup::markdown_text(&first),
+                        s.log.map(|p| p.display().to_string()).unwrap_or_default(),
+                    ],
+                )
+            }
             Ok(None) => ("not started".to_string(), Default::default()),
             Err(e) => {
                 let mut cells: [String; 5] = Default::default();
@@ -257,6 +313,9 @@ fn status(sweep: &Sweep) -> anyhow::Result<()> {
             variant.name,
             cells.join(" | ")
         );
+        if word == Phase::Failed.as_str() || word == "unreadable" {
+            failed.push(variant.name.as_str());
+        }
         match counts.iter_mut().find(|(w, _)| *w == word) {
             Some((_, n)) => *n += 1,
             None => counts.push((word, 1)),
@@ -264,7 +323,10 @@ fn status(sweep: &Sweep) -> anyhow::Result<()> {
     }
     let summary: Vec<String> = counts.iter().map(|(w, n)| format!("{n} {w}")).collect();
     println!("\n{} runs: {}", sweep.variants.len(), summary.join(", "));
-    Ok(())
+    for (run, reason) in reasons {
+        println!("\nrun {run}, the whole reason:\n{reason}");
+    }
+    some_failed(sweep, &failed)
 }
 
 /// `seconds` for people: `42 s`, `7 min`, `3.5 h`, `2.0 d`.
@@ -277,10 +339,14 @@ fn age(seconds: u64) -> String {
     }
 }
 
-/// Writes the array script of the runs that are not done and submits it (unless `--dry-run`).
+/// Writes the array script of the runs that are not done, queued or running and submits it
+/// (unless `--dry-run`), with the sweep frozen into the sweep folder for its tasks to read.
 fn submit(sweep: &Sweep, args: &Args) -> anyhow::Result<()> {
     args.slurm_options.validate_args()?;
     let options = args.slurm_options.over(&sweep.slurm);
+    if let Some(warning) = slurm::short_time_warning(&options) {
+        tracing::warn!("{warning}");
+    }
     let workdir = std::env::current_dir().context("the working directory")?;
     let absolute = |p: &Path| {
         if p.is_absolute() {
@@ -294,40 +360,81 @@ fn submit(sweep: &Sweep, args: &Args) -> anyhow::Result<()> {
         .as_ref()
         .map(|p| {
             let p = crate::sweep::locate(p, &args.sweep);
-            std::fs::read_to_string(&p)
+            neurofluid_core::input_file::read_string(&p)
                 .with_context(|| format!("reading the script template {}", p.display()))
         })
         .transpose()?;
     let mut indices = Vec::new();
     for (i, variant) in sweep.variants.iter().enumerate() {
-        match state::read(&sweep.out_dir, &variant.name)? {
-            Some(s) if s.state == Phase::Done => {
-                tracing::info!("run {} is done: not submitted", variant.name);
-            }
-            Some(s) if matches!(s.state, Phase::Pending | Phase::Running) => {
-                tracing::warn!(
-                    "run {} is recorded {} (task {}): a second task on it refuses to start while \
-                     the first holds its folder",
+        let recorded = state::read(&sweep.out_dir, &variant.name)?;
+        if let Some(s) = &recorded
+            && matches!(s.state, Phase::Pending | Phase::Running | Phase::Stopped)
+            && let Some(job) = &s.job
+        {
+            // one submission per run: a task Slurm still holds (queued, running, or requeued
+            // after a stop) is not submitted again
+            match slurm::queued_state(job) {
+                Ok(Some(queued)) => {
+                    println!(
+                        "run {} is {} as task {job}: not submitted again",
+                        variant.name,
+                        queued.to_lowercase()
+                    );
+                    continue;
+                }
+                Ok(None) => tracing::warn!(
+                    "run {} was recorded {} as task {job}, which Slurm no longer lists (it \
+                     ended without a word: cancelled, or its node failed): submitted again",
                     variant.name,
-                    s.state.as_str(),
-                    s.job.as_deref().unwrap_or("by hand")
-                );
-                indices.push(i);
+                    s.state.as_str()
+                ),
+                Err(e) if args.dry_run => tracing::warn!(
+                    "run {} is recorded {} as task {job}; Slurm could not be asked whether it \
+                     still is ({e:#})",
+                    variant.name,
+                    s.state.as_str()
+                ),
+                Err(e) => {
+                    return Err(e).with_context(|| {
+                        format!(
+                            "run {} is recorded {} as task {job}; asking Slurm whether it still \
+                             is",
+                            variant.name,
+                            s.state.as_str()
+                        )
+                    });
+                }
             }
-            _ => indices.push(i),
         }
+        if !args.fresh
+            && let Some(s) = &recorded
+            && s.state == Phase::Done
+        {
+            tracing::info!("run {} is done: not submitted", variant.name);
+            continue;
+        }
+        indices.push(i);
     }
     if indices.is_empty() {
         println!(
-            "every run of {} is done; `sweep --table` collects them",
+            "no run of {} to submit (each is done, queued or running); `sweep --status` shows \
+             them, `sweep --table` collects the done ones",
             sweep.name
         );
         return Ok(());
     }
+    if args.fresh && !args.dry_run {
+        for &i in &indices {
+            let variant = &sweep.variants[i];
+            Run::prepare(variant.experiment.clone(), Start::Fresh, &Stage::ALL)
+                .with_context(|| format!("starting run {} over (--fresh)", variant.name))?;
+        }
+    }
     let sweep_dir = absolute(&sweep.out_dir);
+    let frozen = sweep.freeze(&sweep_dir)?;
     let script = ArrayScript {
         sweep,
-        sweep_file: absolute(&args.sweep),
+        sweep_file: frozen,
         sweep_dir: sweep_dir.clone(),
         workdir: workdir.clone(),
         exe: std::env::current_exe().context("the path of this binary")?,
@@ -335,12 +442,12 @@ fn submit(sweep: &Sweep, args: &Args) -> anyhow::Result<()> {
         indices: indices.clone(),
         options,
         template,
-    }
-    .text()?;
+    };
+    let text = script.text()?;
     let path = sweep_dir.join(slurm::SCRIPT_FILE);
     std::fs::create_dir_all(sweep_dir.join(slurm::LOG_DIR))
         .with_context(|| format!("creating {}", sweep_dir.join(slurm::LOG_DIR).display()))?;
-    neurofluid_core::atomic::write_bytes(&path, script.as_bytes())
+    neurofluid_core::atomic::write_bytes(&path, text.as_bytes())
         .with_context(|| format!("writing {}", path.display()))?;
     if args.dry_run {
         println!(
@@ -351,15 +458,27 @@ fn submit(sweep: &Sweep, args: &Args) -> anyhow::Result<()> {
         );
         return Ok(());
     }
-    let submission = slurm::submit(sweep, &sweep_dir, &path, &indices)?;
+    let submission = slurm::submit(&script, &path)?;
+    let table = submission.table_job.as_deref().map_or_else(
+        || "not submitted: gather it with --table".to_string(),
+        |job| {
+            format!(
+                "job {job}, when every task has ended: {}/table.out",
+                sweep_dir.join(slurm::LOG_DIR).display()
+            )
+        },
+    );
     println!(
-        "submitted job {} (array {}): {} runs of {}\n  script  {}\n  logs    {}/task-<i>.out\n  \
-         states  {}/<run>.json\nprogress: neurofluid-train sweep {} --status; table: --table",
+        "submitted job {} (array {}): {} runs of {}\n  script  {}\n  sweep   {} (as \
+         submitted: edits to the sweep file change nothing queued)\n  logs    {}/task-<i>.out\n  \
+         states  {}/<run>.json\n  table   {table}\nprogress: neurofluid-train sweep {} --status \
+         (or: squeue --me --format='%.18i %.40j %.8T %.10M %R')",
         submission.job,
         submission.array,
         indices.len(),
         sweep.name,
         path.display(),
+        script.sweep_file.display(),
         sweep_dir.join(slurm::LOG_DIR).display(),
         sweep_dir.join(state::STATE_DIR).display(),
         args.sweep.display()

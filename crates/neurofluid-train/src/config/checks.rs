@@ -57,12 +57,13 @@ fn views_problem(views: &[String], field: &str, at_least_one: bool) -> Problem {
     if at_least_one && views.is_empty() {
         return problem(field, "expected at least one view");
     }
-    let mut seen = std::collections::HashSet::new();
-    let twice = views.iter().find(|v| !seen.insert(v.as_str()))?;
-    let shown: String = twice.chars().take(40).collect();
+    let twice = neurofluid_core::paths::first_repeated(views)?;
     problem(
         field,
-        &format!("{shown:?} is listed twice; expected each view once"),
+        &format!(
+            "{} is listed twice; expected each view once",
+            neurofluid_core::paths::shown(twice)
+        ),
     )
 }
 

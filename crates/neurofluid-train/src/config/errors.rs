@@ -48,10 +48,11 @@ fn invalid_message(
     if let Some((line, col)) = location {
         s.push_str(&format!(":{line}:{col}"));
     }
+    // a key or a parser's message can be as long as the file: both are cut
     if !key.is_empty() {
-        s.push_str(&format!(": key `{key}`"));
+        s.push_str(&format!(": key `{}`", neurofluid_core::paths::cut(key, 80)));
     }
-    s.push_str(&format!(": {message}"));
+    s.push_str(&format!(": {}", neurofluid_core::paths::cut(message, 1000)));
     s
 }
 
@@ -159,7 +160,7 @@ pub(crate) fn from_table<T: DeserializeOwned>(
 
 /// Reads a file, with an error naming it.
 pub(crate) fn read_text(path: &Path) -> Result<String, ConfigError> {
-    std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+    neurofluid_core::input_file::read_string(path).map_err(|source| ConfigError::Read {
         path: path.to_path_buf(),
         source,
     })

@@ -87,7 +87,7 @@ pub fn read_all(run: &Run) -> anyhow::Result<Vec<BaselineScores>> {
     for kind in [NerfKind::Nerf, NerfKind::NerfT] {
         let path = scores_path(run, kind);
         if path.is_file() {
-            let text = std::fs::read_to_string(&path)
+            let text = neurofluid_core::input_file::read_string(&path)
                 .with_context(|| format!("reading {}", path.display()))?;
             out.push(
                 serde_json::from_str(&text)

@@ -8,8 +8,9 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
+use neurofluid_core::camera::Camera;
 use neurofluid_core::metrics::gt_to_pred_distance;
-use neurofluid_core::scene::{Particles, Role};
+use neurofluid_core::scene::{Image, Particles, Role};
 use serde::{Deserialize, Serialize};
 
 use super::nerf::{self, NerfKind};
@@ -17,7 +18,7 @@ use super::run_folder::Run;
 use super::views::load_particles;
 use crate::config::{InitialParticles, Settings};
 use crate::stage::Stage;
-use neurofluid_outputs::geometry::silhouette_iso::{Coverage, IsoChoice, silhouette_iso};
+use neurofluid_outputs::geometry::silhouette_iso::{Coverage, silhouette_iso, usable_views};
 use neurofluid_outputs::geometry::volume_fill::{DensityGrid, FillSettings, surface_and_fill};
 use neurofluid_outputs::metrics_log::MetricsLog;
 use neurofluid_outputs::scoring::{at_least_wide, particle_row};
@@ -126,7 +127,7 @@ pub fn recover(run: &Run, log: &mut MetricsLog) -> anyhow::Result<InitialReport>
     let report_path = dir.join(REPORT_FILE);
     let digest = settings_digest(run);
     if report_path.is_file() && particles_path(run).is_file() {
-        let text = std::fs::read_to_string(&report_path)
+        let text = neurofluid_core::input_file::read_string(&report_path)
             .with_context(|| format!("reading {}", report_path.display()))?;
         let done: InitialReport = serde_json::from_str(&text)
             .with_context(|| format!("parsing {}", report_path.display()))?;
@@ -139,7 +140,7 @@ pub fn recover(run: &Run, log: &mut MetricsLog) -> anyhow::Result<InitialReport>
         std::fs::remove_file(particles_path(run))
             .with_context(|| format!("removing {}", particles_path(run).display()))?;
     }
-    let nerf = nerf::train(run, log, NerfKind::Nerf)?;
+    // what the images and settings decide is checked before the NeRF's fit (a minute or more)
     let scene = &run.scene;
     let m = scene.manifest();
     let radius = f64::from(m.particle_radius);
@@ -151,20 +152,41 @@ pub fn recover(run: &Run, log: &mut MetricsLog) -> anyhow::Result<InitialReport>
     let cell = cfg.cell_radii * radius;
     let dims = [0, 1, 2].map(|k| ((hi[k] - lo[k]) / cell).ceil() as usize + 1);
     anyhow::ensure!(
-        dims.iter().product::<usize>() <= 64_000_000,
+        dims.iter()
+            .try_fold(1usize, |n, &d| n.checked_mul(d))
+            .is_some_and(|n| n <= 64_000_000),
         "initial.cell_radii = {} gives a density grid of {dims:?} points over the box; use a \
          coarser grid",
         cfg.cell_radii
     );
+    let t0 = scene.frames(Role::Warmup).start;
+    let truth = load_particles(scene, Role::Warmup, t0, "true particles of frame 0")?;
+    let views = warmup_views(run, t0)?;
+    anyhow::ensure!(
+        views
+            .iter()
+            .any(|(_, _, image)| image.rgb.iter().any(|&c| c < WHITE)),
+        "the warm-up views of frame 0 ({}) are white: they show no fluid to recover the initial \
+         particles from",
+        views
+            .iter()
+            .map(|(name, ..)| name.as_str())
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    if cfg.iso(radius, 1.0).is_none() {
+        usable_views(&coverage(&views))?;
+    }
+    let nerf = nerf::train(run, log, NerfKind::Nerf)?;
     let mut grid = DensityGrid::new(lo, cell, dims, vec![0.0; dims.iter().product()])?;
     tracing::info!(?dims, cell, "sampling the NeRF's density over the box");
     grid.values = nerf.density_at(&grid.points(), None)?;
     let max = grid.values.iter().copied().fold(0.0f32, f32::max);
-    let t0 = scene.frames(Role::Warmup).start;
     let (iso, silhouette_iou) = match cfg.iso(radius, f64::from(max)) {
         Some(iso) => (iso, None),
         None => {
-            let choice = silhouette_threshold(run, &grid, t0)?;
+            // the iso whose body's silhouettes best match the views the NeRF was trained on
+            let choice = silhouette_iso(&grid, &coverage(&views))?;
             (choice.iso, Some(choice.iou))
         }
     };
@@ -181,7 +203,6 @@ pub fn recover(run: &Run, log: &mut MetricsLog) -> anyhow::Result<InitialReport>
             cfg.threshold
         )
     })?;
-    let truth = load_particles(scene, Role::Warmup, t0, "true particles of frame 0")?;
     let n = filled.particles.len();
     let recovered = Particles {
         pos: filled.particles.clone(),
@@ -226,26 +247,32 @@ pub fn recover(run: &Run, log: &mut MetricsLog) -> anyhow::Result<InitialReport>
     Ok(report)
 }
 
-/// The iso whose body's silhouettes best match the warm-up views of frame `t0` (the views the
-/// NeRF was trained on).
-fn silhouette_threshold(run: &Run, grid: &DensityGrid, t0: usize) -> anyhow::Result<IsoChoice> {
+/// A colour channel below this is not white background.
+const WHITE: f32 = 0.98;
+
+/// The warm-up views of frame `t0` (the NeRF's): name, camera and image.
+fn warmup_views(run: &Run, t0: usize) -> anyhow::Result<Vec<(String, Camera, Image)>> {
     let scene = &run.scene;
-    let names = run.exp.warmup.views(scene);
-    let mut views = Vec::with_capacity(names.len());
-    for name in &names {
-        views.push((
-            name.as_str(),
-            scene.camera(Role::Warmup, name, t0)?,
-            scene.image(Role::Warmup, name, t0)?,
-        ));
-    }
-    let coverage: Vec<Coverage> = views
+    run.exp
+        .warmup
+        .views(scene)
+        .into_iter()
+        .map(|name| {
+            let camera = scene.camera(Role::Warmup, &name, t0)?;
+            let image = scene.image(Role::Warmup, &name, t0)?;
+            Ok((name, camera, image))
+        })
+        .collect()
+}
+
+/// The views' coverage (their alpha) for the silhouette rule.
+fn coverage(views: &[(String, Camera, Image)]) -> Vec<Coverage<'_>> {
+    views
         .iter()
         .map(|(name, camera, image)| Coverage {
             camera,
             alpha: &image.alpha,
             name,
         })
-        .collect();
-    silhouette_iso(grid, &coverage)
+        .collect()
 }

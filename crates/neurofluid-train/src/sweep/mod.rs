@@ -123,7 +123,14 @@ pub struct Sweep {
     pub variants: Vec<ResolvedVariant>,
     /// The file's `[slurm]` defaults.
     pub slurm: slurm::SlurmOptions,
+    /// The sweep file as read.
+    pub file: SweepFile,
+    /// The base experiment as loaded.
+    pub base: Experiment,
 }
+
+/// The folder of a sweep folder where a submission's frozen sweep file and base experiment go.
+pub const SUBMITTED_DIR: &str = "submitted";
 
 impl Sweep {
     /// Reads a sweep file, loads its base experiment and resolves every variant.
@@ -226,7 +233,35 @@ impl Sweep {
             out_dir,
             variants: resolved,
             slurm: file.slurm.clone(),
+            file: file.clone(),
+            base: base.clone(),
         })
+    }
+
+    /// Writes this sweep, as loaded now, into `<sweep_dir>/submitted/`: the sweep file (same
+    /// name, `out_dir` set to `sweep_dir`) and its base experiment with every default written
+    /// out. The tasks of a submission read these, so editing the sweep file or its base after
+    /// submitting changes nothing that is queued. Returns the frozen sweep file.
+    pub fn freeze(&self, sweep_dir: &Path) -> anyhow::Result<PathBuf> {
+        use anyhow::Context;
+        let dir = sweep_dir.join(SUBMITTED_DIR);
+        let base = dir.join("base.toml");
+        let frozen = SweepFile {
+            base: base.clone(),
+            out_dir: Some(sweep_dir.to_path_buf()),
+            ..self.file.clone()
+        };
+        let path = dir.join(format!("{}.toml", self.name));
+        let sweep_text = format!(
+            "# The sweep as submitted (written by `neurofluid-train sweep --slurm`); its tasks read \
+             this copy.\n{}",
+            toml::to_string_pretty(&frozen).context("the sweep as TOML")?
+        );
+        for (file, text) in [(&base, self.base.to_toml_string()), (&path, sweep_text)] {
+            neurofluid_core::atomic::write_bytes(file, text.as_bytes())
+                .with_context(|| format!("writing {}", file.display()))?;
+        }
+        Ok(path)
     }
 
     /// The run `key` names: its index (0-based, file order, as Slurm's array task ids) or its
@@ -282,6 +317,31 @@ mod tests {
     fn sweep(text: &str) -> Result<Sweep, ConfigError> {
         let file: SweepFile = from_toml_str(text, Path::new("s.toml"))?;
         Sweep::resolve("s", Path::new("s.toml"), &file, &base())
+    }
+
+    /// A frozen sweep loads back to the same runs (in the submission's folder), whatever
+    /// happens to the sweep file and its base after (issue 72: queued tasks re-read the edited
+    /// file).
+    #[test]
+    fn a_frozen_sweep_runs_what_was_submitted() {
+        let original = sweep(
+            "base = \"b.toml\"\nset = [\"joint.epochs=1\"]\nseeds = [10, 11]\n\
+             [[variant]]\nname = \"a\"\nset = [\"joint.bptt_steps=2\"]\n\
+             [[variant]]\nname = \"b\"\nlabel = \"B | x\"\n",
+        )
+        .unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let frozen_path = original.freeze(dir.path()).unwrap();
+        assert_eq!(frozen_path, dir.path().join(SUBMITTED_DIR).join("s.toml"));
+        let frozen = Sweep::load(&frozen_path).unwrap();
+        assert_eq!(frozen.name, original.name);
+        assert_eq!(frozen.out_dir, dir.path());
+        assert_eq!(frozen.variants.len(), 4);
+        for (f, o) in frozen.variants.iter().zip(&original.variants) {
+            let mut o = o.clone();
+            o.experiment.out_dir = Some(dir.path().join(&o.name));
+            assert_eq!(f, &o);
+        }
     }
 
     #[test]

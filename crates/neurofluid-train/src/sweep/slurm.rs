@@ -11,8 +11,12 @@
 //! holds a requeued job back for about two minutes before it may start again).
 //!
 //! Files in the sweep folder: [`SCRIPT_FILE`] (the array script), [`JOB_FILE`] (the latest
-//! submission), `logs/task-<i>.out` (each task's output, appended across requeues),
-//! `state/<run>.json` (each run's state: [`super::state`]).
+//! submission), `submitted/` (the sweep file and base experiment as submitted, which the tasks
+//! read: [`Sweep::freeze`]), `logs/task-<i>.out` (each task's output, appended across requeues),
+//! `logs/table.out` (the table job's: a job that depends on the array, `afterany`, and gathers
+//! the table once every task has ended), `state/<run>.json` (each run's state:
+//! [`super::state`]). Each task renames itself `<sweep>/<run>` when it starts, so `squeue -o
+//! %j` shows which run it is.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -260,6 +264,21 @@ pub struct ArrayScript<'a> {
 }
 
 impl ArrayScript<'_> {
+    /// The array's job name: the sweep's name, in the characters Slurm shows as they are.
+    pub fn job_name(&self) -> String {
+        self.sweep
+            .name
+            .chars()
+            .map(|c| {
+                if c.is_ascii_alphanumeric() || "-_.".contains(c) {
+                    c
+                } else {
+                    '_'
+                }
+            })
+            .collect()
+    }
+
     /// The script's text.
     pub fn text(&self) -> anyhow::Result<String> {
         let o = &self.options;
@@ -280,18 +299,7 @@ impl ArrayScript<'_> {
                 self.sweep_dir.display()
             );
         }
-        let job_name: String = self
-            .sweep
-            .name
-            .chars()
-            .map(|c| {
-                if c.is_ascii_alphanumeric() || "-_.".contains(c) {
-                    c
-                } else {
-                    '_'
-                }
-            })
-            .collect();
+        let job_name = self.job_name();
         let mut s = String::from("#!/bin/bash\n");
         let _ = writeln!(
             s,
@@ -364,6 +372,8 @@ run=${{runs[$SLURM_ARRAY_TASK_ID]}}
 task="${{SLURM_ARRAY_JOB_ID}}_${{SLURM_ARRAY_TASK_ID}}"
 cd {workdir} || exit 1
 echo "== $(date -u '+%F %T') UTC: run $run, task $task on $(hostname), start $((${{SLURM_RESTART_COUNT:-0}} + 1))"
+# the task's name in squeue: the sweep's and the run's (best effort: some sites forbid it)
+scontrol update JobId="$task" JobName={job_name}/"$run" >/dev/null 2>&1 || true
 
 # SIGTERM (preemption, or --signal before the time limit) and SIGINT go to the trainer, which
 # finishes its step, writes a checkpoint and exits with {code}.
@@ -382,20 +392,26 @@ while :; do
     [ "$signalled" = 1 ] || break
 done
 if [ "$status" -eq {code} ]; then
-    # requeue this task alone (its own id), unless Slurm is ending it for good (scancel: the
-    # task is no longer RUNNING) or requeues it itself (preemption)
-    if scontrol show job "$task" 2>/dev/null | grep -q 'JobState=RUNNING'; then
+    # requeue this task alone (its own id) while Slurm still runs it; otherwise Slurm is
+    # requeueing it itself (preemption, `scontrol requeue`) or ending it (scancel)
+    state=$(scontrol show job "$task" 2>/dev/null | grep -o 'JobState=[A-Z_]*' | head -n 1)
+    state=${{state#JobState=}}
+    case "$state" in
+    RUNNING)
         echo "== $(date -u '+%F %T') UTC: stopped with a checkpoint; requeueing $task"
-        scontrol requeue "$task"
-    else
-        echo "== $(date -u '+%F %T') UTC: stopped with a checkpoint; $task is ending, not requeued"
-    fi
+        scontrol requeue "$task" ;;
+    REQUEUE*|PENDING|PREEMPTED|SUSPENDED)
+        echo "== $(date -u '+%F %T') UTC: stopped with a checkpoint; Slurm requeues $task itself ($state)" ;;
+    *)
+        echo "== $(date -u '+%F %T') UTC: stopped with a checkpoint; $task is ending (${{state:-state unknown}}), not requeued" ;;
+    esac
 fi
 exit "$status"
 "#,
             runs = runs.join(" "),
             workdir = quote(&self.workdir.display().to_string()),
             code = REQUEUE_EXIT_CODE,
+            job_name = quote(&job_name),
         );
         Ok(s)
     }
@@ -420,6 +436,112 @@ pub struct Submission {
     pub script: PathBuf,
     /// When (seconds since the Unix epoch).
     pub submitted: u64,
+    /// The job that gathers the table once every task has ended (`afterany`), if it could be
+    /// submitted.
+    #[serde(default)]
+    pub table_job: Option<String>,
+}
+
+/// A Slurm time limit (`MM`, `MM:SS`, `HH:MM:SS`, `D-HH`, `D-HH:MM`, `D-HH:MM:SS`) in seconds;
+/// `None` for `infinite`/`UNLIMITED` or text of another form.
+pub fn time_seconds(time: &str) -> Option<u64> {
+    let (days, rest) = match time.split_once('-') {
+        Some((d, rest)) => (d.parse::<u64>().ok()?, rest),
+        None => (0, time),
+    };
+    let parts: Vec<u64> = rest
+        .split(':')
+        .map(|p| p.parse::<u64>().ok())
+        .collect::<Option<_>>()?;
+    let (h, m, s) = match (time.contains('-'), parts.as_slice()) {
+        (false, [m]) => (0, *m, 0),
+        (false, [m, s]) => (0, *m, *s),
+        (_, [h, m, s]) => (*h, *m, *s),
+        (true, [h]) => (*h, 0, 0),
+        (true, [h, m]) => (*h, *m, 0),
+        _ => return None,
+    };
+    Some(((days * 24 + h) * 60 + m) * 60 + s)
+}
+
+/// A warning when each task's time limit leaves it little time to train: the trainer is asked
+/// to stop `signal_before` seconds before the limit, so a limit that is not well above it gives
+/// each start of a task seconds of work before it checkpoints and requeues.
+pub fn short_time_warning(options: &SlurmOptions) -> Option<String> {
+    let time = options.time.as_deref()?;
+    let limit = time_seconds(time)?;
+    let lead = u64::from(options.signal_before.unwrap_or(DEFAULT_SIGNAL_BEFORE_S));
+    (limit < 2 * lead).then(|| {
+        format!(
+            "--time {time} ({limit} s) is less than twice the signal's lead ({lead} s, \
+             --signal-before): each start of a task trains for {} s before it is asked to \
+             checkpoint and requeue; give a longer --time or a shorter --signal-before",
+            limit.saturating_sub(lead)
+        )
+    })
+}
+
+/// The state Slurm gives the job or array task `job` (`1234_5`): `Some("PENDING")`,
+/// `Some("RUNNING")`, …, or `None` when Slurm no longer lists it (ended, cancelled, or never
+/// there).
+pub fn queued_state(job: &str) -> anyhow::Result<Option<String>> {
+    let out = slurm_command("squeue", &["--noheader", "--jobs", job, "--format=%T"]);
+    match out {
+        Ok(text) => Ok(text
+            .lines()
+            .map(str::trim)
+            .find(|l| !l.is_empty())
+            .map(str::to_string)),
+        // squeue refuses a job id it no longer knows
+        Err(e) if e.to_string().contains("Invalid job id") => Ok(None),
+        Err(e) => Err(e),
+    }
+}
+
+/// Submits the job that gathers the sweep's table (`sweep <file> --table`) once every task of
+/// the array `job` has ended, however it ended (`afterany`); its output goes to
+/// `logs/table.out`. Scheduled as the tasks are (partition, account, QOS) on one CPU.
+pub fn submit_table_job(job: &str, script: &ArrayScript<'_>) -> anyhow::Result<String> {
+    let o = &script.options;
+    let output = script.sweep_dir.join(LOG_DIR).join("table.out");
+    let command = format!(
+        "cd {} && {} sweep {} --table",
+        quote(&script.workdir.display().to_string()),
+        quote(&script.exe.display().to_string()),
+        quote(&script.sweep_file.display().to_string())
+    );
+    let mut args: Vec<String> = vec![
+        "--parsable".into(),
+        format!("--dependency=afterany:{job}"),
+        format!("--job-name={}/table", script.job_name()),
+        format!("--output={}", output.display()),
+        "--ntasks=1".into(),
+        "--cpus-per-task=1".into(),
+        "--time=30".into(),
+    ];
+    for (name, value) in [
+        ("partition", &o.partition),
+        ("account", &o.account),
+        ("qos", &o.qos),
+    ] {
+        if let Some(v) = value {
+            args.push(format!("--{name}={v}"));
+        }
+    }
+    args.push(format!("--wrap={command}"));
+    let refs: Vec<&str> = args.iter().map(String::as_str).collect();
+    let out = slurm_command("sbatch", &refs)?;
+    job_id(&out)
+}
+
+/// The job id in `sbatch --parsable`'s answer (`1234` or `1234;cluster`).
+fn job_id(out: &str) -> anyhow::Result<String> {
+    out.trim()
+        .split(';')
+        .next()
+        .filter(|id| !id.is_empty() && id.chars().all(|c| c.is_ascii_digit()))
+        .map(str::to_string)
+        .with_context(|| format!("sbatch answered `{}`, expected a job id", out.trim()))
 }
 
 /// Runs `program` with `args`; its stdout, or an error with its stderr.
@@ -444,27 +566,20 @@ fn slurm_command(program: &str, args: &[&str]) -> anyhow::Result<String> {
     Ok(String::from_utf8_lossy(&out.stdout).into_owned())
 }
 
-/// Submits the array script at `script` held, records every submitted run as pending (with its
-/// task id and log) and the submission in [`JOB_FILE`], then releases the job: no task can start
-/// (and record `running`) before its `pending` is written.
-pub fn submit(
-    sweep: &Sweep,
-    sweep_dir: &Path,
-    script: &Path,
-    indices: &[usize],
-) -> anyhow::Result<Submission> {
-    let script_arg = script.display().to_string();
+/// Submits the array script `script`, written at `path`, held; records every submitted run as
+/// pending (with its task id and log) and the submission in [`JOB_FILE`]; releases the job (no
+/// task can start, and record `running`, before its `pending` is written); then submits the
+/// job that gathers the table after the array ([`submit_table_job`]; a failure there is a
+/// warning: the runs are queued).
+pub fn submit(script: &ArrayScript<'_>, path: &Path) -> anyhow::Result<Submission> {
+    let sweep_dir = &script.sweep_dir;
+    let script_arg = path.display().to_string();
     let out = slurm_command("sbatch", &["--parsable", "--hold", &script_arg])?;
-    let job = out
-        .trim()
-        .split(';')
-        .next()
-        .filter(|id| !id.is_empty() && id.chars().all(|c| c.is_ascii_digit()))
-        .with_context(|| format!("sbatch answered `{}`, expected a job id", out.trim()))?
-        .to_string();
-    let runs: Vec<(usize, String)> = indices
+    let job = job_id(&out)?;
+    let runs: Vec<(usize, String)> = script
+        .indices
         .iter()
-        .map(|&i| (i, sweep.variants[i].name.clone()))
+        .map(|&i| (i, script.sweep.variants[i].name.clone()))
         .collect();
     for (i, name) in &runs {
         let mut pending = RunState::new(name, Phase::Pending);
@@ -472,20 +587,34 @@ pub fn submit(
         pending.log = Some(log_path(sweep_dir, *i));
         state::write(sweep_dir, &pending)?;
     }
-    let submission = Submission {
+    let mut submission = Submission {
         job: job.clone(),
-        array: array_spec(indices, None),
+        array: array_spec(&script.indices, None),
         runs,
-        script: script.to_path_buf(),
+        script: path.to_path_buf(),
         submitted: state::now(),
+        table_job: None,
     };
-    let text = serde_json::to_string_pretty(&submission)?;
-    let path = sweep_dir.join(JOB_FILE);
-    neurofluid_core::atomic::write_bytes(&path, format!("{text}\n").as_bytes())
-        .with_context(|| format!("writing {}", path.display()))?;
+    let record = |submission: &Submission| -> anyhow::Result<()> {
+        let text = serde_json::to_string_pretty(submission)?;
+        let file = sweep_dir.join(JOB_FILE);
+        neurofluid_core::atomic::write_bytes(&file, format!("{text}\n").as_bytes())
+            .with_context(|| format!("writing {}", file.display()))
+    };
+    record(&submission)?;
     slurm_command("scontrol", &["release", &job]).with_context(|| {
         format!("job {job} was submitted held; release it with `scontrol release {job}`")
     })?;
+    match submit_table_job(&job, script) {
+        Ok(table) => {
+            submission.table_job = Some(table);
+            record(&submission)?;
+        }
+        Err(e) => tracing::warn!(
+            "the job that gathers the table after the array was not submitted ({e:#}); gather \
+             it by hand when the tasks end: sweep --table"
+        ),
+    }
     Ok(submission)
 }
 

@@ -136,7 +136,7 @@ pub fn write(sweep_dir: &Path, state: &RunState) -> anyhow::Result<()> {
 /// naming it.
 pub fn read(sweep_dir: &Path, run: &str) -> anyhow::Result<Option<RunState>> {
     let path = path(sweep_dir, run);
-    let text = match std::fs::read_to_string(&path) {
+    let text = match neurofluid_core::input_file::read_string(&path) {
         Ok(text) => text,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
         Err(e) => return Err(e).with_context(|| format!("reading {}", path.display())),

@@ -277,8 +277,8 @@ pub fn save_state<S: Serialize>(state: &S, dir: &Path) -> anyhow::Result<()> {
 /// Reads `state.json`, naming the file on error.
 pub fn load_state<S: DeserializeOwned>(dir: &Path) -> anyhow::Result<S> {
     let path = dir.join("state.json");
-    let text =
-        std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    let text = neurofluid_core::input_file::read_string(&path)
+        .with_context(|| format!("reading {}", path.display()))?;
     serde_json::from_str(&text)
         .with_context(|| format!("{}: malformed checkpoint state", path.display()))
 }

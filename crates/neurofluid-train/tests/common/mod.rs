@@ -50,9 +50,15 @@ name = "straight"
 
 /// Runs `program` in `dir` and returns its output (echoed to stderr).
 pub fn run(dir: &Path, program: &str, args: &[&str]) -> Output {
+    run_with(dir, program, args, &[])
+}
+
+/// [`run`] with the environment variables `env` set.
+pub fn run_with(dir: &Path, program: &str, args: &[&str], env: &[(&str, String)]) -> Output {
     let out = Command::new(program)
         .args(args)
         .current_dir(dir)
+        .envs(env.iter().map(|(k, v)| (k, v)))
         .output()
         .unwrap_or_else(|e| panic!("running {program}: {e}"));
     eprintln!(

@@ -2,7 +2,7 @@
 //! truth (scored as they are made), the animations and particle pictures, the viewer page, the
 //! report with its d(t) plot, and the image scores in the run's metrics log.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use neurofluid_core::camera::Camera;
 use neurofluid_core::metrics::{Lpips, RgbImage};
@@ -33,6 +33,14 @@ pub const INTERPOLATION_PLOT: &str = "interpolation.png";
 
 /// Folder of the animations and particle pictures inside `eval/`.
 pub const ANIMATIONS: &str = "animations";
+
+/// The particle picture of test view `view` in the evaluation folder `dir`: in a folder of its
+/// own, so no view's name (`view_5_particles`) can name another view's picture.
+pub fn particle_picture_path(dir: &Path, view: &str) -> PathBuf {
+    dir.join(ANIMATIONS)
+        .join("particles")
+        .join(format!("{view}.png"))
+}
 
 /// The viewer page inside `eval/`.
 pub const VIEWER_FILE: &str = "viewer.html";
@@ -140,7 +148,7 @@ pub fn render_views(
                 .collect::<anyhow::Result<_>>()?;
             let grid = column_of(&rows);
             save_png(
-                dir.join(format!("{ANIMATIONS}/{view}_particles.png")),
+                particle_picture_path(dir, view),
                 grid.width,
                 grid.height,
                 &grid.rgb,

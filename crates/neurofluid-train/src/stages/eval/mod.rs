@@ -17,7 +17,9 @@ use anyhow::Context;
 use burn::module::Module;
 use neurofluid_core::scene::Role;
 
-pub use artifacts::{ANIMATIONS, DISTANCE_PLOT, INTERPOLATION_PLOT, VIEWER_FILE};
+pub use artifacts::{
+    ANIMATIONS, DISTANCE_PLOT, INTERPOLATION_PLOT, VIEWER_FILE, particle_picture_path,
+};
 
 use super::joint::Grounded;
 use super::run_folder::Run;
