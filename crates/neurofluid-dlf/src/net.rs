@@ -9,6 +9,7 @@ use crate::conv::ContinuousConv;
 use crate::diff_geometry::differentiable_weights;
 use crate::energy_cap::cap_particle_energy;
 use crate::geometry::{ConvGeometry, build_host_geometry, chunk_slots, search_radius};
+use crate::physics::PhysicsValues;
 use crate::rules::EnergyCap;
 use crate::viscosity::smooth_velocities;
 use neurofluid_core::device_pairs::{device_pairs, device_pairs_from_host};
@@ -43,6 +44,10 @@ pub struct DlfNet {
     /// Gravity, time step, frame and geometry mode.
     #[module(skip)]
     pub config: DlfConfig,
+    /// The physical scalars as tensors an optimiser fits, in place of the rules' constants
+    /// ([`crate::physics`]); `None`: the rules' constants.
+    #[module(skip)]
+    pub physics: Option<PhysicsValues>,
 }
 
 /// Static boundary particles (the box) in the model frame.
@@ -174,12 +179,20 @@ impl DlfNet {
             conv3: conv(c2, c3, device),
             dense3: dense(c2, c3),
             config,
+            physics: None,
         }
     }
 
     /// The same network with other settings.
     pub fn with_config(mut self, config: DlfConfig) -> Self {
         self.config = config;
+        self
+    }
+
+    /// The same network stepping with `physics` in place of its rules' constants (`None`: the
+    /// constants).
+    pub fn with_physics(mut self, physics: Option<PhysicsValues>) -> Self {
+        self.physics = physics;
         self
     }
 
@@ -269,7 +282,10 @@ impl DlfNet {
         boundary: &Boundary,
     ) -> Option<(ConvGeometry, ConvGeometry)> {
         let device = pos_pred.device();
-        if self.config.rules.viscosity > 0.0 || neurofluid_core::device::is_host(&device) {
+        if self.config.rules.viscosity > 0.0
+            || self.physics.is_some()
+            || neurofluid_core::device::is_host(&device)
+        {
             return None;
         }
         let extent = self.config.extent;
@@ -341,8 +357,8 @@ impl DlfNet {
     }
 
     /// One step (one frame, dt): gravity pre-step, network correction, velocity from the position
-    /// difference (where the config asks, free clusters as projectiles); then, where the config
-    /// asks, viscosity, container, energy cap.
+    /// difference; then, where the rules ask, viscosity, dissipation, container, energy cap (the
+    /// gravity scale, viscosity and dissipation from [`DlfNet::physics`] where it holds values).
     /// `pos`, `vel` `[N, 3]` are in the scene frame.
     pub fn step(&self, pos: Tensor<2>, vel: Tensor<2>, boundary: &Boundary) -> StepOutput {
         self.step_traced(pos, vel, boundary).0
@@ -363,11 +379,20 @@ impl DlfNet {
             (cfg.rules.energy_cap == EnergyCap::Particle).then(|| (pos.clone(), vel.clone()));
         let pos = self.to_model(pos);
         let vel = self.to_model(vel);
-        let g = cfg
-            .model_gravity()
-            .map(|c| cfg.dt * cfg.rules.gravity_scale as f32 * c);
-        let g: Tensor<2> =
-            neurofluid_core::transfer::upload(TensorData::new(g.to_vec(), [1, 3]), &device);
+        let g: Tensor<2> = match &self.physics {
+            None => {
+                let g = cfg
+                    .model_gravity()
+                    .map(|c| cfg.dt * cfg.rules.gravity_scale as f32 * c);
+                neurofluid_core::transfer::upload(TensorData::new(g.to_vec(), [1, 3]), &device)
+            }
+            Some(p) => {
+                let g = cfg.model_gravity().map(|c| cfg.dt * c);
+                let g: Tensor<2> =
+                    neurofluid_core::transfer::upload(TensorData::new(g.to_vec(), [1, 3]), &device);
+                g * p.gravity_scale.clone().reshape([1, 1])
+            }
+        };
         let vel_pred = vel.clone() + g;
         let pos_pred = pos.clone() + ((vel_pred.clone() + vel) * cfg.dt) / 2.0;
         let (fluid, solid) = self.geometries(&pos_pred, boundary);
@@ -377,13 +402,36 @@ impl DlfNet {
         let pos_new = pos_pred.clone() + shift;
         let vel_new = (pos_new.clone() - pos) / cfg.dt;
         let (pos_new, vel_new) = (self.to_scene(pos_new), self.to_scene(vel_new));
-        let (pos_new, vel_new) = if cfg.rules.viscosity > 0.0 {
-            let radius = search_radius(cfg.extent);
-            let strength = cfg.rules.viscosity as f32;
-            let smoothed = smooth_velocities(vel_new.clone(), fluid.host(), radius, strength);
-            (pos_new + (smoothed.clone() - vel_new) * cfg.dt, smoothed)
-        } else {
-            (pos_new, vel_new)
+        let radius = search_radius(cfg.extent);
+        // each changes the velocities and shortens or lengthens the move to match
+        let moved = |pos: Tensor<2>, vel: Tensor<2>, changed: Tensor<2>| {
+            (pos + (changed.clone() - vel) * cfg.dt, changed)
+        };
+        let (pos_new, vel_new) = match &self.physics {
+            None if cfg.rules.viscosity > 0.0 => {
+                let strength = cfg.rules.viscosity as f32;
+                let smoothed = smooth_velocities(vel_new.clone(), fluid.host(), radius, strength);
+                moved(pos_new, vel_new, smoothed)
+            }
+            None => (pos_new, vel_new),
+            // the smoothing is linear in its strength: v + s·(smoothed at strength 1 − v)
+            Some(p) => {
+                let full = smooth_velocities(vel_new.clone(), fluid.host(), radius, 1.0);
+                let s = p.viscosity.clone().reshape([1, 1]);
+                let smoothed = vel_new.clone() + (full - vel_new.clone()) * s;
+                moved(pos_new, vel_new, smoothed)
+            }
+        };
+        let (pos_new, vel_new) = match &self.physics {
+            None if cfg.rules.dissipation > 0.0 => {
+                let kept = vel_new.clone() * (1.0 - cfg.rules.dissipation as f32);
+                moved(pos_new, vel_new, kept)
+            }
+            None => (pos_new, vel_new),
+            Some(p) => {
+                let kept = vel_new.clone() * (p.dissipation.clone().reshape([1, 1]).neg() + 1.0);
+                moved(pos_new, vel_new, kept)
+            }
         };
         let (pos_new, vel_new) = match &cfg.container {
             Some(c) => contain(pos_new, vel_new, c, cfg.dt),

@@ -1,5 +1,6 @@
 //! The rules of a DLF step beyond the published model's: walls that hold every particle, an
-//! energy cap per particle, a scale of the pre-step's gravity and an XSPH viscosity. They apply
+//! energy cap per particle, a scale of the pre-step's gravity, an XSPH viscosity and a
+//! dissipation. They apply
 //! in every rollout (training, diagnostics, evaluation, the baseline DLF's too); an experiment's
 //! `[dlf]` table holds them under these names.
 
@@ -47,6 +48,9 @@ pub struct StepRules {
     /// Strength in [0, 1] of an XSPH viscosity on each step's velocities (each moves this share
     /// of the way toward its neighbours'; [`crate::viscosity`]). `0.0` (the reference): none.
     pub viscosity: f64,
+    /// Share in [0, 1) of each particle's velocity a step takes away, after the viscosity (its
+    /// move shortened to match, so v is still the move over dt). `0.0` (the reference): none.
+    pub dissipation: f64,
 }
 
 impl Default for StepRules {
@@ -56,6 +60,7 @@ impl Default for StepRules {
             energy_cap: EnergyCap::None,
             gravity_scale: 1.0,
             viscosity: 0.0,
+            dissipation: 0.0,
         }
     }
 }
@@ -87,6 +92,9 @@ impl StepRules {
         }
         if !(0.0..=1.0).contains(&self.viscosity) {
             return error("viscosity", "expected a strength in [0, 1]");
+        }
+        if !(0.0..1.0).contains(&self.dissipation) {
+            return error("dissipation", "expected a share in [0, 1)");
         }
         None
     }
@@ -123,6 +131,12 @@ impl StepRules {
             rules.push(format!(
                 "an XSPH viscosity of strength {} (`dlf.viscosity`)",
                 self.viscosity
+            ));
+        }
+        if self.dissipation != 0.0 {
+            rules.push(format!(
+                "a dissipation of {} of each velocity a step (`dlf.dissipation`)",
+                self.dissipation
             ));
         }
         rules

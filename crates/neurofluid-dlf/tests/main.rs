@@ -10,5 +10,6 @@ mod fused_conv;
 mod parity_backward;
 mod parity_forward;
 mod parity_rollout;
+mod physics;
 mod validation;
 mod weights;

@@ -81,6 +81,7 @@ const ADDED_KEYS: &[(&str, &str)] = &[
     ("dlf.energy_cap", "\"none\""),
     ("dlf.gravity_scale", "1.0"),
     ("dlf.viscosity", "0.0"),
+    ("dlf.dissipation", "0.0"),
     ("physnerf.positions", "\"world\""),
     ("nerf.t_images", "\"cycle\""),
 ];
