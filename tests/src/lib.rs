@@ -58,6 +58,19 @@ pub fn tiny_experiment(tmp: &Path, name: &str) -> Experiment {
     e
 }
 
+/// [`tiny_experiment`] as the exact-resume tests run it: checkpoints only where a test stops it,
+/// and enough rays that the image loss reaches the particles in every joint iteration.
+pub fn tiny_resumable_experiment(tmp: &Path, name: &str) -> Experiment {
+    let mut e = tiny_experiment(tmp, name);
+    e.apply_overrides(&[
+        "warmup.ckpt_every=0",
+        "joint.ckpt_every=0",
+        "joint.rays=512",
+    ])
+    .expect("the overrides apply");
+    e
+}
+
 /// Every file under `root`, as paths relative to it, sorted.
 pub fn files_under(root: &Path) -> Vec<PathBuf> {
     let mut out = Vec::new();

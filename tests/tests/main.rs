@@ -11,6 +11,7 @@ mod learning;
 mod loading_draws;
 mod lpips_parity;
 mod nerf_baselines;
+mod physics_fit;
 mod pipeline_resume;
 mod pretrain_on_scene;
 mod refit;

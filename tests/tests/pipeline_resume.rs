@@ -6,22 +6,14 @@ use std::path::Path;
 
 use neurofluid_outputs::metrics_log::MetricsLog;
 use neurofluid_outputs::report::Rollout;
-use neurofluid_tests::{params, seeded_turn, tiny_experiment};
+use neurofluid_tests::{params, seeded_turn, tiny_resumable_experiment};
 use neurofluid_train::commands::rollout;
 use neurofluid_train::config::Experiment;
 use neurofluid_train::stage::Stage;
 use neurofluid_train::stages::{Run, Start, eval, joint, warmup};
 
 fn experiment(tmp: &Path, name: &str) -> Experiment {
-    let mut e = tiny_experiment(tmp, name);
-    // enough rays that the image loss reaches the particles in every joint iteration
-    e.apply_overrides(&[
-        "warmup.ckpt_every=0",
-        "joint.ckpt_every=0",
-        "joint.rays=512",
-    ])
-    .unwrap();
-    e
+    tiny_resumable_experiment(tmp, name)
 }
 
 #[test]

@@ -27,7 +27,9 @@ pub const PHYSICS_NAMES: [&str; 3] = ["gravity_scale", "viscosity", "dissipation
 impl PhysicsValues {
     /// The rules' constants as tensors on `device`.
     pub fn of_rules(rules: &StepRules, device: &Device) -> Self {
-        let scalar = |v: f64| Tensor::<1>::from_data(TensorData::new(vec![v as f32], [1]), device);
+        let scalar = |v: f64| -> Tensor<1> {
+            neurofluid_core::transfer::upload(TensorData::new(vec![v as f32], [1]), device)
+        };
         Self {
             gravity_scale: scalar(rules.gravity_scale),
             viscosity: scalar(rules.viscosity),
@@ -37,15 +39,7 @@ impl PhysicsValues {
 
     /// The values, in the order of [`PHYSICS_NAMES`].
     pub fn to_array(&self) -> [f64; 3] {
-        let value = |t: &Tensor<1>| {
-            f64::from(
-                t.clone()
-                    .into_data()
-                    .convert::<f32>()
-                    .as_slice::<f32>()
-                    .map_or(f32::NAN, |s| s[0]),
-            )
-        };
+        let value = |t: &Tensor<1>| neurofluid_core::transfer::read_scalar(t.clone());
         [
             value(&self.gravity_scale),
             value(&self.viscosity),
@@ -55,12 +49,18 @@ impl PhysicsValues {
 
     /// `rules` with these values in place of its constants.
     pub fn into_rules(&self, rules: StepRules) -> StepRules {
-        let [gravity_scale, viscosity, dissipation] = self.to_array();
-        StepRules {
-            gravity_scale,
-            viscosity,
-            dissipation,
-            ..rules
-        }
+        rules_with(rules, self.to_array())
+    }
+}
+
+/// `rules` with `values` (in the order of [`PHYSICS_NAMES`]) in place of its gravity scale,
+/// viscosity and dissipation.
+pub fn rules_with(rules: StepRules, values: [f64; 3]) -> StepRules {
+    let [gravity_scale, viscosity, dissipation] = values;
+    StepRules {
+        gravity_scale,
+        viscosity,
+        dissipation,
+        ..rules
     }
 }

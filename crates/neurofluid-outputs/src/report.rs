@@ -487,6 +487,11 @@ pub struct EvalReport {
     /// they are.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub dlf_rules: Vec<String>,
+    /// The physical scalars the joint stage fitted (`[joint.physics]`), each with the value it
+    /// started from: NeuroFluid's DLF steps with the fitted ones, the pretrained baseline with
+    /// the rules'. Empty = none fitted.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub fitted_physics: Vec<FittedScalar>,
     /// What rendered NeuroFluid's views (and the renderer on the true particles) when it was not
     /// the PhysNeRF trained jointly with DLF (`refit.enabled`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -595,6 +600,17 @@ pub fn count_outside(
         .count()
 }
 
+/// A physical scalar of DLF's step fitted by the images.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FittedScalar {
+    /// Its name (`gravity_scale`, `viscosity`, `dissipation`).
+    pub name: String,
+    /// The value fitted.
+    pub value: f64,
+    /// The value it started from (the run's `[dlf]` rules).
+    pub from: f64,
+}
+
 /// A novel-view row's image metrics (NeRF, NeRF-T, the renderer on the true particles).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct BaselineScores {
@@ -656,6 +672,7 @@ impl EvalReport {
             scored_seal: None,
             weight_interpolation: None,
             dlf_rules: Vec::new(),
+            fitted_physics: Vec::new(),
             renderer: None,
             validation_views: false,
             interpolation: Vec::new(),
@@ -835,6 +852,19 @@ impl EvalReport {
                 md,
                 "\nEvery DLF rollout, the pretrained baseline's too, steps under {}.",
                 self.dlf_rules.join(" and ")
+            );
+        }
+        if !self.fitted_physics.is_empty() {
+            let values: Vec<String> = self
+                .fitted_physics
+                .iter()
+                .map(|f| format!("{} {:.4} (from {})", f.name, f.value, f.from))
+                .collect();
+            let _ = writeln!(
+                md,
+                "\nNeuroFluid's DLF steps with the physical scalars the images fitted \
+                 (`[joint.physics]`): {}.",
+                values.join(", ")
             );
         }
         if let Some(fraction) = self.weight_interpolation {

@@ -182,6 +182,17 @@ impl OptimDefaults for JointDlfGroup {
     }
 }
 
+/// The physical scalars the joint stage fits (`[joint.physics]`): 1e-2, constant.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct JointPhysicsGroup;
+impl OptimDefaults for JointPhysicsGroup {
+    const LR: f64 = 1e-2;
+    const EPSILON: f64 = 1e-8;
+    fn schedule() -> Schedule {
+        Schedule::Constant
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

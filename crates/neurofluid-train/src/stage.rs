@@ -139,6 +139,16 @@ pub mod files {
         name: "dlf.bpk",
         formerly: &[],
     };
+    /// The physical scalars the joint stage fits (`[joint.physics]`).
+    pub const JOINT_PHYSICS: CheckpointFile = CheckpointFile {
+        name: "physics.bpk",
+        formerly: &[],
+    };
+    /// The joint stage's Adam of the physical scalars.
+    pub const JOINT_PHYSICS_ADAM: CheckpointFile = CheckpointFile {
+        name: "optim_physics.bpk",
+        formerly: &[],
+    };
     /// The joint stage's Adam of DLF.
     pub const JOINT_DLF_ADAM: CheckpointFile = CheckpointFile {
         name: "optim_dlf.bpk",

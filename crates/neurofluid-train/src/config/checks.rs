@@ -219,6 +219,26 @@ impl Section for JointSection {
         if let Some((field, msg)) = self.terms.problem() {
             return Some((format!("terms.{field}"), msg));
         }
+        if let Some(physics) = &self.physics {
+            if physics.fit.is_empty() {
+                return problem(
+                    "physics.fit",
+                    "expected at least one of \"gravity_scale\", \"viscosity\", \"dissipation\" \
+                     (or no [joint.physics] table)",
+                );
+            }
+            if let Some(i) =
+                (1..physics.fit.len()).find(|&i| physics.fit[..i].contains(&physics.fit[i]))
+            {
+                return problem(
+                    "physics.fit",
+                    &format!("{:?} is listed twice", physics.fit[i]),
+                );
+            }
+            if let Some(p) = under("physics.optim", physics.optim.problem()) {
+                return Some(p);
+            }
+        }
         views_problem(&self.extra_views, "extra_views", false)
     }
 }

@@ -40,8 +40,8 @@ pub(crate) use errors::{from_table, read_text};
 pub use preset::Preset;
 pub use sections::{
     BuiltinScene, DiagnosticsSection, DlfSection, EvalSection, InitialParticles, InitialSection,
-    JointSection, NerfSection, NerfTImages, NovelViews, PlyEncoding, RefitSection, SceneScale,
-    SceneSection, SurfaceThreshold, WarmupSection,
+    JointSection, NerfSection, NerfTImages, NovelViews, PhysicalScalar, PhysicsFit, PlyEncoding,
+    RefitSection, SceneScale, SceneSection, SurfaceThreshold, WarmupSection,
 };
 pub use settings::Settings;
 

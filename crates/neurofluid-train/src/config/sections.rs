@@ -9,7 +9,9 @@ use neurofluid_core::scene::{Role, Scene};
 use neurofluid_dlf::{GeometryMode, StepRules};
 use serde::{Deserialize, Serialize};
 
-use crate::optim::{JointDlfGroup, JointPhysNerfGroup, NerfGroup, OptimConfig, WarmupGroup};
+use crate::optim::{
+    JointDlfGroup, JointPhysNerfGroup, JointPhysicsGroup, NerfGroup, OptimConfig, WarmupGroup,
+};
 use crate::stages::joint::terms::TermsSection;
 use neurofluid_physnerf::{NerfConfig, Positions};
 
@@ -484,6 +486,10 @@ pub struct JointSection {
     /// The particle terms, each under its own table (`[joint.terms.anchor]`, …): none = the
     /// paper's loss ([`crate::stages::joint::terms`]).
     pub terms: TermsSection,
+    /// Physical scalars of DLF's step fitted by the images (`[joint.physics]`); unset = the
+    /// rules' constants, as the paper.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub physics: Option<PhysicsFit>,
     /// Training view; unset = the scene manifest's (view_1).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub view: Option<String>,
@@ -513,6 +519,7 @@ impl Default for JointSection {
             precrop_frac: 0.5,
             foreground_rays: 0.0,
             terms: TermsSection::default(),
+            physics: None,
             view: None,
             extra_views: Vec::new(),
             log_every: 49,
@@ -550,6 +557,58 @@ impl JointSection {
     /// The precrop fraction for 0-based iteration `step` (`None` = the full image).
     pub fn precrop_at(&self, step: u64) -> Option<f64> {
         (step < self.precrop_iters).then_some(self.precrop_frac)
+    }
+}
+
+/// A physical scalar of DLF's step that the joint stage can fit
+/// ([`neurofluid_dlf::physics`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PhysicalScalar {
+    /// The pre-step's gravity scale (`dlf.gravity_scale`), kept in [0.25, 4].
+    GravityScale,
+    /// The XSPH viscosity's strength (`dlf.viscosity`), kept in [0, 1].
+    Viscosity,
+    /// The share of each velocity a step takes away (`dlf.dissipation`), kept in [0, 0.5].
+    Dissipation,
+}
+
+impl PhysicalScalar {
+    /// All of them, in the order of [`neurofluid_dlf::PHYSICS_NAMES`].
+    pub const ALL: [Self; 3] = [Self::GravityScale, Self::Viscosity, Self::Dissipation];
+
+    /// Its place in [`neurofluid_dlf::PhysicsValues::to_array`].
+    pub fn index(self) -> usize {
+        self as usize
+    }
+
+    /// The values it is kept within.
+    pub fn bounds(self) -> (f64, f64) {
+        match self {
+            Self::GravityScale => (0.25, 4.0),
+            Self::Viscosity => (0.0, 1.0),
+            Self::Dissipation => (0.0, 0.5),
+        }
+    }
+}
+
+/// `[joint.physics]`: physical scalars of DLF's step fitted by the images, starting from the
+/// `[dlf]` rules' values, with their own Adam; the others keep the rules' constants. The values
+/// fitted are logged (`physics/<name>`) and step every later rollout of the grounded DLF.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PhysicsFit {
+    /// The scalars fitted: any of `"gravity_scale"`, `"viscosity"`, `"dissipation"`.
+    pub fit: Vec<PhysicalScalar>,
+    /// Their Adam and schedule (1e-2, constant).
+    #[serde(default)]
+    pub optim: OptimConfig<JointPhysicsGroup>,
+}
+
+impl PhysicsFit {
+    /// Whether `scalar` is fitted.
+    pub fn fits(&self, scalar: PhysicalScalar) -> bool {
+        self.fit.contains(&scalar)
     }
 }
 

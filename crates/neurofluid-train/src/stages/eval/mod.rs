@@ -46,6 +46,26 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
     report.weight_interpolation =
         Some(run.exp.diagnostics.weight_interpolation).filter(|&f| f != 1.0);
     report.dlf_rules = run.exp.dlf.rules.describe();
+    if let Some(fit) = &run.exp.joint.physics {
+        let (from, to) = (run.exp.dlf.rules, models.dlf.config.rules);
+        let pairs = [
+            ("gravity_scale", to.gravity_scale, from.gravity_scale),
+            ("viscosity", to.viscosity, from.viscosity),
+            ("dissipation", to.dissipation, from.dissipation),
+        ];
+        report.fitted_physics = crate::config::PhysicalScalar::ALL
+            .iter()
+            .filter(|s| fit.fits(**s))
+            .map(|s| {
+                let (name, value, from) = pairs[s.index()];
+                neurofluid_outputs::report::FittedScalar {
+                    name: name.into(),
+                    value,
+                    from,
+                }
+            })
+            .collect();
+    }
     report.renderer = run.exp.refit.enabled.then(|| {
         // the value as the experiment file writes it
         let positions = serde_json::to_value(run.exp.refit.positions).unwrap_or_default();

@@ -31,8 +31,8 @@ use neurofluid_physnerf::PhysNerf;
 use super::run_folder::Run;
 use super::views::{points_tensor, render_beside_truth, tensor_points};
 use super::warmup;
-use crate::config::{Cadenced, JointSection};
-use crate::optim::{Group, JointDlfGroup, JointPhysNerfGroup};
+use crate::config::{Cadenced, JointSection, PhysicsFit};
+use crate::optim::{Group, JointDlfGroup, JointPhysNerfGroup, JointPhysicsGroup};
 use crate::stage::{Stage, files};
 use crate::trainer::checkpoint;
 use crate::trainer::{Evaluation, StageState, StepStats, Trainer};
@@ -42,6 +42,7 @@ use neurofluid_outputs::metrics_log::{MetricsLog, psnr_from_mse};
 mod data;
 mod diagnostics;
 mod loss;
+pub mod physics;
 pub mod terms;
 mod windows;
 
@@ -51,7 +52,15 @@ pub use loss::{SplitImageLoss, boundary_penalty, dlf_surrogate, split_image_loss
 pub use windows::{Updates, updates_after, updates_before};
 
 use loss::split_on_device;
+use physics::Physics;
 use terms::{ParticleTerm, TermContext, Transition};
+
+/// The physical scalars being fitted (`[joint.physics]`) and their Adam.
+struct PhysicsFitting {
+    fit: PhysicsFit,
+    module: Physics,
+    opt: Group<JointPhysicsGroup>,
+}
 
 /// Folder of the stage inside the run folder.
 pub const STAGE: Stage = Stage::Joint;
@@ -96,6 +105,8 @@ pub struct JointTrainer {
     last_target: usize,
     /// `warmup.held_out`: the warm-up frame's particles on the device (uploaded once).
     held_out_particles: Option<Tensor<2>>,
+    /// The physical scalars fitted by the images, where `[joint.physics]` asks.
+    physics: Option<PhysicsFitting>,
 }
 
 /// The gradients at the end of a window and their square sums, to be read with the step's values.
@@ -105,6 +116,8 @@ struct WindowGrads {
     physnerf: Option<GradientsParams>,
     /// DLF's, at the end of every `dlf_every`-th window.
     dlf: Option<GradientsParams>,
+    /// The physical scalars', with DLF's.
+    physics: Option<GradientsParams>,
     /// The square sums, PhysNeRF's then DLF's.
     sums: Vec<Tensor<1>>,
     /// How many values PhysNeRF's square sums read as.
@@ -136,6 +149,11 @@ impl JointTrainer {
             .held_out
             .as_ref()
             .map(|(_, p)| points_tensor(p, &device));
+        let physics = cfg.physics.as_ref().map(|fit| PhysicsFitting {
+            fit: fit.clone(),
+            module: Physics::of_rules(&dlf.config.rules, &device),
+            opt: fit.optim.group(),
+        });
         Ok(Self {
             opt_physnerf: cfg.physnerf_optim.group(),
             opt_dlf: cfg.dlf_optim.group(),
@@ -156,14 +174,19 @@ impl JointTrainer {
             seed,
             last_target: 1,
             held_out_particles,
+            physics,
         })
     }
 
-    /// The grounded models.
+    /// The grounded models (DLF's rules holding the physical scalars fitted, if any).
     pub fn into_models(self) -> Grounded {
+        let dlf = match &self.physics {
+            Some(p) => with_fitted(self.dlf, &p.module),
+            None => self.dlf,
+        };
         Grounded {
             physnerf: self.physnerf,
-            dlf: self.dlf,
+            dlf,
         }
     }
 
@@ -258,7 +281,12 @@ impl JointTrainer {
         if updates.dlf {
             let surrogate = self.pending.take().context("no loss to optimise")?;
             let g = match gradients::backward(surrogate) {
-                Some(mut grads) => GradientsParams::from_module(&mut grads, &self.dlf),
+                Some(mut grads) => {
+                    if let Some(p) = &self.physics {
+                        out.physics = Some(GradientsParams::from_module(&mut grads, &p.module));
+                    }
+                    GradientsParams::from_module(&mut grads, &self.dlf)
+                }
                 None => GradientsParams::new(),
             };
             out.sums.extend(gradients::grad_square_sums(&g, &self.dlf));
@@ -273,6 +301,7 @@ impl JointTrainer {
         &mut self,
         physnerf: GradientsParams,
         dlf: Option<GradientsParams>,
+        physics: Option<GradientsParams>,
         sums: &[f64],
         n_physnerf: usize,
         stats: &mut StepStats,
@@ -287,6 +316,9 @@ impl JointTrainer {
             if let Some(g) = dlf {
                 self.dlf = self.opt_dlf.step(self.dlf.clone(), g);
             }
+            if let (Some(p), Some(g)) = (&mut self.physics, physics) {
+                p.module = p.opt.step(p.module.clone(), g).clamped();
+            }
         }
         // a point to log, evaluate and checkpoint at: nothing pending in either group (between
         // DLF's steps, PhysNeRF's norm is still checked for divergence)
@@ -295,6 +327,13 @@ impl JointTrainer {
             stats.grad_norms.push(("dlf", norm_d));
             stats.lrs = vec![("physnerf", lr_p), ("dlf", lr_d)];
             stats.updated = true;
+            if let Some(p) = &self.physics {
+                stats.lrs.push(("physics", p.opt.lr()));
+                let values = p.module.to_array();
+                stats
+                    .scalars
+                    .extend(physics::COLUMNS.into_iter().zip(values));
+            }
         }
     }
 }
@@ -315,7 +354,14 @@ impl Trainer for JointTrainer {
             self.state = self.data.initial_state(&self.dlf.device());
         }
         let (x, v) = (self.state.0.clone(), self.state.1.clone());
-        let pred = self.dlf.step(x, v, &self.boundary);
+        let pred = match &self.physics {
+            Some(p) => {
+                let values = p.module.step_values(&p.fit);
+                let dlf = self.dlf.clone().with_physics(Some(values));
+                dlf.step(x, v, &self.boundary)
+            }
+            None => self.dlf.step(x, v, &self.boundary),
+        };
         // the prediction on the host, read once: the rays, the renderer's neighbour search, the
         // alignment and the state check all use it
         let pred_host = tensor_points(&pred.pos);
@@ -355,7 +401,14 @@ impl Trainer for JointTrainer {
         if !stats.loss.is_finite() {
             return Ok(stats);
         }
-        self.update(g_physnerf, grads.dlf, &sums, grads.n_physnerf, &mut stats);
+        self.update(
+            g_physnerf,
+            grads.dlf,
+            grads.physics,
+            &sums,
+            grads.n_physnerf,
+            &mut stats,
+        );
         // the carried state leaves the graph: truncated backpropagation through time (DLF's
         // pending surrogate keeps the graphs of its transitions until its own step)
         self.state = (self.state.0.clone().detach(), self.state.1.clone().detach());
@@ -407,6 +460,11 @@ impl Trainer for JointTrainer {
         checkpoint::save_group(&self.opt_physnerf, &adam, "physnerf", &mut own)?;
         let adam = files::JOINT_DLF_ADAM.save_path(dir);
         checkpoint::save_group(&self.opt_dlf, &adam, "dlf", &mut own)?;
+        if let Some(p) = &self.physics {
+            checkpoint::save_module(&p.module, &files::JOINT_PHYSICS.save_path(dir))?;
+            let adam = files::JOINT_PHYSICS_ADAM.save_path(dir);
+            checkpoint::save_group(&p.opt, &adam, "physics", &mut own)?;
+        }
         let mut w = NpzWriter::new();
         w.add_points("pos", &tensor_points(&self.state.0));
         w.add_points("vel", &tensor_points(&self.state.1));
@@ -425,6 +483,15 @@ impl Trainer for JointTrainer {
         checkpoint::load_group(p, &self.physnerf, &adam, "physnerf", &state, || implied.0)?;
         let adam = files::JOINT_DLF_ADAM.load_path(dir);
         checkpoint::load_group(d, &self.dlf, &adam, "dlf", &state, || implied.1)?;
+        if let Some(p) = &mut self.physics {
+            let path = files::JOINT_PHYSICS.load_path(dir);
+            p.module = checkpoint::load_module(p.module.clone(), &path)?;
+            let adam = files::JOINT_PHYSICS_ADAM.load_path(dir);
+            // the scalars step with DLF
+            checkpoint::load_group(&mut p.opt, &p.module, &adam, "physics", &state, || {
+                implied.1
+            })?;
+        }
         self.rng = Rng::from_stage_state(&state, dir)?;
         if !done.is_multiple_of(self.data.transitions()) {
             let mut r = NpzReader::open(dir.join("carried_state.npz"))?;
@@ -471,8 +538,27 @@ pub fn load_trained(run: &Run) -> anyhow::Result<Grounded> {
     let physnerf = PhysNerf::new(run.physnerf_config(), &run.device)?;
     let physnerf = checkpoint::load_module(physnerf, &files::PHYSNERF.load_path(&ckpt))?;
     let dlf = run.load_dlf(&run.exp.dlf.weights)?;
-    let dlf = checkpoint::load_module(dlf, &files::DLF.load_path(&ckpt))?;
+    let mut dlf = checkpoint::load_module(dlf, &files::DLF.load_path(&ckpt))?;
+    if run.exp.joint.physics.is_some() {
+        let physics = Physics::of_rules(&dlf.config.rules, &run.device);
+        let physics = checkpoint::load_module(physics, &files::JOINT_PHYSICS.load_path(&ckpt))?;
+        dlf = with_fitted(dlf, &physics);
+    }
     Ok(Grounded { physnerf, dlf })
+}
+
+/// `dlf` whose rules hold the physical scalars of `physics` (a grounded DLF's, for every later
+/// rollout).
+fn with_fitted(dlf: DlfNet, physics: &Physics) -> DlfNet {
+    let mut config = dlf.config;
+    config.rules = physics.into_rules(config.rules);
+    tracing::info!(
+        gravity_scale = config.rules.gravity_scale,
+        viscosity = config.rules.viscosity,
+        dissipation = config.rules.dissipation,
+        "the physical scalars fitted by the images"
+    );
+    dlf.with_config(config)
 }
 
 #[cfg(test)]
