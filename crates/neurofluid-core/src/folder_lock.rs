@@ -101,8 +101,9 @@ impl FolderLock {
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.as_secs());
         let record = format!(
-            "pid {}, since {since} (Unix time), running `{}`\n",
+            "pid {}, since {}, running `{}`\n",
             std::process::id(),
+            utc_time(since),
             command.join(" ")
         );
         file.set_len(0)
@@ -119,10 +120,34 @@ impl FolderLock {
     }
 }
 
+/// `seconds` since the Unix epoch as a UTC date and time, `2026-12-05 09:44:33 UTC` (the
+/// proleptic Gregorian calendar: days to civil dates as in Howard Hinnant's `civil_from_days`).
+fn utc_time(seconds: u64) -> String {
+    let (days, rest) = ((seconds / 86_400) as i64, seconds % 86_400);
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + i64::from(month <= 2);
+    format!(
+        "{year:04}-{month:02}-{day:02} {:02}:{:02}:{:02} UTC",
+        rest / 3600,
+        rest / 60 % 60,
+        rest % 60
+    )
+}
+
+/// The most of a lock file's record an error shows (the file could be anything).
+const HOLDER_BYTES: u64 = 1024;
+
 /// ` (<who holds the lock>)`, as its holder recorded it, or nothing.
 fn holder(file: &mut File) -> String {
     let mut holder = String::new();
-    let _ = file.read_to_string(&mut holder);
+    let _ = file.take(HOLDER_BYTES).read_to_string(&mut holder);
     let holder = holder.trim();
     if holder.is_empty() {
         String::new()
@@ -141,6 +166,25 @@ impl Drop for FolderLock {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Dates as Python's `datetime.utcfromtimestamp` gives them (the epoch, a leap day, and the
+    /// day this was written).
+    #[test]
+    fn lock_times_are_utc_dates() {
+        assert_eq!(utc_time(0), "1970-01-01 00:00:00 UTC");
+        assert_eq!(utc_time(951_782_400), "2000-02-29 00:00:00 UTC");
+        assert_eq!(utc_time(1_796_463_873), "2026-12-05 09:44:33 UTC");
+    }
+
+    /// A lock file of any size shows at most its first kilobyte in the refusal.
+    #[test]
+    fn a_huge_record_is_cut() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("lock");
+        std::fs::write(&path, "x".repeat(1 << 20)).unwrap();
+        let mut file = File::open(&path).unwrap();
+        assert!(holder(&mut file).len() <= HOLDER_BYTES as usize + 3);
+    }
 
     #[test]
     fn a_second_holder_is_refused_with_the_first_named_until_it_lets_go() {
