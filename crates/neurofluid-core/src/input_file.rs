@@ -85,17 +85,20 @@ pub fn check(path: impl AsRef<Path>) -> std::io::Result<u64> {
 /// Opens `path` for reading once [`check`] passed, and checks the opened file again (the
 /// path could have been replaced in between).
 pub fn open(path: impl AsRef<Path>) -> std::io::Result<File> {
-    let path = path.as_ref();
+    Ok(open_with_length(path.as_ref())?.0)
+}
+
+/// [`open`], and the opened file's length.
+fn open_with_length(path: &Path) -> std::io::Result<(File, u64)> {
     check(path)?;
     let file = File::open(path)?;
-    check_metadata(&file.metadata()?)?;
-    Ok(file)
+    let len = check_metadata(&file.metadata()?)?;
+    Ok((file, len))
 }
 
 /// Reads all of `path` in bounded memory (see the module's rules).
 pub fn read(path: impl AsRef<Path>) -> std::io::Result<Vec<u8>> {
-    let file = open(path)?;
-    let len = file.metadata()?.len();
+    let (file, len) = open_with_length(path.as_ref())?;
     let limit = max_decoded_bytes();
     let mut bytes = Vec::with_capacity(len as usize);
     file.take(limit.saturating_add(1)).read_to_end(&mut bytes)?;

@@ -55,14 +55,13 @@ impl MibSetting {
     fn parse(&self, text: &str) -> Result<u64, String> {
         match text.trim().parse::<u64>() {
             Ok(mb) if mb > 0 => Ok(mb),
-            _ => {
-                let shown: String = text.chars().take(40).collect();
-                let cut = if text.chars().count() > 40 { "…" } else { "" };
-                Err(format!(
-                    "{}={shown:?}{cut}: expected a whole number of MiB ≥ 1 ({}; unset: {})",
-                    self.var, self.meaning, self.default
-                ))
-            }
+            _ => Err(format!(
+                "{}={}: expected a whole number of MiB ≥ 1 ({}; unset: {})",
+                self.var,
+                crate::paths::quoted(text, 40),
+                self.meaning,
+                self.default
+            )),
         }
     }
 

@@ -45,22 +45,31 @@ const SHOWN_CHARS: usize = 60;
 /// `name` quoted for a message, cut to its first 60 characters with its length said, so a
 /// name of any length makes a message of bounded length.
 pub fn shown(name: &str) -> String {
-    let count = name.chars().count();
-    if count <= SHOWN_CHARS {
-        return format!("{name:?}");
+    quoted(name, SHOWN_CHARS)
+}
+
+/// `text` quoted, cut to its first `chars` characters with its length said when it was cut.
+pub fn quoted(text: &str, chars: usize) -> String {
+    match head(text, chars) {
+        (all, None) => format!("{all:?}"),
+        (head, Some(count)) => format!("{head:?}… ({count} characters)"),
     }
-    let head: String = name.chars().take(SHOWN_CHARS).collect();
-    format!("{head:?}… ({count} characters)")
 }
 
 /// `text` cut to its first `chars` characters, its length said when it was cut.
 pub fn cut(text: &str, chars: usize) -> String {
-    let count = text.chars().count();
-    if count <= chars {
-        return text.to_string();
+    match head(text, chars) {
+        (all, None) => all.to_string(),
+        (head, Some(count)) => format!("{head}… ({count} characters)"),
     }
-    let head: String = text.chars().take(chars).collect();
-    format!("{head}… ({count} characters)")
+}
+
+/// `text`'s first `chars` characters, and its length in characters where that cuts it.
+fn head(text: &str, chars: usize) -> (&str, Option<usize>) {
+    match text.char_indices().nth(chars) {
+        None => (text, None),
+        Some((end, _)) => (&text[..end], Some(text.chars().count())),
+    }
 }
 
 /// Checks that `rel`, joined to a folder `depth` levels below the dataset folder, names

@@ -43,25 +43,24 @@ pub fn install_signal_handlers() -> Result<(), SignalHandlerError> {
     use signal_hook::consts::{SIGINT, SIGTERM};
     use signal_hook::flag;
     let requested = process_flag();
-    let armed = Arc::new(AtomicBool::new(false));
     let refused = |handler: String| move |source| SignalHandlerError { handler, source };
-    // registered first, so they see `armed` as it was before this signal
-    for signal in [SIGINT, SIGTERM] {
-        flag::register_conditional_shutdown(signal, 128 + signal, Arc::clone(&armed)).map_err(
-            refused(format!("the second-signal handler of signal {signal}")),
-        )?;
-    }
-    // a watcher arms the shutdown a while after the first request (the handlers themselves
-    // may only set flags)
-    let (watched, arming) = (Arc::clone(&requested), Arc::clone(&armed));
+    // a watcher that blocks until a signal comes: the first starts the clock, one that comes
+    // SECOND_SIGNAL_AFTER or later ends the process (the handlers themselves may only set flags)
+    let mut signals = signal_hook::iterator::Signals::new([SIGINT, SIGTERM])
+        .map_err(refused("the stop-request watcher".into()))?;
     std::thread::Builder::new()
         .name("stop-request".into())
         .spawn(move || {
-            while !watched.load(Ordering::SeqCst) {
-                std::thread::sleep(std::time::Duration::from_millis(50));
+            let mut first = None;
+            for signal in signals.forever() {
+                match first {
+                    None => first = Some(std::time::Instant::now()),
+                    Some(at) if at.elapsed() >= SECOND_SIGNAL_AFTER => {
+                        std::process::exit(128 + signal)
+                    }
+                    Some(_) => {}
+                }
             }
-            std::thread::sleep(SECOND_SIGNAL_AFTER);
-            arming.store(true, Ordering::SeqCst);
         })
         .map_err(refused("the stop-request watcher".into()))?;
     for signal in [SIGINT, SIGTERM] {

@@ -133,8 +133,8 @@ const RADIUS_RANGE: std::ops::RangeInclusive<f32> = 1e-4..=1.0;
 /// Frame rates a scene may give (the built-in scenes' and NeuroFluid's: 50).
 const FPS_RANGE: std::ops::RangeInclusive<f32> = 1.0..=1e4;
 
-/// How far from the origin a scene's box and far plane may reach, in metres.
-const SCENE_EXTENT: f32 = 1e4;
+/// How far from the origin a scene's box, far plane and cameras may reach, in metres.
+pub(super) const SCENE_EXTENT: f32 = 1e4;
 
 static NO_VIEWS: ViewSet = ViewSet {
     views: Vec::new(),

@@ -215,13 +215,14 @@ fn degenerate(c: &Camera) -> Option<(&'static str, String)> {
             }
         }
     }
+    let reach = f64::from(manifest::SCENE_EXTENT);
     if let Some(v) = (0..3)
         .map(|i| r(i, 3))
-        .find(|v| v.is_nan() || v.abs() > CAMERA_REACH)
+        .find(|v| v.is_nan() || v.abs() > reach)
     {
         return Some((
             "transform_matrix",
-            format!("a camera position within ±{CAMERA_REACH} m of the origin, found {v:e}"),
+            format!("a camera position within ±{reach} m of the origin, found {v:e}"),
         ));
     }
     None
@@ -241,9 +242,6 @@ fn same_camera(a: &Camera, b: &Camera) -> bool {
 /// How far a rotation's columns may be from unit length and right angles.
 const ROTATION_TOLERANCE: f64 = 1e-2;
 
-/// How far from the origin a camera may stand, in metres.
-const CAMERA_REACH: f64 = 1e4;
-
 /// An opened scene directory.
 #[derive(Debug, Clone)]
 pub struct Scene {
@@ -259,9 +257,9 @@ impl Scene {
     /// views, and checks that each has the frames the manifest asks for, that their first
     /// image exists with the size the transforms give, that every frame's camera is one a real
     /// scene has, that no test camera is a training camera, and that the images the roles use
-    /// fit `NEUROFLUID_MAX_DATASET_MB` decoded. A scene without images (its particles only: for DLF rollouts and DLF
-    /// training) opens where its transforms give the images' size (`w`, `h`); loading an image
-    /// it lacks is then the error that names it.
+    /// fit `NEUROFLUID_MAX_DATASET_MB` decoded. A scene without images (its particles only: for
+    /// DLF rollouts and DLF training) opens where its transforms give the images' size (`w`,
+    /// `h`); loading an image it lacks is then the error that names it.
     pub fn open(dir: impl AsRef<Path>) -> Result<Self> {
         let root = dir.as_ref().to_path_buf();
         if !root.is_dir() {
@@ -361,13 +359,9 @@ impl Scene {
     fn check_test_views_are_novel(&self) -> Result<()> {
         let first = |role: Role| self.frames(role).start;
         for test in self.views(Role::Test) {
-            let Ok(seen) = self.camera(Role::Test, test, first(Role::Test)) else {
-                continue;
-            };
+            let seen = self.camera(Role::Test, test, first(Role::Test))?;
             for train in self.views(Role::Train) {
-                let Ok(trained) = self.camera(Role::Train, train, first(Role::Train)) else {
-                    continue;
-                };
+                let trained = self.camera(Role::Train, train, first(Role::Train))?;
                 if same_camera(&seen, &trained) {
                     let split = self.view_split(Role::Test, test)?;
                     return Err(SceneError::field(
