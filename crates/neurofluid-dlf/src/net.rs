@@ -379,18 +379,16 @@ impl DlfNet {
             (cfg.rules.energy_cap == EnergyCap::Particle).then(|| (pos.clone(), vel.clone()));
         let pos = self.to_model(pos);
         let vel = self.to_model(vel);
-        let g: Tensor<2> = match &self.physics {
-            None => {
-                let g = cfg
-                    .model_gravity()
-                    .map(|c| cfg.dt * cfg.rules.gravity_scale as f32 * c);
-                neurofluid_core::transfer::upload(TensorData::new(g.to_vec(), [1, 3]), &device)
-            }
+        let row = |g: [f32; 3]| -> Tensor<2> {
+            neurofluid_core::transfer::upload(TensorData::new(g.to_vec(), [1, 3]), &device)
+        };
+        let g = match &self.physics {
+            None => row(cfg
+                .model_gravity()
+                .map(|c| cfg.dt * cfg.rules.gravity_scale as f32 * c)),
             Some(p) => {
-                let g = cfg.model_gravity().map(|c| cfg.dt * c);
-                let g: Tensor<2> =
-                    neurofluid_core::transfer::upload(TensorData::new(g.to_vec(), [1, 3]), &device);
-                g * p.gravity_scale.clone().reshape([1, 1])
+                row(cfg.model_gravity().map(|c| cfg.dt * c))
+                    * p.gravity_scale.clone().reshape([1, 1])
             }
         };
         let vel_pred = vel.clone() + g;

@@ -27,13 +27,13 @@ pub const PHYSICS_NAMES: [&str; 3] = ["gravity_scale", "viscosity", "dissipation
 impl PhysicsValues {
     /// The rules' constants as tensors on `device`.
     pub fn of_rules(rules: &StepRules, device: &Device) -> Self {
-        let scalar = |v: f64| -> Tensor<1> {
+        let [gravity_scale, viscosity, dissipation] = values_of(rules).map(|v| -> Tensor<1> {
             neurofluid_core::transfer::upload(TensorData::new(vec![v as f32], [1]), device)
-        };
+        });
         Self {
-            gravity_scale: scalar(rules.gravity_scale),
-            viscosity: scalar(rules.viscosity),
-            dissipation: scalar(rules.dissipation),
+            gravity_scale,
+            viscosity,
+            dissipation,
         }
     }
 
@@ -51,6 +51,11 @@ impl PhysicsValues {
     pub fn into_rules(&self, rules: StepRules) -> StepRules {
         rules_with(rules, self.to_array())
     }
+}
+
+/// The gravity scale, viscosity and dissipation of `rules`, in the order of [`PHYSICS_NAMES`].
+pub fn values_of(rules: &StepRules) -> [f64; 3] {
+    [rules.gravity_scale, rules.viscosity, rules.dissipation]
 }
 
 /// `rules` with `values` (in the order of [`PHYSICS_NAMES`]) in place of its gravity scale,

@@ -63,6 +63,15 @@ pub struct Args {
 }
 
 impl Args {
+    /// How the runs start: over (`--fresh`) or from their checkpoints.
+    fn start(&self) -> Start {
+        if self.fresh {
+            Start::Fresh
+        } else {
+            Start::Resume
+        }
+    }
+
     /// Whether this invocation trains (and so stops between steps on SIGTERM or SIGINT).
     pub fn trains(&self) -> bool {
         !(self.table || self.status || self.slurm)
@@ -89,11 +98,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 .unwrap_or_default()
         );
     }
-    let start = if args.fresh {
-        Start::Fresh
-    } else {
-        Start::Resume
-    };
     if args.table {
         table(&sweep, args.device.as_deref())
     } else if args.status {
@@ -102,7 +106,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         submit(&sweep, &args)
     } else if let Some(key) = &args.variant {
         let (index, variant) = sweep.find(key)?;
-        let report = run_variant(&sweep, index, variant, args.device.as_deref(), start)?;
+        let report = run_variant(&sweep, index, variant, args.device.as_deref(), args.start())?;
         println!("{}", report.markdown());
         println!("results in {}", variant.experiment.out_dir().display());
         Ok(())
@@ -120,15 +124,10 @@ fn run_all_variants(sweep: &Sweep, args: &Args) -> anyhow::Result<()> {
         sweep.out_dir.display()
     );
     let _lock = FolderLock::acquire(&sweep.out_dir)?;
-    let start = if args.fresh {
-        Start::Fresh
-    } else {
-        Start::Resume
-    };
     let mut rows = Vec::new();
     let mut failed = Vec::new();
     for (index, variant) in sweep.variants.iter().enumerate() {
-        let outcome = run_variant(sweep, index, variant, args.device.as_deref(), start);
+        let outcome = run_variant(sweep, index, variant, args.device.as_deref(), args.start());
         let (state, report) = match outcome {
             Ok(report) => (DONE.to_string(), Some(report)),
             Err(e) if stop_request::stopped(e.as_ref()).is_some() => return Err(e),
@@ -145,6 +144,15 @@ fn run_all_variants(sweep: &Sweep, args: &Args) -> anyhow::Result<()> {
     println!("{table}");
     println!("table written to {}", sweep.out_dir.display());
     some_failed(sweep, &failed)
+}
+
+/// The state of a run whose state file cannot be read.
+const UNREADABLE: &str = "unreadable";
+
+/// Whether a run's state (as `--table` and `--status` name it) is a failure: `failed`, or a
+/// state file that cannot be read.
+fn is_failure(state: &str) -> bool {
+    state == Phase::Failed.as_str() || state == UNREADABLE
 }
 
 /// An error when runs of the sweep failed (the programs then exit with status 1: a script or a
@@ -232,12 +240,12 @@ fn table(sweep: &Sweep, device: Option<&str>) -> anyhow::Result<()> {
                 let state = match &recorded {
                     Ok(Some(s)) if s.state != Phase::Done => s.state.as_str(),
                     Ok(_) => "missing",
-                    Err(_) => "unreadable",
+                    Err(_) => UNREADABLE,
                 };
                 if state != Phase::Pending.as_str() && state != Phase::Running.as_str() {
                     tracing::warn!("run {}: no row: {e:#}", variant.name);
                 }
-                if state == Phase::Failed.as_str() || state == "unreadable" {
+                if is_failure(state) {
                     failed.push(variant.name.as_str());
                 }
                 (state.to_string(), None)
@@ -305,7 +313,7 @@ fn status(sweep: &Sweep) -> anyhow::Result<()> {
             Err(e) => {
                 let mut cells: [String; 5] = Default::default();
                 cells[3] = format!("{e:#}");
-                ("unreadable".to_string(), cells)
+                (UNREADABLE.to_string(), cells)
             }
         };
         println!(
@@ -313,7 +321,7 @@ fn status(sweep: &Sweep) -> anyhow::Result<()> {
             variant.name,
             cells.join(" | ")
         );
-        if word == Phase::Failed.as_str() || word == "unreadable" {
+        if is_failure(&word) {
             failed.push(variant.name.as_str());
         }
         match counts.iter_mut().find(|(w, _)| *w == word) {

@@ -171,6 +171,16 @@ impl SlurmOptions {
         }
     }
 
+    /// Where a job runs and who pays: partition, account, QOS (the tasks' and the table job's
+    /// `#SBATCH` options alike).
+    fn placement(&self) -> [(&'static str, &Option<String>); 3] {
+        [
+            ("partition", &self.partition),
+            ("account", &self.account),
+            ("qos", &self.qos),
+        ]
+    }
+
     /// Whether no option is set.
     pub fn is_empty(&self) -> bool {
         *self == Self::default()
@@ -322,13 +332,10 @@ impl ArrayScript<'_> {
             "--signal=B:TERM@{}",
             o.signal_before.unwrap_or(DEFAULT_SIGNAL_BEFORE_S)
         ));
-        let words = [
-            ("partition", &o.partition),
-            ("account", &o.account),
-            ("qos", &o.qos),
-            ("time", &o.time),
-            ("mem", &o.mem),
-        ];
+        let words = o
+            .placement()
+            .into_iter()
+            .chain([("time", &o.time), ("mem", &o.mem)]);
         for (name, value) in words {
             if let Some(v) = value {
                 directive(format!("--{name}={v}"));
@@ -519,11 +526,7 @@ pub fn submit_table_job(job: &str, script: &ArrayScript<'_>) -> anyhow::Result<S
         "--cpus-per-task=1".into(),
         "--time=30".into(),
     ];
-    for (name, value) in [
-        ("partition", &o.partition),
-        ("account", &o.account),
-        ("qos", &o.qos),
-    ] {
+    for (name, value) in o.placement() {
         if let Some(v) = value {
             args.push(format!("--{name}={v}"));
         }

@@ -47,22 +47,18 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
         Some(run.exp.diagnostics.weight_interpolation).filter(|&f| f != 1.0);
     report.dlf_rules = run.exp.dlf.rules.describe();
     if let Some(fit) = &run.exp.joint.physics {
-        let (from, to) = (run.exp.dlf.rules, models.dlf.config.rules);
-        let pairs = [
-            ("gravity_scale", to.gravity_scale, from.gravity_scale),
-            ("viscosity", to.viscosity, from.viscosity),
-            ("dissipation", to.dissipation, from.dissipation),
-        ];
+        use neurofluid_dlf::physics::{PHYSICS_NAMES, values_of};
+        let (from, to) = (
+            values_of(&run.exp.dlf.rules),
+            values_of(&models.dlf.config.rules),
+        );
         report.fitted_physics = crate::config::PhysicalScalar::ALL
             .iter()
             .filter(|s| fit.fits(**s))
-            .map(|s| {
-                let (name, value, from) = pairs[s.index()];
-                neurofluid_outputs::report::FittedScalar {
-                    name: name.into(),
-                    value,
-                    from,
-                }
+            .map(|s| neurofluid_outputs::report::FittedScalar {
+                name: PHYSICS_NAMES[s.index()].into(),
+                value: to[s.index()],
+                from: from[s.index()],
             })
             .collect();
     }

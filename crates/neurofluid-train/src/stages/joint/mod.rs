@@ -307,6 +307,8 @@ impl JointTrainer {
         stats: &mut StepStats,
     ) {
         let (lr_p, lr_d) = (self.opt_physnerf.lr(), self.opt_dlf.lr());
+        let lr_physics = self.physics.as_ref().map(|p| p.opt.lr());
+        let mut fitted = None;
         let norm_p = gradients::norm_of(&sums[..n_physnerf]);
         let norm_d = dlf
             .as_ref()
@@ -317,7 +319,9 @@ impl JointTrainer {
                 self.dlf = self.opt_dlf.step(self.dlf.clone(), g);
             }
             if let (Some(p), Some(g)) = (&mut self.physics, physics) {
-                p.module = p.opt.step(p.module.clone(), g).clamped();
+                let values;
+                (p.module, values) = p.opt.step(p.module.clone(), g).clamped();
+                fitted = Some(values);
             }
         }
         // a point to log, evaluate and checkpoint at: nothing pending in either group (between
@@ -327,9 +331,8 @@ impl JointTrainer {
             stats.grad_norms.push(("dlf", norm_d));
             stats.lrs = vec![("physnerf", lr_p), ("dlf", lr_d)];
             stats.updated = true;
-            if let Some(p) = &self.physics {
-                stats.lrs.push(("physics", p.opt.lr()));
-                let values = p.module.to_array();
+            if let (Some(lr), Some(values)) = (lr_physics, fitted) {
+                stats.lrs.push(("physics", lr));
                 stats
                     .scalars
                     .extend(physics::COLUMNS.into_iter().zip(values));

@@ -28,7 +28,7 @@ pub struct Physics {
 impl Physics {
     /// The rules' values on `device`.
     pub fn of_rules(rules: &StepRules, device: &Device) -> Self {
-        let v = [rules.gravity_scale, rules.viscosity, rules.dissipation].map(|x| x as f32);
+        let v = neurofluid_dlf::physics::values_of(rules).map(|x| x as f32);
         Self {
             values: Param::from_tensor(upload(TensorData::new(v.to_vec(), [3]), device)),
         }
@@ -55,8 +55,9 @@ impl Physics {
         [0, 1, 2].map(|k| s.get(k).copied().unwrap_or(f64::NAN))
     }
 
-    /// These values clamped into their bounds (after an update).
-    pub fn clamped(self) -> Self {
+    /// These values clamped into their bounds (after an update), and the values clamped (one
+    /// read of the device).
+    pub fn clamped(self) -> (Self, [f64; 3]) {
         let v = self.to_array();
         let clamped: Vec<f32> = PhysicalScalar::ALL
             .iter()
@@ -65,14 +66,15 @@ impl Physics {
                 v[s.index()].clamp(lo, hi) as f32
             })
             .collect();
-        if clamped.iter().zip(&v).all(|(c, v)| f64::from(*c) == *v) {
-            return self;
+        let read = [0, 1, 2].map(|k| f64::from(clamped[k]));
+        if read == v {
+            return (self, v);
         }
         let device = self.values.val().device();
         // the same parameter (its id keys its Adam state), its value clamped
         let mut values = Param::from_tensor(upload(TensorData::new(clamped, [3]), &device));
         values.id = self.values.id;
-        Self { values }
+        (Self { values }, read)
     }
 
     /// `rules` with these values in place of its gravity scale, viscosity and dissipation.
@@ -95,7 +97,7 @@ mod tests {
             ..StepRules::default()
         };
         let p = Physics::of_rules(&rules, &device);
-        let inside = p.clone().clamped().to_array();
+        let inside = p.clone().clamped().1;
         assert!((inside[0] - 1.7).abs() < 1e-6 && (inside[1] - 0.2).abs() < 1e-6);
         let wild = Physics {
             values: Param::from_tensor(upload(
@@ -103,7 +105,9 @@ mod tests {
                 &device,
             )),
         };
-        assert_eq!(wild.clamped().to_array(), [4.0, 0.0, 0.5]);
+        let (wild, values) = wild.clamped();
+        assert_eq!(values, [4.0, 0.0, 0.5]);
+        assert_eq!(wild.to_array(), values);
         let fit = PhysicsFit {
             fit: vec![PhysicalScalar::Viscosity],
             optim: Default::default(),
