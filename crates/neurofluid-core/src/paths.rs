@@ -30,13 +30,10 @@ pub fn one_component(name: &str) -> Result<(), String> {
     ))
 }
 
-/// The first name of `names` that an earlier one repeats.
-pub fn first_repeated(names: &[String]) -> Option<&str> {
+/// The first item of `items` (names in a list) that an earlier one repeats.
+pub fn first_repeated<T: Eq + std::hash::Hash>(items: &[T]) -> Option<&T> {
     let mut seen = std::collections::HashSet::new();
-    names
-        .iter()
-        .map(String::as_str)
-        .find(|name| !seen.insert(*name))
+    items.iter().find(|item| !seen.insert(*item))
 }
 
 /// The characters of a name a message shows at most.
@@ -124,7 +121,10 @@ mod tests {
     #[test]
     fn repeats_are_found_and_long_names_cut() {
         let names = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
-        assert_eq!(first_repeated(&names(&["a", "b", "a", "b"])), Some("a"));
+        assert_eq!(
+            first_repeated(&names(&["a", "b", "a", "b"])).map(String::as_str),
+            Some("a")
+        );
         assert_eq!(first_repeated(&names(&["a", "b"])), None);
         assert_eq!(shown("view_1"), "\"view_1\"");
         let long = "x".repeat(100 << 20);

@@ -227,13 +227,8 @@ impl Section for JointSection {
                      (or no [joint.physics] table)",
                 );
             }
-            if let Some(i) =
-                (1..physics.fit.len()).find(|&i| physics.fit[..i].contains(&physics.fit[i]))
-            {
-                return problem(
-                    "physics.fit",
-                    &format!("{:?} is listed twice", physics.fit[i]),
-                );
+            if let Some(twice) = neurofluid_core::paths::first_repeated(&physics.fit) {
+                return problem("physics.fit", &format!("{twice:?} is listed twice"));
             }
             if let Some(p) = under("physics.optim", physics.optim.problem()) {
                 return Some(p);

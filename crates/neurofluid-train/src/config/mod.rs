@@ -652,6 +652,22 @@ mod tests {
                 "joint.terms.energy.weight",
             ),
             (
+                "[scene]\nbuiltin = \"watercube\"\n[dlf]\ndissipation = 1.0\n",
+                "dlf.dissipation",
+            ),
+            (
+                "[scene]\nbuiltin = \"watercube\"\n[joint.physics]\nfit = []\n",
+                "joint.physics.fit",
+            ),
+            (
+                "[scene]\nbuiltin = \"watercube\"\n[joint.physics]\nfit = [\"viscosity\", \"viscosity\"]\n",
+                "joint.physics.fit",
+            ),
+            (
+                "[scene]\nbuiltin = \"watercube\"\n[joint.physics]\nfit = [\"viscosity\"]\noptim = { lr = -1.0 }\n",
+                "joint.physics.optim.lr",
+            ),
+            (
                 "[scene]\nbuiltin = \"watercube\"\n[eval]\nviews = [\"view_5\", \"view_5\"]\n",
                 "eval.views",
             ),

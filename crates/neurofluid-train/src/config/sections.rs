@@ -562,7 +562,7 @@ impl JointSection {
 
 /// A physical scalar of DLF's step that the joint stage can fit
 /// ([`neurofluid_dlf::physics`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum PhysicalScalar {
     /// The pre-step's gravity scale (`dlf.gravity_scale`), kept in [0.25, 4].

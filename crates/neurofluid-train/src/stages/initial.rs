@@ -16,7 +16,7 @@ use serde::{Deserialize, Serialize};
 use super::nerf::{self, NerfKind};
 use super::run_folder::Run;
 use super::views::load_particles;
-use crate::config::{InitialParticles, Settings};
+use crate::config::{InitialParticles, Settings, SurfaceThreshold};
 use crate::stage::Stage;
 use neurofluid_outputs::geometry::silhouette_iso::{Coverage, silhouette_iso, usable_views};
 use neurofluid_outputs::geometry::volume_fill::{DensityGrid, FillSettings, surface_and_fill};
@@ -174,7 +174,7 @@ pub fn recover(run: &Run, log: &mut MetricsLog) -> anyhow::Result<InitialReport>
             .collect::<Vec<_>>()
             .join(", ")
     );
-    if cfg.iso(radius, 1.0).is_none() {
+    if cfg.threshold == SurfaceThreshold::Silhouette {
         usable_views(&coverage(&views))?;
     }
     let nerf = nerf::train(run, log, NerfKind::Nerf)?;
