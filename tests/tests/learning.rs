@@ -94,6 +94,8 @@ fn the_ci_experiment_learns() {
         nf != dlf,
         "NeuroFluid's rollout is DLF's (d {nf} for both): the grounding changed nothing"
     );
+    // the experiment steps as the paper (no rules): its DLF row is the paper's, given once
+    assert_eq!(s.grounding.d_of(Rollout::PublishedDlf), None);
 
     // what a person looks at: per test view an animation of truth | DLF | NeuroFluid over the
     // rendered frames, and the particle sets at the first, last grounding and last frame

@@ -5,6 +5,7 @@ mod bad_inputs;
 mod camera_files;
 mod config_reference;
 mod fuzz_inputs;
+mod grounding_grounds;
 mod held_out_view;
 mod joint_diagnostics;
 mod learning;

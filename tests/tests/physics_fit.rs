@@ -95,3 +95,36 @@ fn the_joint_stage_fits_the_physical_scalars_and_resumes_exactly() {
         "DLF differs after resuming"
     );
 }
+
+/// `hold_dlf_epochs`: while DLF is held its weights take no step and the scalars still move;
+/// after it, DLF is grounded with them.
+#[test]
+fn a_held_dlf_takes_no_step_while_the_scalars_move() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let mut e = experiment(tmp.path(), "held");
+    e.apply_overrides(&["joint.epochs=2", "joint.physics.hold_dlf_epochs=1"])
+        .unwrap();
+    let run = Run::prepare(e, Start::Resume, &Stage::ALL).unwrap();
+    let pretrained = run.load_dlf(&run.exp.dlf.weights).unwrap();
+    let mut log = MetricsLog::open(&run.dir).unwrap();
+    warmup::run(&run, &mut log).unwrap();
+    // the first epoch: DLF held
+    let transitions = run.scene.frames(neurofluid_core::scene::Role::Train).len() as u64 - 1;
+    joint::run_until(&run, &mut log, Some(transitions)).unwrap();
+    let held = joint::load_trained(&run).unwrap();
+    assert!(
+        params(&held.dlf) == params(&pretrained),
+        "DLF's weights moved while held"
+    );
+    assert_ne!(
+        held.dlf.config.rules.gravity_scale, 1.5,
+        "the scalars did not move while DLF was held"
+    );
+    // the second: grounded with them
+    let grounded = joint::run(&run, &mut log).unwrap();
+    assert!(
+        params(&grounded.dlf) != params(&pretrained),
+        "DLF was never grounded after the held epochs"
+    );
+}

@@ -108,6 +108,8 @@ struct FrameDistanceFile {
     dlf: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     supervised_dlf: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    published_dlf: Option<f64>,
     #[serde(default, skip_serializing_if = "ReverseFile::is_empty")]
     reverse: ReverseFile,
 }
@@ -121,6 +123,8 @@ struct ReverseFile {
     dlf: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     supervised_dlf: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    published_dlf: Option<f64>,
 }
 
 impl ReverseFile {
@@ -135,26 +139,38 @@ impl From<FrameDistanceFile> for FrameDistance {
         let r = f.reverse;
         Self {
             t: f.t,
-            d: Rollouts::in_table_order(Some(f.neurofluid), f.dlf, f.supervised_dlf),
-            reverse: Rollouts::in_table_order(r.neurofluid, r.dlf, r.supervised_dlf),
+            d: Rollouts::in_table_order([
+                Some(f.neurofluid),
+                f.dlf,
+                f.supervised_dlf,
+                f.published_dlf,
+            ]),
+            reverse: Rollouts::in_table_order([
+                r.neurofluid,
+                r.dlf,
+                r.supervised_dlf,
+                r.published_dlf,
+            ]),
         }
     }
 }
 
 impl From<FrameDistance> for FrameDistanceFile {
     fn from(f: FrameDistance) -> Self {
-        let [neurofluid, dlf, supervised_dlf] = f.d.of_models();
-        let [r_neurofluid, r_dlf, r_supervised_dlf] = f.reverse.of_models();
+        let [neurofluid, dlf, supervised_dlf, published_dlf] = f.d.of_models();
+        let [r_neurofluid, r_dlf, r_supervised_dlf, r_published_dlf] = f.reverse.of_models();
         Self {
             t: f.t,
             // NeuroFluid's d is in every report: the evaluation always rolls it out
             neurofluid: neurofluid.unwrap_or(f64::NAN),
             dlf,
             supervised_dlf,
+            published_dlf,
             reverse: ReverseFile {
                 neurofluid: r_neurofluid,
                 dlf: r_dlf,
                 supervised_dlf: r_supervised_dlf,
+                published_dlf: r_published_dlf,
             },
         }
     }
@@ -219,17 +235,18 @@ impl<T> Rollouts<T> {
 }
 
 impl Rollouts<f64> {
-    /// NeuroFluid's, DLF's and DLF†'s values (in that order: the files' fields), where set.
-    fn of_models(&self) -> [Option<f64>; 3] {
-        [Rollout::NeuroFluid, Rollout::Dlf, Rollout::SupervisedDlf].map(|m| self.get(m).copied())
+    /// The values in the order of the files' fields ([`Rollout::FILE_ORDER`]), where set.
+    fn of_models(&self) -> [Option<f64>; 4] {
+        Rollout::FILE_ORDER.map(|m| self.get(m).copied())
     }
 
-    /// NeuroFluid's, DLF's and DLF†'s values where there are, in table order.
-    fn in_table_order(neurofluid: Option<f64>, dlf: Option<f64>, supervised: Option<f64>) -> Self {
-        Self::new()
-            .with(Rollout::Dlf, dlf)
-            .with(Rollout::SupervisedDlf, supervised)
-            .with(Rollout::NeuroFluid, neurofluid)
+    /// Values in the order of the files' fields ([`Rollout::FILE_ORDER`]) where there are, in
+    /// table order.
+    fn in_table_order(values: [Option<f64>; 4]) -> Self {
+        Rollout::ALL.into_iter().fold(Self::new(), |r, m| {
+            let k = Rollout::FILE_ORDER.iter().position(|f| *f == m);
+            r.with(m, k.and_then(|k| values[k]))
+        })
     }
 }
 
@@ -237,8 +254,12 @@ impl Rollouts<f64> {
 /// knows (its table's wording, its plots' colours); [`Rollouts`] takes any other label too.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Rollout {
-    /// The pretrained DLF (the paper's DLF).
+    /// The pretrained DLF (the paper's DLF), under the run's rules.
     Dlf,
+    /// The pretrained DLF stepped as the paper steps it (no walls, cap, gravity scale,
+    /// viscosity or dissipation): beside [`Rollout::Dlf`] when the run's rules differ, so that
+    /// the paper's comparison stays in the report.
+    PublishedDlf,
     /// DLF fine-tuned with supervision on the training frames (the paper's DLF†).
     SupervisedDlf,
     /// The grounded DLF.
@@ -247,7 +268,20 @@ pub enum Rollout {
 
 impl Rollout {
     /// Every rollout, in table order.
-    pub const ALL: [Rollout; 3] = [Rollout::Dlf, Rollout::SupervisedDlf, Rollout::NeuroFluid];
+    pub const ALL: [Rollout; 4] = [
+        Rollout::Dlf,
+        Rollout::PublishedDlf,
+        Rollout::SupervisedDlf,
+        Rollout::NeuroFluid,
+    ];
+
+    /// The order of the report files' fields (earlier releases wrote the first three).
+    const FILE_ORDER: [Rollout; 4] = [
+        Rollout::NeuroFluid,
+        Rollout::Dlf,
+        Rollout::SupervisedDlf,
+        Rollout::PublishedDlf,
+    ];
 
     /// The rollout's d in `f`, if it was evaluated.
     pub fn of(self, f: &FrameDistance) -> Option<f64> {
@@ -263,6 +297,7 @@ impl Rollout {
     pub fn label(self) -> &'static str {
         match self {
             Rollout::Dlf => "DLF",
+            Rollout::PublishedDlf => "DLF (paper's step)",
             Rollout::SupervisedDlf => "DLF†",
             Rollout::NeuroFluid => "NeuroFluid",
         }
@@ -277,6 +312,7 @@ impl Rollout {
     pub fn key(self) -> &'static str {
         match self {
             Rollout::Dlf => "dlf",
+            Rollout::PublishedDlf => "published_dlf",
             Rollout::SupervisedDlf => "supervised_dlf",
             Rollout::NeuroFluid => "neurofluid",
         }
@@ -360,7 +396,7 @@ pub struct ImageScore {
 
 /// Means over a window, `None` where the window holds no value: d of each rollout (by label)
 /// and the image metrics. Report files hold a field per model's d (`neurofluid_d`, `dlf_d`,
-/// `supervised_dlf_d`), as every earlier release wrote them.
+/// `supervised_dlf_d`, as every earlier release wrote them, and `published_dlf_d`).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(from = "WindowMeansFile", into = "WindowMeansFile")]
 pub struct WindowMeans {
@@ -381,6 +417,8 @@ struct WindowMeansFile {
     dlf_d: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     supervised_dlf_d: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    published_dlf_d: Option<f64>,
     psnr: Option<f64>,
     ssim: Option<f64>,
     #[serde(default)]
@@ -390,7 +428,12 @@ struct WindowMeansFile {
 impl From<WindowMeansFile> for WindowMeans {
     fn from(f: WindowMeansFile) -> Self {
         Self {
-            d: Rollouts::in_table_order(f.neurofluid_d, f.dlf_d, f.supervised_dlf_d),
+            d: Rollouts::in_table_order([
+                f.neurofluid_d,
+                f.dlf_d,
+                f.supervised_dlf_d,
+                f.published_dlf_d,
+            ]),
             psnr: f.psnr,
             ssim: f.ssim,
             lpips: f.lpips,
@@ -400,11 +443,12 @@ impl From<WindowMeansFile> for WindowMeans {
 
 impl From<WindowMeans> for WindowMeansFile {
     fn from(m: WindowMeans) -> Self {
-        let [neurofluid_d, dlf_d, supervised_dlf_d] = m.d.of_models();
+        let [neurofluid_d, dlf_d, supervised_dlf_d, published_dlf_d] = m.d.of_models();
         Self {
             neurofluid_d,
             dlf_d,
             supervised_dlf_d,
+            published_dlf_d,
             psnr: m.psnr,
             ssim: m.ssim,
             lpips: m.lpips,
@@ -816,6 +860,10 @@ impl EvalReport {
                     ("DLF (pretrained, from the same particles)".into(), None)
                 }
                 Some(Rollout::Dlf) => ("DLF (pretrained baseline)".into(), None),
+                Some(Rollout::PublishedDlf) => (
+                    "DLF (pretrained, the paper's step: published, no rules)".into(),
+                    None,
+                ),
                 Some(Rollout::SupervisedDlf) => {
                     ("DLF† (supervised on the training frames)".into(), None)
                 }
@@ -1189,7 +1237,7 @@ impl EvalReport {
         ts.sort_unstable();
         ts.dedup();
         // a column per model's d, then per model's d′, whether or not it was evaluated
-        let models = [Rollout::NeuroFluid, Rollout::Dlf, Rollout::SupervisedDlf];
+        let models = Rollout::FILE_ORDER;
         let mut header = vec!["t".to_string()];
         header.extend(models.map(|m| format!("{}_d", m.key())));
         header.extend(models.map(|m| format!("{}_d_rev", m.key())));
@@ -1454,6 +1502,34 @@ mod tests {
     /// The table of particles alone lists each sequence in percent, and a report without it
     /// (written before it existed) still reads.
     #[test]
+    fn the_published_dlf_row_sits_beside_the_dlf_under_rules_and_survives_the_file() {
+        let mut r = sample_report();
+        assert!(!r.markdown().contains("the paper's step"));
+        for f in &mut r.frames {
+            let d = f.t as f64 * 3.0;
+            f.d.set(Rollout::PublishedDlf, d);
+            f.reverse.set(Rollout::PublishedDlf, d + 1.0);
+        }
+        let md = r.markdown();
+        let row = md
+            .lines()
+            .position(|l| l.starts_with("| DLF (pretrained, the paper's step"))
+            .expect("the published DLF's row");
+        let dlf = md
+            .lines()
+            .position(|l| l.starts_with("| DLF (pretrained baseline)"));
+        assert_eq!(dlf.map(|k| k + 1), Some(row), "{md}");
+        let back: EvalReport = serde_json::from_str(&serde_json::to_string(&r).unwrap()).unwrap();
+        assert_eq!(back.frames, r.frames);
+        let s = back.summary();
+        assert_eq!(
+            s.grounding.d_of(Rollout::PublishedDlf),
+            r.summary().grounding.d_of(Rollout::PublishedDlf)
+        );
+        assert!(s.grounding.d_of(Rollout::PublishedDlf).is_some());
+    }
+
+    #[test]
     fn alone_table_lists_each_sequence() {
         let mut r = sample_report();
         assert!(!r.markdown().contains("particles alone"));
@@ -1693,7 +1769,8 @@ mod tests {
         let lines: Vec<&str> = csv.lines().collect();
         assert_eq!(
             lines[0],
-            "t,neurofluid_d,dlf_d,supervised_dlf_d,neurofluid_d_rev,dlf_d_rev,supervised_dlf_d_rev,\
+            "t,neurofluid_d,dlf_d,supervised_dlf_d,published_dlf_d,neurofluid_d_rev,dlf_d_rev,\
+             supervised_dlf_d_rev,published_dlf_d_rev,\
              view_5_psnr,view_5_ssim,view_5_lpips,view_6_psnr,view_6_ssim,view_6_lpips"
         );
         assert_eq!(lines.len(), 60);

@@ -34,6 +34,8 @@ pub struct Sequences {
     pub grounded: Positions,
     /// The pretrained DLF it started from (`eval.baseline`).
     pub baseline: Option<Positions>,
+    /// The pretrained DLF stepped as the paper steps it, where the run's rules differ.
+    pub published: Option<Positions>,
     /// DLF† (`eval.supervised_dlf`).
     pub supervised: Option<Positions>,
     /// NeuroFluid's DLF at each fraction of `diagnostics.interpolation_sweep`.
@@ -242,10 +244,12 @@ impl Sequences {
             .collect()
     }
 
-    /// Every rollout evaluated (DLF, DLF†, NeuroFluid), in table order.
+    /// Every rollout evaluated (DLF, DLF under the paper's step, DLF†, NeuroFluid), in table
+    /// order.
     fn rollouts(&self) -> Vec<(Rollout, &Positions)> {
         [
             self.baseline.as_ref().map(|b| (Rollout::Dlf, b)),
+            self.published.as_ref().map(|b| (Rollout::PublishedDlf, b)),
             self.supervised
                 .as_ref()
                 .map(|b| (Rollout::SupervisedDlf, b)),
@@ -396,6 +400,7 @@ mod tests {
             truth: vec![block(); 60],
             grounded,
             baseline: Some(baseline),
+            published: None,
             supervised: None,
             interpolated: Vec::new(),
         }

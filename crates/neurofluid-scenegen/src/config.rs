@@ -116,6 +116,10 @@ pub struct SceneConfig {
     /// Fluid rest density (kg/m³).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub density: Option<f64>,
+    /// Gravity's magnitude (m/s², default 9.81), pointing down the scene's −y: a scene whose
+    /// truth falls faster or slower than the world's, for identifying gravity from images.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gravity: Option<f64>,
     /// Render the warm-up views at every training frame (default false: at frame 0 only).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub warmup_every_frame: Option<bool>,
@@ -142,6 +146,7 @@ impl SceneConfig {
             elevation_deg: None,
             viscosity: None,
             density: None,
+            gravity: None,
             warmup_every_frame: None,
             validation_views: None,
         }
@@ -247,6 +252,9 @@ impl SceneConfig {
             .is_some_and(|v| !(100.0..=20000.0).contains(&v))
         {
             return bad("density", "100 ≤ density ≤ 20000 kg/m³");
+        }
+        if self.gravity.is_some_and(|g| !(0.0..=100.0).contains(&g)) {
+            return bad("gravity", "0 ≤ gravity ≤ 100 m/s²");
         }
         Ok(())
     }

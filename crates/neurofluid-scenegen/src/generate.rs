@@ -71,6 +71,7 @@ pub fn simulate(p: &Preset, frames: usize, progress: bool) -> Simulation {
         .collect();
     let params = SolverParams {
         radius: p.radius,
+        gravity: [0.0, -p.gravity, 0.0],
         ..Default::default()
     };
     let mut solver = Solver::new(

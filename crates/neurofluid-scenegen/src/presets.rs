@@ -32,6 +32,10 @@ pub struct Preset {
     pub viscosity: f64,
     /// Wall viscosity (m²/s).
     pub wall_viscosity: f64,
+    /// Gravity's magnitude (m/s²) down −y; recorded only where it is not the world's, so that
+    /// scenes made before it existed keep their manifests.
+    #[serde(skip_serializing_if = "is_earth")]
+    pub gravity: f64,
     /// Look of the fluid.
     pub appearance: Appearance,
     /// Particle radius (m).
@@ -132,6 +136,7 @@ impl Preset {
             } else {
                 fluid.wall_viscosity
             },
+            gravity: cfg.gravity.unwrap_or(EARTH_GRAVITY),
             appearance: if honey {
                 Appearance::Honey
             } else {
@@ -164,6 +169,13 @@ impl Preset {
     }
 }
 
+/// The world's gravity (m/s²), every built-in scene's unless `gravity` says otherwise.
+pub const EARTH_GRAVITY: f64 = 9.81;
+
+fn is_earth(g: &f64) -> bool {
+    *g == EARTH_GRAVITY
+}
+
 /// The settings that only add views to a scene (compared by no identity check).
 const ADDED_VIEWS: [&str; 2] = ["warmup_every_frame", "validation_views"];
 
@@ -171,15 +183,25 @@ impl Preset {
     /// The settings of this preset that differ from `generator`, the serialisation a generated
     /// scene's manifest records (`warmup_every_frame` and `validation_views` aside: they add
     /// views to an existing scene and change nothing simulated or rendered). Settings the record
-    /// lacks (a scene of an earlier release) are not compared.
+    /// lacks (a scene of an earlier release) are not compared, except gravity, which a record
+    /// leaves out where it is the world's.
     pub fn changes_from(&self, generator: &serde_json::Value) -> Vec<String> {
-        let Ok(serde_json::Value::Object(now)) = serde_json::to_value(self) else {
+        let Ok(serde_json::Value::Object(mut now)) = serde_json::to_value(self) else {
             return Vec::new();
         };
+        now.insert("gravity".into(), serde_json::json!(self.gravity));
         now.iter()
             .filter(|(k, _)| !ADDED_VIEWS.contains(&k.as_str()))
-            .filter(|(k, v)| generator.get(k.as_str()).is_some_and(|g| g != *v))
+            .filter(|(k, v)| recorded(generator, k).is_some_and(|g| g != **v))
             .map(|(k, _)| k.clone())
             .collect()
     }
+}
+
+/// The value of setting `key` in a generator record (`gravity` absent: the world's).
+fn recorded(generator: &serde_json::Value, key: &str) -> Option<serde_json::Value> {
+    generator
+        .get(key)
+        .cloned()
+        .or_else(|| (key == "gravity").then(|| serde_json::json!(EARTH_GRAVITY)))
 }

@@ -309,6 +309,7 @@ pub fn render_curves(rows: &[MetricsRow]) -> RgbImage {
 pub fn rollout_colour(label: impl AsRef<str>) -> Rgb<u8> {
     match Rollout::of_label(label.as_ref()) {
         Some(Rollout::Dlf) => Rgb([217, 130, 43]),
+        Some(Rollout::PublishedDlf) => Rgb([150, 150, 150]),
         Some(Rollout::SupervisedDlf) => Rgb([128, 60, 170]),
         Some(Rollout::NeuroFluid) => Rgb([46, 158, 91]),
         None => LOSS_COLOUR,

@@ -67,7 +67,7 @@ impl Default for SolverParams {
             max_density_error: 0.0005,
             max_divergence_error: 0.001,
             max_iterations: 100,
-            gravity: [0.0, -9.81, 0.0],
+            gravity: [0.0, -crate::presets::EARTH_GRAVITY, 0.0],
         }
     }
 }

@@ -603,6 +603,11 @@ pub struct PhysicsFit {
     /// Their Adam and schedule (1e-2, constant).
     #[serde(default)]
     pub optim: OptimConfig<JointPhysicsGroup>,
+    /// Epochs at the start in which DLF's weights take no step: the scalars (and the renderer)
+    /// are fitted with DLF held, then all jointly (0 = jointly from the start; at least
+    /// `joint.epochs` = the scalars alone).
+    #[serde(default)]
+    pub hold_dlf_epochs: u64,
 }
 
 impl PhysicsFit {

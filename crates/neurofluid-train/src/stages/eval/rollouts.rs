@@ -6,8 +6,8 @@
 use anyhow::Context;
 use burn::module::Module;
 use neurofluid_core::scene::{Particles, Role};
-use neurofluid_dlf::DlfNet;
 use neurofluid_dlf::rollout::rollout;
+use neurofluid_dlf::{DlfNet, StepRules};
 
 use crate::stages::initial::starting_particles;
 use crate::stages::joint::Grounded;
@@ -25,6 +25,16 @@ pub fn of(run: &Run, models: &Grounded) -> anyhow::Result<Sequences> {
     let grounded = positions(run, &evaluated, &start, steps, "NeuroFluid")?;
     let baseline = if cfg.baseline {
         Some(positions(run, &pretrained, &start, steps, "DLF")?)
+    } else {
+        None
+    };
+    // the paper's comparison: the published DLF as the paper steps it, where the rules differ
+    let paper_step = StepRules::default();
+    let published = if cfg.baseline && pretrained.config.rules != paper_step {
+        let mut config = pretrained.config;
+        config.rules = paper_step;
+        let net = pretrained.clone().with_config(config);
+        Some(positions(run, &net, &start, steps, "DLF (paper's step)")?)
     } else {
         None
     };
@@ -48,6 +58,7 @@ pub fn of(run: &Run, models: &Grounded) -> anyhow::Result<Sequences> {
         truth,
         grounded,
         baseline,
+        published,
         supervised,
         interpolated,
     })
@@ -61,6 +72,7 @@ pub fn of_one(run: &Run, net: &DlfNet, what: &str) -> anyhow::Result<Sequences> 
         truth,
         grounded: positions(run, net, &start, steps, what)?,
         baseline: None,
+        published: None,
         supervised: None,
         interpolated: Vec::new(),
     })

@@ -109,6 +109,13 @@ pub struct JointTrainer {
     physics: Option<PhysicsFitting>,
 }
 
+/// DLF's gradients at the end of a window, and whether its weights are held (`[joint.physics]
+/// hold_dlf_epochs`: the norm is still checked and logged, the weights take no step).
+struct DlfGrads {
+    grads: GradientsParams,
+    held: bool,
+}
+
 /// The gradients at the end of a window and their square sums, to be read with the step's values.
 #[derive(Default)]
 struct WindowGrads {
@@ -295,12 +302,20 @@ impl JointTrainer {
         Ok(out)
     }
 
+    /// Whether DLF's weights are held at 0-based iteration `step` (`[joint.physics]
+    /// hold_dlf_epochs`).
+    fn dlf_held(&self, step: u64) -> bool {
+        self.physics
+            .as_ref()
+            .is_some_and(|p| step / self.data.transitions() < p.fit.hold_dlf_epochs)
+    }
+
     /// Steps both Adams with the window's gradients, unless a norm (from the square sums `sums`)
     /// is not finite (the guard stops the run on it), and records the norms and rates in `stats`.
     fn update(
         &mut self,
         physnerf: GradientsParams,
-        dlf: Option<GradientsParams>,
+        dlf: Option<DlfGrads>,
         physics: Option<GradientsParams>,
         sums: &[f64],
         n_physnerf: usize,
@@ -315,8 +330,8 @@ impl JointTrainer {
             .map(|_| gradients::norm_of(&sums[n_physnerf..]));
         if norm_p.is_finite() && norm_d.is_none_or(f64::is_finite) {
             self.physnerf = self.opt_physnerf.step(self.physnerf.clone(), physnerf);
-            if let Some(g) = dlf {
-                self.dlf = self.opt_dlf.step(self.dlf.clone(), g);
+            if let Some(DlfGrads { grads, held: false }) = dlf {
+                self.dlf = self.opt_dlf.step(self.dlf.clone(), grads);
             }
             if let (Some(p), Some(g)) = (&mut self.physics, physics) {
                 let values;
@@ -406,7 +421,10 @@ impl Trainer for JointTrainer {
         }
         self.update(
             g_physnerf,
-            grads.dlf,
+            grads.dlf.map(|grads| DlfGrads {
+                grads,
+                held: self.dlf_held(step),
+            }),
             grads.physics,
             &sums,
             grads.n_physnerf,

@@ -111,6 +111,7 @@ mod tests {
         let fit = PhysicsFit {
             fit: vec![PhysicalScalar::Viscosity],
             optim: Default::default(),
+            hold_dlf_epochs: 0,
         };
         let back = p.into_rules(StepRules::default());
         assert!((back.gravity_scale - 1.7).abs() < 1e-6);
