@@ -4,7 +4,8 @@
 //! with DLF first held and then grounded with it, must lower d against the pretrained DLF under
 //! the same rules, and move the scale from the paper's 1.0 toward the truth's (about 3.6, where
 //! the DLF's free fall would be 19.6 m/s²) without passing it. Its report also rolls the
-//! published DLF out as the paper steps it (no walls), beside the DLF under the run's rules.
+//! published DLF out as the paper steps it (no walls), beside the DLF under the run's rules,
+//! and, given a reference file, g: the share of the way from DLF to the reference.
 
 use neurofluid_outputs::report::Rollout;
 use neurofluid_tests::{seeded_turn, tiny_experiment};
@@ -44,12 +45,31 @@ fn grounding_fits_a_faster_fall_and_lowers_d() {
         "eval.write_ply=false",
     ])
     .unwrap();
+    // a reference file: the report adds g, the share of the way to it
+    let reference = tmp.path().join("reference.toml");
+    std::fs::write(
+        &reference,
+        "description = \"a test's\"\n[scenes.watercube]\ngrounding = 2.0\nprediction = 3.0\n",
+    )
+    .unwrap();
+    e.eval.reference = Some(reference);
     let run = Run::prepare(e, Start::Resume, &Stage::ALL).unwrap();
     let mut log = run.open_log().unwrap();
     warmup::run(&run, &mut log).unwrap();
     let grounded = joint::run(&run, &mut log).unwrap();
     let scale = grounded.dlf.config.rules.gravity_scale;
-    let s = eval::run(&run, &grounded).unwrap().summary();
+    let report = eval::run(&run, &grounded).unwrap();
+    let s = report.summary();
+    let [cd_dlf, cd_nf] =
+        [Rollout::Dlf, Rollout::NeuroFluid].map(|m| report.symmetric_means(m)[0].unwrap());
+    let g = report.gap.as_ref().unwrap().grounding.as_ref().unwrap();
+    assert_eq!(g.share, Some((cd_dlf - cd_nf) / (cd_dlf - 2.0)));
+    assert!(g.share.unwrap() > 0.0);
+    assert!(
+        report
+            .markdown()
+            .contains("The share of the way to supervision")
+    );
     let (nf, dlf) = (
         s.grounding.d_of(Rollout::NeuroFluid).unwrap(),
         s.grounding.d_of(Rollout::Dlf).unwrap(),

@@ -649,7 +649,10 @@ fn the_truth_term_adds_each_steps_squared_error() {
     other.initial.vel.pop();
     let physnerf = PhysNerf::new(run.physnerf_config(), &run.device).unwrap();
     let mut cfg = run.exp.joint.clone();
-    cfg.terms.truth = Some(joint::terms::truth::TruthSettings { weight: 1.0 });
+    cfg.terms.truth = Some(joint::terms::truth::TruthSettings {
+        weight: 1.0,
+        matching: Default::default(),
+    });
     let err = joint::JointTrainer::new(&cfg, physnerf, dlf, other, 0)
         .err()
         .expect("refused")

@@ -10,6 +10,7 @@ pub mod formats;
 pub mod geometry;
 pub mod metrics_log;
 pub mod pictures;
+pub mod reference;
 pub mod report;
 pub mod scoring;
 pub mod sequences;

@@ -536,6 +536,10 @@ pub struct EvalReport {
     /// the rules'. Empty = none fitted.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub fitted_physics: Vec<FittedScalar>,
+    /// The share of the way to supervision the images went, where a reference file was given
+    /// (`eval.reference`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gap: Option<crate::reference::GapShare>,
     /// What rendered NeuroFluid's views (and the renderer on the true particles) when it was not
     /// the PhysNeRF trained jointly with DLF (`refit.enabled`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -717,6 +721,7 @@ impl EvalReport {
             weight_interpolation: None,
             dlf_rules: Vec::new(),
             fitted_physics: Vec::new(),
+            gap: None,
             renderer: None,
             validation_views: false,
             interpolation: Vec::new(),
@@ -774,6 +779,16 @@ impl EvalReport {
     /// The Table 2 row of `model` in d′ (prediction → truth): `None` where it was not evaluated.
     pub fn reverse_row(&self, model: impl AsRef<str>) -> Option<DistanceRow> {
         self.row_of(|f| f.reverse.get(&model).copied())
+    }
+
+    /// The mean symmetric distance (d + d′)/2 of `model` over the grounding and the prediction
+    /// window: `None` where it was not evaluated.
+    pub fn symmetric_means(&self, model: impl AsRef<str>) -> [Option<f64>; 2] {
+        let row = self.symmetric_row(model);
+        [
+            row.as_ref().and_then(|r| r.grounding_mean),
+            row.and_then(|r| r.prediction_mean),
+        ]
     }
 
     /// The symmetric distance (d + d′)/2 of `model`, frame by frame: `None` where d′ was not
@@ -914,6 +929,10 @@ impl EvalReport {
                  (`[joint.physics]`): {}.",
                 values.join(", ")
             );
+        }
+        if let Some(gap) = &self.gap {
+            let w = self.windows;
+            let _ = writeln!(md, "\n{}", gap.markdown([w.grounding, w.prediction]));
         }
         if let Some(fraction) = self.weight_interpolation {
             let _ = writeln!(

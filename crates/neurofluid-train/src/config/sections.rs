@@ -648,6 +648,10 @@ pub struct EvalSection {
     /// --scene`), the paper's supervised reference; rolled out beside the others when set.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub supervised_dlf: Option<PathBuf>,
+    /// A frozen supervised reference (a TOML file: [`neurofluid_outputs::reference`]): the report
+    /// adds g, the share of the way from the pretrained DLF to it that the images went.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reference: Option<PathBuf>,
     /// Write, per test view, an animation of truth | DLF | NeuroFluid over the rendered frames
     /// and a picture of the particle sets coloured by their distance to the truth (renders the
     /// baseline's particles too).
@@ -700,6 +704,7 @@ impl Default for EvalSection {
             ply_format: PlyEncoding::Binary,
             baseline: true,
             supervised_dlf: None,
+            reference: None,
             animate: true,
             viewer: true,
             views: None,

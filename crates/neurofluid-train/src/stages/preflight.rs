@@ -242,6 +242,22 @@ pub fn check(run: &Run, stages: &[Stage], start: Start) -> anyhow::Result<()> {
         if let Some(path) = &exp.eval.supervised_dlf {
             p.check(|| "eval.supervised_dlf".to_string(), run.load_dlf(path));
         }
+        if let Some(path) = &exp.eval.reference {
+            // the file, the scene's entry and its particles, before any stage runs
+            let particles = scene
+                .particle_sequence(Role::Test)
+                .map(|seq| seq.first().map_or(0, |f| f.pos.len()));
+            let name = &scene.manifest().name;
+            p.check(
+                || "eval.reference".to_string(),
+                neurofluid_outputs::reference::ReferenceFile::read(path)
+                    .map_err(anyhow::Error::from)
+                    .and_then(|file| {
+                        let n = particles?;
+                        Ok(file.gap_share(path, name, n, [None; 2], [None; 2])?)
+                    }),
+            );
+        }
         if exp.eval.render {
             let frames: Vec<usize> =
                 neurofluid_outputs::scoring::rendered_steps(test.len(), exp.eval.render_every)

@@ -78,6 +78,23 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
     let dlf = run.dlf_config();
     let fraction = run.exp.diagnostics.weight_interpolation;
     rollouts.measure(&mut report, scene.manifest(), fraction, dlf.dt, dlf.gravity);
+    if let Some(path) = &cfg.reference {
+        use neurofluid_outputs::reference::ReferenceFile;
+        use neurofluid_outputs::report::Rollout;
+        let particles = rollouts.truth.first().map_or(0, Vec::len);
+        let gap = ReferenceFile::read(path)
+            .and_then(|file| {
+                file.gap_share(
+                    path,
+                    &scene.manifest().name,
+                    particles,
+                    report.symmetric_means(Rollout::Dlf),
+                    report.symmetric_means(Rollout::NeuroFluid),
+                )
+            })
+            .context("eval.reference")?;
+        report.gap = Some(gap);
+    }
 
     let dir = run.stage_dir(STAGE);
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
