@@ -17,6 +17,7 @@ mod pipeline_resume;
 mod pretrain_on_scene;
 mod refit;
 mod released_box;
+mod resting_pool;
 mod scene_configs;
 mod scene_generation;
 mod scene_layout;
