@@ -5,7 +5,7 @@
 use std::path::Path;
 
 use neurofluid_outputs::metrics_log::MetricsLog;
-use neurofluid_outputs::report::Rollout;
+use neurofluid_outputs::report::{Rollout, Sequence};
 use neurofluid_tests::{params, seeded_turn, tiny_resumable_experiment};
 use neurofluid_train::commands::rollout;
 use neurofluid_train::config::Experiment;
@@ -75,6 +75,18 @@ fn resumed_run_matches_uninterrupted_run() {
     let alone = rollout::score(&straight, straight.exp.dlf.weights.clone()).unwrap();
     assert_eq!(Some(alone.d), report.distance_row(Rollout::Dlf));
     assert_eq!(Some(alone.d_reverse), report.reverse_row(Rollout::Dlf));
+    // and the energy each particle gained, the rollout's and the truth's, as the report's rows
+    let per_particle = |model: Sequence| {
+        let e = report.energy.iter().find(|e| e.model == model).unwrap();
+        [e.grounding_per_particle, e.prediction_per_particle]
+    };
+    assert_eq!(
+        alone.energy_per_particle,
+        [
+            per_particle(Sequence::Rollout("DLF".into())),
+            per_particle(Sequence::Truth)
+        ]
+    );
     let plot = straight.dir.join("eval").join(eval::DISTANCE_PLOT);
     assert_eq!(image::image_dimensions(&plot).unwrap(), (720, 360));
     assert!(

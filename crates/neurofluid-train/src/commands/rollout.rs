@@ -11,7 +11,7 @@ use super::experiment_args::ExperimentArgs;
 use crate::stages::Run;
 use crate::stages::eval::rollouts;
 use neurofluid_core::scene::Role;
-use neurofluid_outputs::report::{DistanceRow, EvalReport, Rollout, Windows};
+use neurofluid_outputs::report::{DistanceRow, EvalReport, Rollout, Sequence, Windows};
 
 /// Arguments of `rollout`.
 #[derive(Debug, clap::Args)]
@@ -41,6 +41,9 @@ pub struct Scores {
     pub symmetric: DistanceRow,
     /// The most particles outside the box over the rollout's frames.
     pub outside: usize,
+    /// The mechanical energy each particle gained (J/kg, the mean of their gains) over the
+    /// grounding and the prediction window: the rollout's, then the truth's.
+    pub energy_per_particle: [[f64; 2]; 2],
 }
 
 /// Rolls the DLF out under `run`'s rules and scores it.
@@ -53,7 +56,21 @@ pub fn score(run: &Run, weights: PathBuf) -> anyhow::Result<Scores> {
         scene.frames(Role::Test).len(),
     );
     let mut report = EvalReport::new(&run.exp.name, &scene.manifest().name, "", windows);
-    report.frames = rollouts.frame_distances();
+    let dlf = run.dlf_config();
+    rollouts.measure(&mut report, scene.manifest(), 1.0, dlf.dt, dlf.gravity);
+    let energy = |model: Sequence| {
+        report
+            .energy
+            .iter()
+            .find(|e| e.model == model)
+            .map_or([f64::NAN; 2], |e| {
+                [e.grounding_per_particle, e.prediction_per_particle]
+            })
+    };
+    let energy_per_particle = [
+        energy(Sequence::Rollout(Rollout::NeuroFluid.label().into())),
+        energy(Sequence::Truth),
+    ];
     let row = |r: Option<DistanceRow>| {
         r.ok_or_else(|| {
             anyhow::anyhow!(
@@ -74,6 +91,7 @@ pub fn score(run: &Run, weights: PathBuf) -> anyhow::Result<Scores> {
         d_reverse: row(report.reverse_row(Rollout::NeuroFluid))?,
         symmetric: row(report.symmetric_row(Rollout::NeuroFluid))?,
         outside,
+        energy_per_particle,
     })
 }
 
@@ -109,6 +127,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             f(row.prediction_mean)
         );
     }
+    let [e, truth] = s.energy_per_particle;
+    println!(
+        "| energy gained per particle (J/kg; the truth's) | {:.3} ({:.3}) | {:.3} ({:.3}) |",
+        e[0], truth[0], e[1], truth[1]
+    );
     println!("most particles outside the box in a frame: {}", s.outside);
     Ok(())
 }
