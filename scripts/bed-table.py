@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """The test bed's table over scenes × seeds (issue 34, item 6), from the runs' own reports.
 
-    python3 scripts/bed-table.py [experiments/research/bed/table-runs.txt]
+    python3 scripts/bed-table.py [experiments/research/bed/table-runs.txt] [--reference FILE.toml]
 
 The runs file lists `scene seed run_folder` per line (`#` starts a comment). Each run folder's
 `eval/report.md` gives d and d′ over t = 1–49 and t = 50–59, (d + d′)/2, PSNR/SSIM/LPIPS, the
@@ -13,6 +13,10 @@ largest `time_s` of each; a run whose warm-up was shared with the other variants
 shows that warm-up's) and the last `psnr_true` (the renderer on the true
 particles of the training frames at the training view, the refit's where the run has one; rules
 8 and 12 of experiments/bed/README.md).
+With `--reference` (a frozen reference file, crates/neurofluid-outputs/src/reference.rs), the
+per-scene table adds g = (CD_DLF − CD_NF) / (CD_DLF − CD_R), CD = (d + d′)/2, from the means over
+the scene's seeds, per window (issue 71). Runs under rules also show the published DLF as the
+paper steps it.
 Prints markdown tables: every run; per scene the mean ± sd over seeds beside DLF and DLF†, with
 the issue's targets checked per window (d at least 10 % below DLF's, on honey 30 % over t < 50;
 d′ not above DLF's), for the supervised DLF† too; and the novel-view rows (NeuroFluid, NeRF-T, the renderer on the true
@@ -68,9 +72,13 @@ def report_rows(path):
             # the head of a table this script does not read (the energy table, …)
             table = None
             continue
-        label = c[0].split(" (")[0]
+        # the published DLF as the paper steps it has its own row beside the DLF under the rules
+        label = PAPER_STEP if "paper's step" in c[0] else c[0].split(" (")[0]
         table[label] = vals
     return first, second, views, alone, far, density, walls
+
+
+PAPER_STEP = "DLF, paper's step"
 
 
 def stage_log(path):
@@ -163,8 +171,23 @@ def targets(honey, dlf, dlfp, firsts, seconds):
     return "; ".join(ok)
 
 
+def gap_share(dlf, nf, ref):
+    """g = (D − NF) / (D − R); None where R is not below D."""
+    if dlf is None or nf is None or ref is None or dlf - ref <= 0:
+        return None
+    return (dlf - nf) / (dlf - ref)
+
+
 def main():
-    runs_file = sys.argv[1] if len(sys.argv) > 1 else "experiments/research/bed/table-runs.txt"
+    args = sys.argv[1:]
+    reference = None
+    if "--reference" in args:
+        k = args.index("--reference")
+        import tomllib
+        with open(args[k + 1], "rb") as f:
+            reference = tomllib.load(f)["scenes"]
+        args = args[:k] + args[k + 2:]
+    runs_file = args[0] if args else "experiments/research/bed/table-runs.txt"
     runs = load(runs_file)
     print("| scene | seed | d (t<50 / t≥50) | d′ (t<50 / t≥50) | (d+d′)/2 (t<50 / t≥50) | PSNR / SSIM / LPIPS | through walls | alone % (t<50 / t≥50) | far % beside / above / within (t<50) | density, truth / NF (t<50) | renderer on the truth, training view (dB) | warm-up / joint s |")
     print("|---|---:|---|---|---|---|---:|---|---|---|---:|---|")
@@ -193,6 +216,17 @@ def main():
             f"{targets(honey, dlf, dlfp, [r['first']['NeuroFluid'] for r in rs], [r['second']['NeuroFluid'] for r in rs])} |"
         )
         print(f"| {scene} | DLF (pretrained) | – | {f2(dlf[0])} | {f2(dlf[2])} | {f2(dlfp[0])} | {f2(dlfp[2])} | |")
+        if PAPER_STEP in rs[0]["first"]:
+            a, b = rs[0]["first"][PAPER_STEP], rs[0]["second"][PAPER_STEP]
+            print(f"| {scene} | DLF (published, the paper's step) | – | {f2(a[0])} | {f2(a[2])} | {f2(b[0])} | {f2(b[2])} | |")
+        if reference is not None and scene in reference:
+            ref = reference[scene]
+            gs = []
+            for w, col in (("t<50", 4), ("t≥50", 5)):
+                nf_cd = statistics.mean(r["second"]["NeuroFluid"][col] for r in rs)
+                g = gap_share(rs[0]["second"]["DLF"][col], nf_cd, ref["grounding" if col == 4 else "prediction"])
+                gs.append(f"{w}: {f2(g)}")
+            print(f"| {scene} | g (share of the way to the reference) | {len(rs)} | {'; '.join(gs)} | | | | |")
         dag = [r for r in rs if "DLF†" in r["first"]]
         if dag:
             a, b = dag[0]["first"]["DLF†"], dag[0]["second"]["DLF†"]

@@ -141,5 +141,85 @@ SCENES = {
     },
 }
 
+# Issue 71: scenes that only report (experiments/bed/README.md, "Choose on some scenes, report
+# on others"): never used to choose a setting. Specified 2026-12-05, before any run on them.
+SYRUP = {"viscosityMethod": 6, "viscosity": 0.15, "viscosityBoundary": 0.15,
+         "viscoMaxIter": 100, "viscoMaxError": 0.01}  # a third viscosity, between water and honey
+
+SCENES.update({
+    "water-pool-rest-z": {
+        "spec": "water at rest: a 0.25 m deep pool filling the floor of a 1.2x1.0x1.0 m closed box, "
+                "z-up; walls at 0.04 m; glass water; 160²; a 30° ring",
+        "differs": ["fluid at rest from the first frame", "z-up", "160² images",
+                    "fl_x/cx intrinsics (nerfstudio)"],
+        "sim": {
+            "up": "z", "walls_lo": [-0.6, -0.5, 0.0], "walls_hi": [0.6, 0.5, 1.0],
+            "dt": 0.0025, "frames": FRAMES, "density": 1000.0, "material": WATER,
+            "fluid": {"shape": "block", "start": [-0.58, -0.48, 0.02], "end": [0.58, 0.48, 0.27]},
+        },
+        "walls": {"spacing": 0.04, "open_top": False},
+        "cameras": {
+            "kind": "ring", "angle_x": 0.55, "fill": 0.85, "target_height": 0.2,
+            "warmup": {"elevation_deg": 30.0, "azimuths_deg": [20.0, 110.0, 200.0, 290.0]},
+            "test": [{"elevation_deg": 15.0, "azimuth_deg": 65.0}],
+        },
+        "render": {"size": 160, "samples": 16, "material": "water", "intrinsics": "pixels",
+                   "file_path": "./{split}/{stem}"},
+        "roles": {"train_view": 0, "warmup_every_frame": True},
+    },
+    "water-drop-settle-y": {
+        "spec": "water, y-up, a sphere (r 0.3 m) dropped 0.15 m into a 1.0x1.2x1.0 m box, spreading "
+                "into a shallow pool that settles; walls at 0.035 m; glass water; 200²; four cameras "
+                "off any ring, fov 0.50 rad",
+        "differs": ["fluid that comes to rest within the window", "200² images",
+                    "irregular camera positions", "training view is view_2"],
+        "sim": {
+            "up": "y", "walls_lo": [-0.5, 0.0, -0.5], "walls_hi": [0.5, 1.2, 0.5],
+            "dt": 0.002, "frames": FRAMES, "density": 1000.0, "material": WATER,
+            "fluid": {"shape": "sphere", "radius": 0.3, "center": [0.05, 0.45, -0.03], "mode": 0},
+        },
+        "walls": {"spacing": 0.035, "open_top": False},
+        "cameras": {
+            "kind": "list", "angle_x": 0.50, "up": [0.0, 1.0, 0.0],
+            "warmup": [
+                {"eye": [3.1, 2.2, 2.4], "target": [0.0, 0.3, 0.0]},
+                {"eye": [-3.4, 1.4, 1.9], "target": [0.0, 0.35, 0.05]},
+                {"eye": [-1.2, 3.6, -2.8], "target": [0.05, 0.3, 0.0]},
+                {"eye": [3.0, 0.9, -2.6], "target": [0.0, 0.4, 0.0]},
+            ],
+            "test": [{"eye": [0.6, 1.9, 3.9], "target": [0.0, 0.3, 0.0]}],
+        },
+        "render": {"size": 200, "samples": 12, "material": "water", "intrinsics": "angle",
+                   "file_path": "./{split}/{stem}"},
+        "roles": {"train_view": 1, "warmup_every_frame": True},
+    },
+    "syrup-column-y-256": {
+        "spec": "a syrup of a third viscosity (Weiler 2018, 0.15: between the bed's water 0.01 and "
+                "honey 0.6-1.0; density 1300), y-up, a 0.5x0.8x0.5 m column collapsing in a "
+                "1.2x1.2x1.2 m box; walls at 0.03 m; opaque amber; 256²; a 45° ring",
+        "differs": ["a third viscosity", "a tall column", "256² images", "camera ring: 45° elevation"],
+        "sim": {
+            "up": "y", "walls_lo": [-0.6, 0.0, -0.6], "walls_hi": [0.6, 1.2, 0.6],
+            "dt": 0.0025, "frames": FRAMES, "density": 1300.0, "material": SYRUP,
+            "fluid": {"shape": "block", "start": [-0.2, 0.02, -0.25], "end": [0.3, 0.82, 0.25]},
+        },
+        "walls": {"spacing": 0.03, "open_top": False},
+        "cameras": {
+            "kind": "ring", "angle_x": 0.50, "fill": 0.8, "target_height": 0.35, "up": "y",
+            "warmup": {"elevation_deg": 45.0, "azimuths_deg": [0.0, 90.0, 180.0, 270.0]},
+            "test": [{"elevation_deg": 25.0, "azimuth_deg": 130.0}],
+        },
+        "render": {"size": 256, "samples": 8, "material": "honey", "intrinsics": "angle",
+                   "file_path": "{split}/{stem}.png"},
+        "roles": {"train_view": 0, "warmup_every_frame": True},
+    },
+})
+
+# Which scenes choose a setting and which only report (issue 71, written before any run on the
+# report-only ones): every dynamics choice so far was screened on the first five, so they go on
+# choosing; the three new ones never choose, and the headline table is theirs.
+CHOOSE = ["water-dam-z", "honey-drop-z", "water-torus-tilted-z", "water-sphere-y", "honey-slump-y-400"]
+REPORT_ONLY = ["water-pool-rest-z", "water-drop-settle-y", "syrup-column-y-256"]
+
 # the order make_bed.py builds them in (the first two are needed first)
-ORDER = ["water-dam-z", "honey-drop-z", "water-torus-tilted-z", "water-sphere-y", "honey-slump-y-400"]
+ORDER = CHOOSE + REPORT_ONLY

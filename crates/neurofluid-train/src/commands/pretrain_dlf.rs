@@ -50,7 +50,7 @@ pub struct Args {
     #[serde(skip)]
     pub keep_checkpoints: bool,
     /// Train under the `[dlf]` rules of this experiment file (walls, energy cap, gravity scale,
-    /// viscosity and no-slip walls), the rules the run that evaluates this DLF† rolls it out
+    /// viscosity, dissipation), the rules the run that evaluates this DLF† rolls it out
     /// under. Its geometry mode is not taken: DLF trains with a constant geometry. Under walls
     /// the samples are not rotated (the box does not turn with them).
     /// Default: DLF's step as published.

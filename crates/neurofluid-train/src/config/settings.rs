@@ -84,6 +84,8 @@ const ADDED_KEYS: &[(&str, &str)] = &[
     ("dlf.dissipation", "0.0"),
     ("physnerf.positions", "\"world\""),
     ("nerf.t_images", "\"cycle\""),
+    ("joint.physics.hold_dlf_epochs", "0"),
+    ("joint.terms.truth.matching", "\"index\""),
 ];
 
 /// Keys retired since a release, with the value that kept the behaviour of today: a checkpoint
