@@ -657,6 +657,10 @@ pub struct FittedScalar {
     pub value: f64,
     /// The value it started from (the run's `[dlf]` rules).
     pub from: f64,
+    /// The bound it was stopped at (`"lower"` or `"upper"`), where the fit ended on one: the
+    /// images asked for more than the bounds allow.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub at_bound: Option<String>,
 }
 
 /// A novel-view row's image metrics (NeRF, NeRF-T, the renderer on the true particles).
@@ -921,7 +925,13 @@ impl EvalReport {
             let values: Vec<String> = self
                 .fitted_physics
                 .iter()
-                .map(|f| format!("{} {:.4} (from {})", f.name, f.value, f.from))
+                .map(|f| match &f.at_bound {
+                    Some(b) => format!(
+                        "{} {:.4} (from {}; at its {b} bound)",
+                        f.name, f.value, f.from
+                    ),
+                    None => format!("{} {:.4} (from {})", f.name, f.value, f.from),
+                })
                 .collect();
             let _ = writeln!(
                 md,
@@ -1520,6 +1530,34 @@ mod tests {
 
     /// The table of particles alone lists each sequence in percent, and a report without it
     /// (written before it existed) still reads.
+    #[test]
+    fn a_fitted_scalar_at_its_bound_is_said_to_be() {
+        let mut r = sample_report();
+        r.fitted_physics = vec![
+            FittedScalar {
+                name: "viscosity".into(),
+                value: 0.0,
+                from: 0.0,
+                at_bound: Some("lower".into()),
+            },
+            FittedScalar {
+                name: "dissipation".into(),
+                value: 0.1752,
+                from: 0.0,
+                at_bound: None,
+            },
+        ];
+        let md = r.markdown();
+        assert!(
+            md.contains(
+                "viscosity 0.0000 (from 0; at its lower bound), dissipation 0.1752 (from 0)"
+            ),
+            "{md}"
+        );
+        let back: EvalReport = serde_json::from_str(&serde_json::to_string(&r).unwrap()).unwrap();
+        assert_eq!(back.fitted_physics, r.fitted_physics);
+    }
+
     #[test]
     fn the_published_dlf_row_sits_beside_the_dlf_under_rules_and_survives_the_file() {
         let mut r = sample_report();

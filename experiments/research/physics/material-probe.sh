@@ -1,12 +1,15 @@
 #!/usr/bin/env bash
 # Issue 71: do the fitted scalars differ by material without the config saying which? (a probe,
-# seed 10, chooses nothing: docs/notebook/2026-12-05-physics-identification.md)
+# chooses nothing: docs/notebook/2026-12-05-physics-identification.md)
+#   bash experiments/research/physics/material-probe.sh [seeds...]   (default 10)
 set -euo pipefail
 bin=${NF_BIN:-target/release/neurofluid-train}
 cfg=experiments/research/physics/gravity-id-watercube.toml
+seeds=${*:-10}
+for seed in $seeds; do
 for scene in honeycone watercube; do
-  name="physics-material-$scene-s10"
-  "$bin" run "$cfg" --set "name=\"$name\"" --set "scene.builtin=\"$scene\"" \
+  name="physics-material-$scene-s$seed"
+  "$bin" run "$cfg" --set "name=\"$name\"" --set "seed=$seed" --set "scene.builtin=\"$scene\"" \
     --set "scene.dir=\"data/${scene}_quick\"" \
     --set 'joint.physics.fit=["gravity_scale", "viscosity", "dissipation"]' \
     > "runs/$name.log" 2>&1 || echo "run $name failed: runs/$name.log"
@@ -20,4 +23,5 @@ d = re.search(r"^\| NeuroFluid \| ([0-9.]+)", md, re.M).group(1)
 dlf = re.search(r"^\| DLF \(pretrained baseline\) \| ([0-9.]+)", md, re.M).group(1)
 print(run, {k: round(v, 4) for k, v in last.items() if k.startswith("physics/")}, "d", d, "DLF", dlf, flush=True)
 PY
+done
 done

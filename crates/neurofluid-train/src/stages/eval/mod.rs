@@ -55,10 +55,22 @@ pub fn run(run: &Run, models: &Grounded) -> anyhow::Result<EvalReport> {
         report.fitted_physics = crate::config::PhysicalScalar::ALL
             .iter()
             .filter(|s| fit.fits(**s))
-            .map(|s| neurofluid_outputs::report::FittedScalar {
-                name: PHYSICS_NAMES[s.index()].into(),
-                value: to[s.index()],
-                from: from[s.index()],
+            .map(|s| {
+                let value = to[s.index()];
+                let (lo, hi) = s.bounds();
+                let at_bound = if value <= lo {
+                    Some("lower".into())
+                } else if value >= hi {
+                    Some("upper".into())
+                } else {
+                    None
+                };
+                neurofluid_outputs::report::FittedScalar {
+                    name: PHYSICS_NAMES[s.index()].into(),
+                    value,
+                    from: from[s.index()],
+                    at_bound,
+                }
             })
             .collect();
     }
