@@ -43,6 +43,20 @@ pub fn params<M: Module>(m: &M) -> Vec<Vec<f32>> {
     c.0
 }
 
+/// A built-in scene's preset in a small box ([−0.4, 0.4] × [−0.4, 0.6] × [−0.4, 0.4]) with a
+/// small body `shape`: fast enough for CI.
+pub fn small_preset(
+    kind: neurofluid_scenegen::SceneKind,
+    shape: neurofluid_scenegen::shapes::Shape,
+) -> neurofluid_scenegen::Preset {
+    use neurofluid_scenegen::{Preset, Scale, SceneConfig};
+    let mut p = Preset::resolve(&SceneConfig::new(kind, Scale::Quick));
+    p.box_lo = [-0.4, -0.4, -0.4];
+    p.box_hi = [0.4, 0.6, 0.4];
+    p.shape = shape;
+    p
+}
+
 /// `experiments/tiny-ci.toml` with its run folder `<tmp>/<name>`, its scene in `<tmp>/scene`
 /// and absolute paths, so tests run from any working directory; on the device
 /// `$NEUROFLUID_TEST_DEVICE` names (the CPU when unset).

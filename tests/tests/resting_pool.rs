@@ -15,26 +15,13 @@ use neurofluid_dlf::rollout::rollout;
 use neurofluid_dlf::scene::{box_walls, dlf_wall_spacing};
 use neurofluid_dlf::{Containment, DlfConfig, StepRules, load_dlf};
 use neurofluid_scenegen::shapes::Shape;
-use neurofluid_scenegen::{Preset, Scale, SceneConfig, SceneKind, simulate};
-use neurofluid_tests::workspace_root;
+use neurofluid_scenegen::{SceneKind, simulate};
+use neurofluid_tests::{small_preset, workspace_root};
 
 const SETTLE: usize = 100;
 const STEPS: usize = 100;
 const DT: f32 = 1.0 / 50.0;
 const G: [f32; 3] = [0.0, -9.81, 0.0];
-
-fn preset() -> Preset {
-    let mut cfg = SceneConfig::new(SceneKind::WaterCube, Scale::Quick);
-    cfg.image_size = Some(16);
-    let mut p = Preset::resolve(&cfg);
-    p.box_lo = [-0.4, -0.4, -0.4];
-    p.box_hi = [0.4, 0.6, 0.4];
-    p.shape = Shape::Cube {
-        center: [0.0, -0.4 + 0.27, 0.0],
-        size: 0.5,
-    };
-    p
-}
 
 /// Per-particle energy gained over the steps of `frames`, summed (J/kg).
 fn gained(frames: &[Vec<[f32; 3]>]) -> f64 {
@@ -52,7 +39,13 @@ struct Pool {
 
 #[test]
 fn a_resting_pool_stays_at_rest() {
-    let p = preset();
+    let p = small_preset(
+        SceneKind::WaterCube,
+        Shape::Cube {
+            center: [0.0, -0.4 + 0.27, 0.0],
+            size: 0.5,
+        },
+    );
     let sim = simulate(&p, SETTLE + STEPS + 1, false);
     let truth: Vec<Vec<[f32; 3]>> = sim.frames[SETTLE..].iter().map(|f| f.pos.clone()).collect();
     let start = &sim.frames[SETTLE];

@@ -5,21 +5,12 @@ use std::path::PathBuf;
 use neurofluid_core::scene::{BoxParticles, Particles, Role, Scene, UpAxis};
 use neurofluid_scenegen::shapes::Shape;
 use neurofluid_scenegen::{Preset, Scale, SceneConfig, SceneKind, generate, simulate};
-use neurofluid_tests::files_under;
+use neurofluid_tests::{files_under, small_preset};
 
 fn tmp(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("nf_scene_{name}_{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
     d
-}
-
-/// A small box with a small body: fast enough for CI.
-fn small(kind: SceneKind, shape: Shape) -> Preset {
-    let mut p = Preset::resolve(&SceneConfig::new(kind, Scale::Quick));
-    p.box_lo = [-0.4, -0.4, -0.4];
-    p.box_hi = [0.4, 0.6, 0.4];
-    p.shape = shape;
-    p
 }
 
 fn mean_speed(f: &Particles) -> f64 {
@@ -32,7 +23,7 @@ fn mean_speed(f: &Particles) -> f64 {
 
 #[test]
 fn count_constant_particles_inside_and_energy_decays() {
-    let p = small(
+    let p = small_preset(
         SceneKind::WaterCube,
         Shape::Cube {
             center: [-0.1, -0.1, 0.0],
@@ -85,8 +76,8 @@ fn honey_moves_measurably_slower_than_water() {
         radius: 0.3,
         height: 0.55,
     };
-    let water = small(SceneKind::WaterCube, cone);
-    let honey = small(SceneKind::HoneyCone, cone);
+    let water = small_preset(SceneKind::WaterCube, cone);
+    let honey = small_preset(SceneKind::HoneyCone, cone);
     assert!(honey.viscosity > 5.0 * water.viscosity);
     let frames = 30;
     let sw = simulate(&water, frames, false);
@@ -124,7 +115,7 @@ fn tiny(seed: u64) -> Preset {
     cfg.samples_per_axis = Some(1);
     cfg.train_frames = Some(3);
     cfg.test_frames = Some(4);
-    let mut p = small(
+    let mut p = small_preset(
         SceneKind::WaterSphere,
         Shape::Sphere {
             center: [0.0, 0.0, 0.0],

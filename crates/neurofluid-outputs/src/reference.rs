@@ -66,13 +66,20 @@ pub enum ReferenceError {
     },
 }
 
+impl ReferenceError {
+    /// What is wrong with the file at `path`.
+    fn at(path: &Path, message: String) -> Self {
+        Self::File {
+            path: path.to_path_buf(),
+            message,
+        }
+    }
+}
+
 impl ReferenceFile {
     /// Reads and checks `path`.
     pub fn read(path: &Path) -> Result<Self, ReferenceError> {
-        let fault = |message: String| ReferenceError::File {
-            path: path.to_path_buf(),
-            message,
-        };
+        let fault = |message| ReferenceError::at(path, message);
         let text =
             neurofluid_core::input_file::read_string(path).map_err(|e| fault(e.to_string()))?;
         let file: Self = toml::from_str(&text).map_err(|e| {
@@ -105,14 +112,16 @@ impl ReferenceFile {
         dlf: [Option<f64>; 2],
         neurofluid: [Option<f64>; 2],
     ) -> Result<GapShare, ReferenceError> {
-        let fault = |message: String| ReferenceError::File {
-            path: path.to_path_buf(),
-            message,
-        };
+        let fault = |message| ReferenceError::at(path, message);
         let r = self.scenes.get(scene).ok_or_else(|| {
             fault(format!(
-                "no [scenes.{scene}] (the run's scene); the file has {:?}",
-                self.scenes.keys().take(20).collect::<Vec<_>>()
+                "no [scenes.{scene}] (the run's scene); the file has [{}]",
+                self.scenes
+                    .keys()
+                    .take(20)
+                    .map(|k| neurofluid_core::paths::shown(k))
+                    .collect::<Vec<_>>()
+                    .join(", ")
             ))
         })?;
         if let Some(n) = r.particles.filter(|&n| n != particles) {

@@ -925,12 +925,10 @@ impl EvalReport {
             let values: Vec<String> = self
                 .fitted_physics
                 .iter()
-                .map(|f| match &f.at_bound {
-                    Some(b) => format!(
-                        "{} {:.4} (from {}; at its {b} bound)",
-                        f.name, f.value, f.from
-                    ),
-                    None => format!("{} {:.4} (from {})", f.name, f.value, f.from),
+                .map(|f| {
+                    let bound = f.at_bound.as_ref().map(|b| format!("; at its {b} bound"));
+                    let bound = bound.unwrap_or_default();
+                    format!("{} {:.4} (from {}{bound})", f.name, f.value, f.from)
                 })
                 .collect();
             let _ = writeln!(

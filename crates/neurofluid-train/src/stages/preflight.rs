@@ -229,10 +229,15 @@ pub fn check(run: &Run, stages: &[Stage], start: Start) -> anyhow::Result<()> {
     }
     if stages.contains(&Stage::Eval) {
         let test = scene.frames(Role::Test);
+        // read once: checked here, and its particle count for `eval.reference`
+        let sequence = scene.particle_sequence(Role::Test);
+        let particles = sequence
+            .as_ref()
+            .ok()
+            .map(|seq| seq.first().map_or(0, |f| f.pos.len()));
         p.check(
             || "test particles".to_string(),
-            scene
-                .particle_sequence(Role::Test)
+            sequence
                 .map_err(anyhow::Error::from)
                 .and_then(|seq| check_sequence(&seq, test.start)),
         );
@@ -243,19 +248,17 @@ pub fn check(run: &Run, stages: &[Stage], start: Start) -> anyhow::Result<()> {
             p.check(|| "eval.supervised_dlf".to_string(), run.load_dlf(path));
         }
         if let Some(path) = &exp.eval.reference {
-            // the file, the scene's entry and its particles, before any stage runs
-            let particles = scene
-                .particle_sequence(Role::Test)
-                .map(|seq| seq.first().map_or(0, |f| f.pos.len()));
+            // the file, the scene's entry and its particles (where the test particles could be
+            // read: else their check above names the problem), before any stage runs
             let name = &scene.manifest().name;
             p.check(
                 || "eval.reference".to_string(),
-                neurofluid_outputs::reference::ReferenceFile::read(path)
-                    .map_err(anyhow::Error::from)
-                    .and_then(|file| {
-                        let n = particles?;
-                        Ok(file.gap_share(path, name, n, [None; 2], [None; 2])?)
-                    }),
+                neurofluid_outputs::reference::ReferenceFile::read(path).and_then(|file| {
+                    particles.map_or(Ok(()), |n| {
+                        file.gap_share(path, name, n, [None; 2], [None; 2])
+                            .map(drop)
+                    })
+                }),
             );
         }
         if exp.eval.render {
