@@ -1,0 +1,28 @@
+#!/usr/bin/env bash
+# Issue 71, item 2: the quick screen of one configuration (docs/notebook/2026-12-05-quick-reference.md):
+# U1 (experiments/research/physics/one-config.toml) and A (the shipped quick config of the
+# scene's material) on the quick WaterCube and HoneyCone, on copies of the material probe's
+# warm-ups (same scene, seed and renderer settings) where the resume check allows, evaluated
+# without renders.
+#   bash experiments/research/physics/one-config-runs.sh VARIANT SCENE SEED    (VARIANT: U1 or A)
+set -euo pipefail
+cd "$(dirname "$0")/../../.."
+variant=$1 scene=$2 seed=$3
+bin=${NF_BIN:-target/release/neurofluid-train}
+out=runs/one/$variant-$scene-s$seed
+case $variant in
+  U1) cfg=experiments/research/physics/one-config.toml ;;
+  A) cfg=experiments/quick-$scene.toml ;;
+  *) echo "VARIANT: U1 or A, not $variant" >&2; exit 2 ;;
+esac
+[[ -f $out/eval/report.json ]] && exit 0
+warm=runs/physics-material-$scene-s$seed/warmup
+# the shipped water config adds warm-up views at every frame (NeRF-T's), which the resume check
+# counts as another scene: it warms up on its own
+if [[ ! -d $out/warmup && -d $warm && $cfg != experiments/quick-watercube.toml ]]; then
+  mkdir -p "$out" && cp -r "$warm" "$out/"
+fi
+"$bin" run "$cfg" --set "scene.builtin=\"$scene\"" --set "scene.dir=\"data/${scene}_quick\"" \
+  --set scene.generate.gravity=9.81 \
+  --set "seed=$seed" --set "name=\"one-$variant-$scene-s$seed\"" --set "out_dir=\"$out\"" \
+  --set eval.render=false --set eval.write_ply=false >> "$out.log" 2>&1
