@@ -29,6 +29,8 @@ fn is_free(key: &str) -> bool {
 ///   where it stops) and the keys its images come from: `warmup.views`, `warmup.held_out`;
 ///   for NeRF-T also `nerf.t_images` and, under `"neurofluid"`, the joint stage's views
 ///   (`joint.view`, `joint.extra_views`);
+/// - every stage's: the seed and the scene, except the warm-up views the generator adds at every
+///   training frame (`scene.generate.warmup_every_frame`), which only NeRF-T trains on;
 /// - the warm-up's: the seed, the scene, PhysNeRF and the warm-up (not where it stops), and
 ///   with initial particles from images the initial particles' NeRF (where it stops too)
 ///   and `[initial]`;
@@ -40,9 +42,11 @@ fn is_free(key: &str) -> bool {
 /// The other stages keep no state that settings shape.
 fn shapes(stage: Stage, key: &str, exp: &Experiment) -> bool {
     let under = |prefix: &str| key == prefix || key.starts_with(&format!("{prefix}."));
-    let common = under("seed") || under("scene") || under("matmul");
+    let every_frame_views = under("scene.generate.warmup_every_frame");
+    let common = (under("seed") || under("scene") || under("matmul")) && !every_frame_views;
     let nerf_model = under("nerf") && !under("nerf.t_images");
     let nerf_t_images = under("nerf.t_images")
+        || every_frame_views
         || (exp.nerf.t_images == NerfTImages::Neurofluid
             && (under("joint.view") || under("joint.extra_views")));
     let warmup_views = under("warmup.views") || under("warmup.held_out");
@@ -66,7 +70,8 @@ fn shapes(stage: Stage, key: &str, exp: &Experiment) -> bool {
 }
 
 /// Keys added after a release, with the value that keeps the earlier behaviour: a checkpoint
-/// that does not record such a key was made with that value, so it is not a change.
+/// that does not record such a key was made with that value, and a setting left unset now takes
+/// it, so neither is a change.
 const ADDED_KEYS: &[(&str, &str)] = &[
     ("physnerf.density", "\"relu\""),
     ("matmul", "\"f32\""),
@@ -86,6 +91,7 @@ const ADDED_KEYS: &[(&str, &str)] = &[
     ("nerf.t_images", "\"cycle\""),
     ("joint.physics.hold_dlf_epochs", "0"),
     ("joint.terms.truth.matching", "\"index\""),
+    ("scene.generate.gravity", "9.81"),
 ];
 
 /// Keys retired since a release, with the value that kept the behaviour of today: a checkpoint
@@ -213,6 +219,16 @@ impl Settings {
         Settings(out)
     }
 
+    /// The value of `key`: an added key left unset holds the value that keeps the old behaviour
+    /// ([`ADDED_KEYS`]).
+    fn read(&self, key: &str) -> Option<&str> {
+        self.0.get(key).map(String::as_str).or_else(|| {
+            ADDED_KEYS
+                .iter()
+                .find_map(|(k, v)| (*k == key).then_some(*v))
+        })
+    }
+
     /// The keys whose values differ from `before`'s, in key order (`before` read with the keys
     /// of today, [`Settings::upgraded`]).
     pub fn changes_since(&self, before: &Settings) -> Vec<Change> {
@@ -221,17 +237,11 @@ impl Settings {
         keys.sort();
         keys.dedup();
         keys.into_iter()
-            .filter_map(|k| {
-                let (b, a) = (before.0.get(k), self.0.get(k));
-                let added_with_old_behaviour = b.is_none()
-                    && ADDED_KEYS
-                        .iter()
-                        .any(|(key, v)| key == k && a.is_some_and(|a| a == v));
-                (b != a && !added_with_old_behaviour).then(|| Change {
-                    key: k.clone(),
-                    before: b.cloned(),
-                    after: a.cloned(),
-                })
+            .filter(|k| before.read(k) != self.read(k))
+            .map(|k| Change {
+                key: k.clone(),
+                before: before.0.get(k).cloned(),
+                after: self.0.get(k).cloned(),
             })
             .collect()
     }
@@ -377,6 +387,48 @@ mod tests {
             changes_keys(&softplus.changes_since(&older)),
             ["physnerf.density"]
         );
+    }
+
+    /// A built-in scene's gravity left unset is the world's, whichever side names it: a
+    /// checkpoint made at `gravity = 9.81` resumes from a config that leaves it out, and the
+    /// other way round; another gravity is a change.
+    #[test]
+    fn an_added_key_unset_on_either_side_is_its_old_value() {
+        let at = |g: &[&str]| Settings::of_stage(&exp(g), Stage::Warmup);
+        let (unset, earth) = (at(&[]), at(&["scene.generate.gravity=9.81"]));
+        assert!(!unset.0.contains_key("scene.generate.gravity"));
+        assert!(unset.changes_since(&earth).is_empty());
+        assert!(earth.changes_since(&unset).is_empty());
+        let slow = at(&["scene.generate.gravity=4.9"]);
+        for (now, before) in [(&slow, &unset), (&unset, &slow), (&slow, &earth)] {
+            assert_eq!(
+                changes_keys(&now.changes_since(before)),
+                ["scene.generate.gravity"]
+            );
+        }
+    }
+
+    /// The warm-up views the generator adds at every training frame are NeRF-T's training
+    /// images and nothing else's: no other stage is shaped by them.
+    #[test]
+    fn warm_up_views_at_every_frame_shape_nerf_t_alone() {
+        let every = exp(&["scene.generate.warmup_every_frame=true"]);
+        for stage in [
+            Stage::Nerf,
+            Stage::Initial,
+            Stage::Warmup,
+            Stage::Joint,
+            Stage::Refit,
+        ] {
+            assert_eq!(
+                Settings::of_stage(&every, stage),
+                Settings::of_stage(&exp(&[]), stage),
+                "{stage}"
+            );
+        }
+        let nerf_t = Settings::of_stage(&every, Stage::NerfT)
+            .changes_since(&Settings::of_stage(&exp(&[]), Stage::NerfT));
+        assert_eq!(changes_keys(&nerf_t), ["scene.generate.warmup_every_frame"]);
     }
 
     /// The NeRF shapes its own stage always, and the warm-up and joint stages only when the
