@@ -4,7 +4,8 @@
 # them; a step already done is skipped.
 #   bash experiments/research/reference/quick-reference.sh STEP SCENE SEED
 # STEP: D (the pretrained DLF under the walls, seed-free), T1 / T4 (the joint stage given the
-# truth at the quick budget / 4×), S1 / S4 (DLF† fine-tuned on the training frames' truth,
+# truth at the quick budget / 4×), T1h (T1 with DLF's weights held: the scalars and the renderer
+# fitted to the truth and the images), S1 / S4 (DLF† fine-tuned on the training frames' truth,
 # 300 / 1,200 steps). Writes runs/ref/<scene>-s<seed>-<STEP>(.log, .bpk, /); the table and the
 # reference file: python3 experiments/research/reference/quick-table.py.
 set -euo pipefail
@@ -21,10 +22,11 @@ case $step in
   D)
     out=runs/ref/$scene-D
     [[ -f $out.log ]] || "$bin" rollout "$cfg" "${on_scene[@]}" > "$out.log" 2>&1 ;;
-  T1|T4)
+  T1|T1h|T4)
     [[ -f $out/eval/report.json ]] && exit 0
     epochs=(); [[ $step == T4 ]] && epochs=(--set joint.epochs=24
       --set 'joint.dlf_optim.schedule={ kind = "multi_step", milestones = [156, 228], gamma = 0.5 }')
+    [[ $step == T1h ]] && epochs=(--set joint.physics.hold_dlf_epochs=6)
     # the warm-up depends on the scene, the seed and the renderer's settings alone: a copy of
     # another run's with the same three (WARMUP_FROM) saves it
     warm=${WARMUP_FROM:-runs/ref/$scene-s$seed-T1}/warmup
@@ -40,5 +42,5 @@ case $step in
       --iterations $iters --batch-size 4 --lr 1e-4 --rules "$cfg" --backward-velocities --seed "$seed" \
       --validate-every $iters --output "$out.bpk" > "$out.train.log" 2>&1
     "$bin" rollout "$cfg" "${on_scene[@]}" --set "dlf.weights=\"$out.bpk\"" > "$out.log" 2>&1 ;;
-  *) echo "STEP: D, T1, T4, S1 or S4, not $step" >&2; exit 2 ;;
+  *) echo "STEP: D, T1, T1h, T4, S1 or S4, not $step" >&2; exit 2 ;;
 esac
