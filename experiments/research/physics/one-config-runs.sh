@@ -4,16 +4,20 @@
 # scene's material) on the quick WaterCube and HoneyCone, on copies of the material probe's
 # warm-ups (same scene, seed and renderer settings) where the resume check allows, evaluated
 # without renders.
-#   bash experiments/research/physics/one-config-runs.sh VARIANT SCENE SEED    (VARIANT: U1 or A)
+#   bash experiments/research/physics/one-config-runs.sh VARIANT SCENE SEED    (VARIANT: U1, U2 or A)
+# (U0 is the material probe: experiments/research/physics/material-probe.sh)
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
 variant=$1 scene=$2 seed=$3
 bin=${NF_BIN:-target/release/neurofluid-train}
 out=runs/one/$variant-$scene-s$seed
+variant_sets=()
 case $variant in
   U1) cfg=experiments/research/physics/one-config.toml ;;
+  U2) cfg=experiments/research/physics/one-config.toml
+    variant_sets=(--set joint.physics.hold_dlf_epochs=6 --set 'joint.physics.fit=["gravity_scale", "dissipation"]') ;;
   A) cfg=experiments/quick-$scene.toml ;;
-  *) echo "VARIANT: U1 or A, not $variant" >&2; exit 2 ;;
+  *) echo "VARIANT: U1, U2 or A, not $variant" >&2; exit 2 ;;
 esac
 [[ -f $out/eval/report.json ]] && exit 0
 warm=runs/physics-material-$scene-s$seed/warmup
@@ -25,4 +29,4 @@ fi
 "$bin" run "$cfg" --set "scene.builtin=\"$scene\"" --set "scene.dir=\"data/${scene}_quick\"" \
   --set scene.generate.gravity=9.81 \
   --set "seed=$seed" --set "name=\"one-$variant-$scene-s$seed\"" --set "out_dir=\"$out\"" \
-  --set eval.render=false --set eval.write_ply=false >> "$out.log" 2>&1
+  --set eval.render=false --set eval.write_ply=false "${variant_sets[@]}" >> "$out.log" 2>&1

@@ -57,7 +57,7 @@ def rollout_scores(log):
 
 
 def candidate(scene, step, seed):
-    if step in ("T1", "T4"):
+    if step in ("T1", "T1h", "T4"):
         return report_scores(f"runs/ref/{scene}-s{seed}-{step}")
     if step in ("S1", "S4"):
         return rollout_scores(f"runs/ref/{scene}-s{seed}-{step}.log")
@@ -91,7 +91,7 @@ def main():
             print(f"| {scene} | D (pretrained, walls) | – | {d['cd'][0]:.2f} \\| {d['cd'][1]:.2f} | "
                   f"{d['energy']:.3f} ({d['truth_energy']:.3f}) |")
         best = [None, None]
-        for step in ("T1", "T4", "S1", "S4"):
+        for step in ("T1", "T1h", "T4", "S1", "S4"):
             m, n = mean_over_seeds(scene, step)
             if not m:
                 continue
@@ -115,7 +115,7 @@ def main():
                     "# figures in docs/notebook/2026-12-05-quick-reference.md; written by\n"
                     "#   python3 experiments/research/reference/quick-table.py --write\n")
             f.write('description = "R: the lowest mean CD over seeds 10-12 of the joint stage given the truth '
-                    '(1x, 4x the quick budget) and DLF-dagger (300 steps) under the walls"\n')
+                    '(1x, 4x the quick budget; DLF trained or held) and DLF-dagger (300 steps) under the walls"\n')
             f.write('rules = "the walls (`dlf.containment = \\"box\\"`)"\n')
             for scene, best in reference.items():
                 f.write(f"\n[scenes.{scene}]\ngrounding = {best[0][0]:.4f}\nprediction = {best[1][0]:.4f}\n"
@@ -126,7 +126,7 @@ def main():
     print("| scene | run | seeds | CD t < 50 | g t < 50 | CD t ≥ 50 | g t ≥ 50 | D's CD | J/kg (bound) | fitted (seed 10) |")
     print("|---|---|---:|---|---:|---|---:|---|---|---|")
     for scene in SCENES:
-        for step in ("U0", "U1", "A"):
+        for step in ("U0", "U1", "U2", "A"):
             m, n = mean_over_seeds(scene, step)
             if not m:
                 continue
