@@ -115,11 +115,11 @@ def main():
                     "# figures in docs/notebook/2026-12-05-quick-reference.md; written by\n"
                     "#   python3 experiments/research/reference/quick-table.py --write\n")
             f.write('description = "R: the lowest mean CD over seeds 10-12 of the joint stage given the truth '
-                    '(1x, 4x the quick budget; DLF trained or held) and DLF-dagger (300 steps) under the walls"\n')
+                    '(the quick budget; DLF trained or held) and DLF-dagger (300 steps) under the walls"\n')
             f.write('rules = "the walls (`dlf.containment = \\"box\\"`)"\n')
             for scene, best in reference.items():
                 f.write(f"\n[scenes.{scene}]\ngrounding = {best[0][0]:.4f}\nprediction = {best[1][0]:.4f}\n"
-                        f'source = "{best[0][1]} (t < 50), {best[1][1]} (t >= 50)"\n')
+                        f'source = "{best[0][1]} (grounding), {best[1][1]} (prediction)"\n')
         print(f"\nwrote {REFERENCE}")
 
     print("\n## The one-config screen (means over seeds 10–12; g = (CD_D − CD) / (CD_D − CD_R))\n")
