@@ -1,10 +1,12 @@
 //! Every experiment and sweep file that ships in `experiments/` (the scene configs in
 //! `experiments/scenes/` have their own test; the research records in `experiments/research/`
 //! are kept as they ran, with the options of their day) loads as a user would run it from the
-//! repository root: experiments parse and validate, sweeps resolve every variant's overrides.
+//! repository root: experiments parse and validate, sweeps resolve every variant's overrides,
+//! and the reference files in `experiments/reference/` (`eval.reference`) read.
 
 use std::path::{Path, PathBuf};
 
+use neurofluid_outputs::reference::ReferenceFile;
 use neurofluid_tests::workspace_root;
 use neurofluid_train::config::Experiment;
 use neurofluid_train::sweep::Sweep;
@@ -33,11 +35,15 @@ fn every_experiment_and_sweep_file_loads() {
     let mut files = Vec::new();
     toml_files(&root.join("experiments"), &mut files);
     files.sort();
-    let (mut experiments, mut sweeps) = (0, 0);
+    let (mut experiments, mut sweeps, mut references) = (0, 0, 0);
     for path in &files {
         let text = std::fs::read_to_string(path).unwrap();
         let is_sweep = text.lines().any(|l| l.trim_start().starts_with("base ="));
-        if is_sweep {
+        if path.parent().is_some_and(|d| d.ends_with("reference")) {
+            let file = ReferenceFile::read(path).unwrap_or_else(|e| panic!("{e}"));
+            assert!(!file.scenes.is_empty(), "{}", path.display());
+            references += 1;
+        } else if is_sweep {
             let sweep = Sweep::load(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
             assert!(!sweep.variants.is_empty(), "{}", path.display());
             sweeps += 1;
@@ -47,8 +53,8 @@ fn every_experiment_and_sweep_file_loads() {
         }
     }
     assert!(
-        experiments >= 8 && sweeps >= 1,
-        "{experiments} experiments, {sweeps} sweeps"
+        experiments >= 8 && sweeps >= 1 && references >= 1,
+        "{experiments} experiments, {sweeps} sweeps, {references} reference files"
     );
 }
 
