@@ -10,11 +10,18 @@ CD = (d + d′)/2, averaged over the grounding window (t = 1–49) and the predi
 runs/physics-material-<scene>-s<seed> (U0: the material probe).
 """
 
+import importlib.util
 import json
 import os
 import re
 import statistics
 import sys
+
+# g as the bed's table computes it (one formula: scripts/bed-table.py's gap_share)
+_spec = importlib.util.spec_from_file_location(
+    "bed_table", os.path.join(os.path.dirname(__file__), "..", "..", "..", "scripts", "bed-table.py"))
+bed_table = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(bed_table)
 
 SCENES = ["watercube", "honeycone"]
 SEEDS = [10, 11, 12]
@@ -133,8 +140,8 @@ def main():
             g = ["–", "–"]
             if scene in reference and "d_cd" in m:
                 for w in (0, 1):
-                    gap = m["d_cd"][w] - reference[scene][w][0]
-                    g[w] = f"{(m['d_cd'][w] - m['cd'][w]) / gap:.2f}" if gap > 0 else "n/a"
+                    share = bed_table.gap_share(m["d_cd"][w], m["cd"][w], reference[scene][w][0])
+                    g[w] = "n/a" if share is None else f"{share:.2f}"
             if step == "A":
                 g = ["(own rules)", "(own rules)"]
             first = candidate(scene, step, SEEDS[0])

@@ -395,7 +395,10 @@ mod tests {
     #[test]
     fn an_added_key_unset_on_either_side_is_its_old_value() {
         let at = |g: &[&str]| Settings::of_stage(&exp(g), Stage::Warmup);
-        let (unset, earth) = (at(&[]), at(&["scene.generate.gravity=9.81"]));
+        // the value ADDED_KEYS holds is the generator's world gravity, as settings spell it
+        let world = toml::Value::from(neurofluid_scenegen::presets::EARTH_GRAVITY).to_string();
+        assert!(ADDED_KEYS.contains(&("scene.generate.gravity", world.as_str())));
+        let (unset, earth) = (at(&[]), at(&[&format!("scene.generate.gravity={world}")]));
         assert!(!unset.0.contains_key("scene.generate.gravity"));
         assert!(unset.changes_since(&earth).is_empty());
         assert!(earth.changes_since(&unset).is_empty());
