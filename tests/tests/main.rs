@@ -7,6 +7,7 @@ mod config_reference;
 mod fuzz_inputs;
 mod grounding_grounds;
 mod held_out_view;
+mod input_noise;
 mod joint_diagnostics;
 mod learning;
 mod loading_draws;

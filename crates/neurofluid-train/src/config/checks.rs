@@ -216,6 +216,9 @@ impl Section for JointSection {
         if !(0.0..=1.0).contains(&self.foreground_rays) {
             return problem("foreground_rays", "expected a share in [0, 1]");
         }
+        if !(self.input_noise.is_finite() && self.input_noise >= 0.0) {
+            return problem("input_noise", "expected a standard deviation ≥ 0 (m/s)");
+        }
         if let Some((field, msg)) = self.terms.problem() {
             return Some((format!("terms.{field}"), msg));
         }

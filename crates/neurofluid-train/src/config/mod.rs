@@ -636,6 +636,10 @@ mod tests {
                 "joint.foreground_rays",
             ),
             (
+                "[scene]\nbuiltin = \"watercube\"\n[joint]\ninput_noise = -0.1\n",
+                "joint.input_noise",
+            ),
+            (
                 "[scene]\nbuiltin = \"watercube\"\n[dlf]\ngravity_scale = 0.0\n",
                 "dlf.gravity_scale",
             ),

@@ -63,6 +63,7 @@ pub fn apply(exp: &mut Experiment) -> Vec<Change> {
     j.dlf_optim = paper.dlf_optim;
     j.boundary_weight = paper.boundary_weight;
     j.foreground_rays = paper.foreground_rays;
+    j.input_noise = paper.input_noise;
     j.terms = paper.terms;
     j.extra_views = paper.extra_views;
     exp.diagnostics.weight_interpolation = DiagnosticsSection::default().weight_interpolation;

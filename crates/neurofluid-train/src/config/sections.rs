@@ -483,6 +483,10 @@ pub struct JointSection {
     /// projected prediction covers ([`neurofluid_core::ray_focus`]); the rest uniform over the
     /// image. 0 = the reference's uniform draw.
     pub foreground_rays: f64,
+    /// Standard deviation (m/s) of Gaussian noise added to the velocities DLF steps from at
+    /// every transition of the joint stage ([`crate::stages::joint`]'s `input_noise`): training
+    /// for long rollouts. 0 = the paper's rollout.
+    pub input_noise: f64,
     /// The particle terms, each under its own table (`[joint.terms.anchor]`, …): none = the
     /// paper's loss ([`crate::stages::joint::terms`]).
     pub terms: TermsSection,
@@ -518,6 +522,7 @@ impl Default for JointSection {
             precrop_iters: 500,
             precrop_frac: 0.5,
             foreground_rays: 0.0,
+            input_noise: 0.0,
             terms: TermsSection::default(),
             physics: None,
             view: None,

@@ -92,6 +92,7 @@ const ADDED_KEYS: &[(&str, &str)] = &[
     ("joint.physics.hold_dlf_epochs", "0"),
     ("joint.terms.truth.matching", "\"index\""),
     ("scene.generate.gravity", "9.81"),
+    ("joint.input_noise", "0.0"),
 ];
 
 /// Keys retired since a release, with the value that kept the behaviour of today: a checkpoint

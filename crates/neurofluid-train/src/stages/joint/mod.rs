@@ -41,6 +41,7 @@ use neurofluid_outputs::metrics_log::{MetricsLog, psnr_from_mse};
 
 mod data;
 mod diagnostics;
+mod input_noise;
 mod loss;
 pub mod physics;
 pub mod terms;
@@ -51,6 +52,7 @@ pub use diagnostics::{Diagnostics, cosine_of_sums, cosine_sums, held_out_view, p
 pub use loss::{SplitImageLoss, boundary_penalty, dlf_surrogate, split_image_loss, training_rays};
 pub use windows::{Updates, updates_after, updates_before};
 
+use input_noise::with_input_noise;
 use loss::split_on_device;
 use physics::Physics;
 use terms::{ParticleTerm, TermContext, Transition};
@@ -372,6 +374,7 @@ impl Trainer for JointTrainer {
             self.state = self.data.initial_state(&self.dlf.device());
         }
         let (x, v) = (self.state.0.clone(), self.state.1.clone());
+        let v = with_input_noise(v, self.cfg.input_noise, self.seed, step);
         let pred = match &self.physics {
             Some(p) => {
                 let values = p.module.step_values(&p.fit);
