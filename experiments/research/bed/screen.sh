@@ -37,6 +37,7 @@ case $variant in
   *) echo "VARIANT: $variants, not $variant" >&2
      exit 2 ;;
 esac
+mkdir -p "$out"
 if [[ -z $a ]]; then
   a=$out/$scene-s$seed-A
   if [[ ! -f $a/eval/report.json ]]; then

@@ -132,6 +132,42 @@ fn migrate_legacy(table: &mut toml::Table, origin: &Path) -> bool {
     !moved.is_empty()
 }
 
+/// How an error names the override `spec`.
+fn override_origin(spec: &str) -> PathBuf {
+    PathBuf::from(format!("override `{spec}`"))
+}
+
+/// `err` named after the last override whose key is the error's key, lies under it or holds it
+/// (`keys`: each override's dotted key and text); unchanged when none is.
+fn blame_override(err: ConfigError, keys: &[(String, &str)]) -> ConfigError {
+    let ConfigError::Invalid {
+        path,
+        location,
+        key,
+        message,
+    } = err
+    else {
+        return err;
+    };
+    let within = |inner: &str, outer: &str| {
+        inner == outer
+            || inner
+                .strip_prefix(outer)
+                .is_some_and(|r| r.starts_with('.'))
+    };
+    let path = keys
+        .iter()
+        .rev()
+        .find(|(k, _)| !key.is_empty() && (within(&key, k) || within(k, &key)))
+        .map_or(path, |(_, spec)| override_origin(spec));
+    ConfigError::Invalid {
+        path,
+        location,
+        key,
+        message,
+    }
+}
+
 impl Experiment {
     /// What is wrong with the views the experiment names on `scene`: `warmup.held_out` not a
     /// warm-up view, the only one, or a view the joint stage trains on (`joint.view`,
@@ -229,23 +265,34 @@ impl Experiment {
     /// string): `joint.dlf_optim.lr=1e-4`, `physnerf.encoding.pc=false`, `scene.path=data/x`.
     /// Unknown keys, wrong types and invalid values are errors naming the key.
     pub fn apply_override(&mut self, spec: &str) -> Result<(), ConfigError> {
-        let origin = PathBuf::from(format!("override `{spec}`"));
-        let (key, value) = parse_override(spec, &origin)?;
-        let mut table =
-            toml::Table::try_from(&*self).expect("experiment serialises to a TOML table");
-        set_dotted(&mut table, &key, value, &origin)?;
-        migrate_legacy(&mut table, &origin);
-        let exp = from_table::<Experiment>(table, &origin)?.with_preset(&origin);
-        exp.validate(&origin)?;
-        *self = exp;
-        Ok(())
+        self.apply_overrides(&[spec])
     }
 
-    /// Applies several overrides in order.
+    /// Applies several overrides together: each is set in order (a later one wins on the same
+    /// key), then the result is read and checked once, so overrides that are only valid together
+    /// (a `[joint.physics]` table built key by key) may come in any order. An error names the
+    /// override of the key it is about; a failed call leaves the experiment unchanged.
     pub fn apply_overrides<S: AsRef<str>>(&mut self, specs: &[S]) -> Result<(), ConfigError> {
-        specs
-            .iter()
-            .try_for_each(|s| self.apply_override(s.as_ref()))
+        let mut table =
+            toml::Table::try_from(&*self).expect("experiment serialises to a TOML table");
+        let mut keys = Vec::with_capacity(specs.len());
+        for spec in specs.iter().map(AsRef::as_ref) {
+            let origin = override_origin(spec);
+            let (key, value) = parse_override(spec, &origin)?;
+            set_dotted(&mut table, &key, value, &origin)?;
+            migrate_legacy(&mut table, &origin);
+            keys.push((key.join("."), spec));
+        }
+        let all = PathBuf::from(match specs {
+            [one] => format!("override `{}`", one.as_ref()),
+            _ => "the overrides".to_string(),
+        });
+        let exp = from_table::<Experiment>(table, &all)
+            .map(|e| e.with_preset(&all))
+            .and_then(|e| e.validate(&all).map(|()| e))
+            .map_err(|e| blame_override(e, &keys))?;
+        *self = exp;
+        Ok(())
     }
 
     /// Checks values serde cannot: ranges, exclusive choices, ordering. Each section checks
@@ -795,6 +842,31 @@ mod tests {
         assert_eq!(err.key(), "joint.bptt_steps");
         assert!(e.apply_override("no_equals_sign").is_err());
         assert_eq!(e, before, "failed overrides leave the experiment unchanged");
+    }
+
+    /// Overrides are read together: a `[joint.physics]` table built key by key on the command
+    /// line is accepted in either order, and an error still names the override of its key.
+    #[test]
+    fn overrides_valid_together_apply_in_any_order() {
+        let fit = "joint.physics.fit=[\"gravity_scale\"]";
+        let hold = "joint.physics.hold_dlf_epochs=2";
+        for order in [[fit, hold], [hold, fit]] {
+            let mut e = parse(MINIMAL).unwrap();
+            e.apply_overrides(&order).unwrap();
+            let p = e.joint.physics.unwrap();
+            assert_eq!((p.fit.len(), p.hold_dlf_epochs), (1, 2), "{order:?}");
+        }
+        let mut e = parse(MINIMAL).unwrap();
+        let before = e.clone();
+        let err = e
+            .apply_overrides(&["joint.epochs=3", "warmup.iters=lots", "joint.rays=8"])
+            .unwrap_err();
+        assert_eq!(err.key(), "warmup.iters");
+        assert!(
+            err.to_string().starts_with("override `warmup.iters=lots`"),
+            "{err}"
+        );
+        assert_eq!(e, before, "a failed call leaves the experiment unchanged");
     }
 
     #[test]

@@ -186,15 +186,16 @@ impl Sweep {
                 return Err(invalid(&key, format!("`{}` is used twice", v.name)));
             }
             let mut exp = base.clone();
-            for spec in file.set.iter().chain(&v.set) {
-                exp.apply_override(spec).map_err(|e| match e {
-                    ConfigError::Invalid { key, message, .. } => invalid(
-                        &format!("variant `{}`: {key}", v.name),
-                        format!("override `{spec}`: {message}"),
-                    ),
-                    other => other,
-                })?;
-            }
+            let specs: Vec<&String> = file.set.iter().chain(&v.set).collect();
+            exp.apply_overrides(&specs).map_err(|e| match e {
+                ConfigError::Invalid {
+                    path, key, message, ..
+                } => invalid(
+                    &format!("variant `{}`: {key}", v.name),
+                    format!("{}: {message}", path.display()),
+                ),
+                other => other,
+            })?;
             let label = v.label.clone().unwrap_or_else(|| v.name.clone());
             let seeds: Vec<Option<u64>> = if file.seeds.is_empty() {
                 vec![None]
