@@ -1,0 +1,93 @@
+#!/usr/bin/env python3
+"""The bed screen of the one-config candidate U0 against A, the bed configs as they ship (issue
+71, item 2; the screen rule of experiments/bed/README.md, "A screen"), from
+runs/bed71/<scene>-s<seed>-{A,one-config}/eval/report.json (experiments/research/bed/screen.sh
+with VARIANT=one-config, OUT runs/bed71).
+
+    python3 experiments/research/bed/one-config-table.py [SEED ...]    (default: 10)
+
+The measure is CD = (d + d′)/2 over t = 1–49; t = 50–59 and the energies are reported, never
+used. Means over the seeds given.
+"""
+
+import json
+import os
+import statistics
+import sys
+
+WATER = ["water-dam-z", "water-torus-tilted-z", "water-sphere-y"]
+HONEY = ["honey-drop-z", "honey-slump-y-400"]
+# A's seed-to-seed sd of the measure per water scene (rule 24)
+SD = {"water-dam-z": 0.16, "water-torus-tilted-z": 0.38, "water-sphere-y": 0.15}
+
+
+def scores(scene, seed, variant):
+    path = f"runs/bed71/{scene}-s{seed}-{variant}/eval/report.json"
+    if not os.path.exists(path):
+        return None
+    r = json.load(open(path))
+
+    def mean(key, lo, hi):
+        return statistics.mean(key(f) for f in r["frames"] if lo <= f["t"] <= hi)
+
+    d = mean(lambda f: f["neurofluid"], 1, 49)
+    dp = mean(lambda f: f["reverse"]["neurofluid"], 1, 49)
+    late = mean(lambda f: (f["neurofluid"] + f["reverse"]["neurofluid"]) / 2, 50, 59)
+    energy = {e["model"]: e["grounding_per_particle"] for e in r["energy"]}
+    fitted = {p["name"]: p["value"] for p in r.get("fitted_physics") or []}
+    return {"d": d, "dp": dp, "cd": (d + dp) / 2, "late": late, "energy": energy["NeuroFluid"],
+            "bound": 2 * energy["truth"] + 0.1, "fitted": fitted}
+
+
+def over_seeds(scene, seeds, variant):
+    runs = [scores(scene, s, variant) for s in seeds]
+    if not all(runs):
+        return None
+    keys = ["d", "dp", "cd", "late", "energy", "bound"]
+    m = {k: statistics.mean(r[k] for r in runs) for k in keys}
+    m["fitted"] = runs[0]["fitted"]
+    return m
+
+
+def main():
+    seeds = [int(s) for s in sys.argv[1:]] or [10]
+    print(f"seeds {seeds}; CD = (d + d′)/2 over t = 1–49 (t = 50–59 and energies reported only)\n")
+    print("| scene | run | d | d′ | CD t < 50 | CD t ≥ 50 | J/kg t < 50 (bound) | fitted (first seed) |")
+    print("|---|---|---:|---:|---:|---:|---|---|")
+    table = {}
+    for scene in WATER + HONEY:
+        for variant in ["A", "one-config"]:
+            m = over_seeds(scene, seeds, variant)
+            if not m:
+                continue
+            table[scene, variant] = m
+            fit = ", ".join(f"{k} {v:.3f}" for k, v in m["fitted"].items())
+            print(f"| {scene} | {'U0' if variant != 'A' else 'A'} | {m['d']:.2f} | {m['dp']:.2f} | "
+                  f"{m['cd']:.2f} | {m['late']:.2f} | {m['energy']:.3f} ({m['bound']:.3f}) | {fit} |")
+
+    def five_percent(scene):
+        a, b = table[scene, "A"], table[scene, "one-config"]
+        return b["d"] <= 1.05 * a["d"] and b["dp"] <= 1.05 * a["dp"]
+
+    both = lambda scenes: all((s, v) in table for s in scenes for v in ["A", "one-config"])
+    print()
+    if both(WATER):
+        a = statistics.mean(table[s, "A"]["cd"] for s in WATER)
+        b = statistics.mean(table[s, "one-config"]["cd"] for s in WATER)
+        within = all(table[s, "one-config"]["cd"] <= table[s, "A"]["cd"] + SD[s] for s in WATER)
+        ok = b < a and within and all(five_percent(s) for s in WATER)
+        print(f"water: mean CD {b:.2f} against A's {a:.2f}; each scene within A's sd: {within}; "
+              f"d and d′ within 5 %: {all(five_percent(s) for s in WATER)} → {'passes' if ok else 'fails'}")
+    else:
+        print("water: scenes missing, undecided")
+    if both(HONEY):
+        lower = all(table[s, "one-config"]["cd"] < table[s, "A"]["cd"] for s in HONEY)
+        ok = lower and all(five_percent(s) for s in HONEY)
+        print(f"honey: lower on both: {lower}; d and d′ within 5 %: "
+              f"{all(five_percent(s) for s in HONEY)} → {'passes' if ok else 'fails'}")
+    else:
+        print("honey: scenes missing, undecided")
+
+
+if __name__ == "__main__":
+    main()
