@@ -1,0 +1,36 @@
+#!/usr/bin/env bash
+# Issue 71, item 5: the joint stage on 1, 2 or 4 views of the dynamics (the bed renders its four
+# warm-up views at every frame): RIG 2 adds the warm-up view whose camera is farthest from the
+# training view's (the opposite one on a ring), RIG 4 adds the other three (`joint.extra_views`).
+# Runs the bed config as it ships at SEED on a copy of A's warm-up (A_RUN, default
+# runs/bed71/<scene>-s<seed>-A of screen.sh), evaluated like a screen (no renders, no refit).
+# Reported beside the single-view table; chooses nothing.
+# Usage: experiments/research/bed/rig-runs.sh SCENE SEED RIG [A_RUN] [OUT=runs/rig71]
+set -euo pipefail
+cd "$(dirname "$0")/../../.."
+scene=$1 seed=$2 rig=$3
+a=${4:-runs/bed71/$scene-s$seed-A} out=${5:-runs/rig71}
+bin=${NEUROFLUID_TRAIN:-target/release/neurofluid-train}
+views=$(python3 - "data/bed/$scene" "$rig" <<'PY'
+import json, math, sys
+scene, rig = sys.argv[1], int(sys.argv[2])
+m = json.load(open(f"{scene}/scene.json"))
+train = m["train"]["views"][0]
+def centre(v):
+    t = json.load(open(f"{scene}/{v}/transforms_train.json"))["frames"][0]["transform_matrix"]
+    return [t[i][3] for i in range(3)]
+others = [v for v in m["warmup"]["views"] if v != train]
+others.sort(key=lambda v: -math.dist(centre(v), centre(train)))
+if rig not in (2, 4) or len(others) < rig - 1:
+    sys.exit(f"RIG: 2 or 4 with {len(others)} other warm-up views, not {rig}")
+print("[" + ", ".join(f'"{v}"' for v in others[: rig - 1]) + "]")
+PY
+)
+b=$out/$scene-s$seed-rig$rig
+mkdir -p "$b"
+[[ -f $a/eval/report.json ]] || { echo "$a: run A first (screen.sh)" >&2; exit 2; }
+[[ -d $b/warmup ]] || cp -r "$a/warmup" "$b/"
+if [[ ! -f $b/eval/report.json ]]; then
+  "$bin" run "experiments/bed/$scene.toml" --set seed="$seed" --set refit.enabled=false \
+    --set eval.render=false --set out_dir="$b" --set "joint.extra_views=$views" >> "$b.log" 2>&1
+fi
