@@ -4,8 +4,9 @@
 # scene's material) on the quick WaterCube and HoneyCone, on copies of the material probe's
 # warm-ups (same scene, seed and renderer settings) where the resume check allows, evaluated
 # without renders.
-#   bash experiments/research/physics/one-config-runs.sh VARIANT SCENE SEED    (VARIANT: U1, U2, U4, U4N or A)
-# (U4: U1 with the anchor and the energy prior; U4N: U4 with joint.input_noise = 0.1)
+#   bash experiments/research/physics/one-config-runs.sh VARIANT SCENE SEED    (VARIANT: U0N, U1, U2, U4, U4N or A)
+# (U4: U1 with the anchor and the energy prior; U4N: U4 with joint.input_noise = 0.1; U0N: U0
+# with joint.input_noise = 0.1)
 # (U0 is the material probe: experiments/research/physics/material-probe.sh)
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
@@ -22,8 +23,10 @@ case $variant in
   U4N) cfg=experiments/research/physics/one-config.toml
     variant_sets=(--set joint.terms.anchor.weight=0.1 --set joint.terms.energy.weight=0.005
       --set joint.input_noise=0.1) ;;
+  U0N) cfg=experiments/research/physics/one-config.toml
+    variant_sets=(--set joint.physics.hold_dlf_epochs=6 --set joint.input_noise=0.1) ;;
   A) cfg=experiments/quick-$scene.toml ;;
-  *) echo "VARIANT: U1, U2, U4, U4N or A, not $variant" >&2; exit 2 ;;
+  *) echo "VARIANT: U0N, U1, U2, U4, U4N or A, not $variant" >&2; exit 2 ;;
 esac
 [[ -f $out/eval/report.json ]] && exit 0
 warm=runs/physics-material-$scene-s$seed/warmup
