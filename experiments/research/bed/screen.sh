@@ -6,9 +6,9 @@
 # d′ are the joint stage's; the joint stage's terms and DLF's rules do not touch the warm-up). A run
 # already evaluated is not run again; a stopped one resumes from its checkpoints.
 # Variants of options still in the code: anchor-0 (rule 24), rays-1024 (rule 27), epochs-12
-# (rule 28), truth and truth-free (rule 29, probes), one-config and one-config-u2 (issue 71: no
-# material rule, the physical scalars fitted by the images with DLF held; U0 and U2 of
-# docs/notebook/2026-12-05-quick-reference.md). The variants of rules 22-26 screened options
+# (rule 28), truth and truth-free (rule 29, probes), one-config, one-config-u2 and
+# one-config-noise (issue 71: no material rule, the physical scalars fitted by the images with DLF
+# held; U0, U2 and U0N of docs/notebook/2026-12-05-quick-reference.md). The variants of rules 22-26 screened options
 # since retired (docs/notebook/2026-12-05-retired-options.md lists them and the commits that had
 # them).
 # Usage: VARIANT=name experiments/research/bed/screen.sh SCENE [A_RUN] [SEED=10] [OUT=runs/r22]
@@ -17,9 +17,9 @@ cd "$(dirname "$0")/../../.."
 scene=$1 a=${2:-} seed=${3:-10} out=${4:-runs/r22}
 bin=${NEUROFLUID_TRAIN:-target/release/neurofluid-train}
 quick=(--set seed="$seed" --set refit.enabled=false --set eval.render=false)
-variants="anchor-0, rays-1024, epochs-12, truth, truth-free, one-config or one-config-u2"
+variants="anchor-0, rays-1024, epochs-12, truth, truth-free, one-config, one-config-u2 or one-config-noise"
 variant=${VARIANT:?VARIANT: $variants}
-# no material rule; the fitted scalars' table (its `fit` first) with DLF held and Adam at 0.05
+# no material rule; the fitted scalars with DLF held and Adam at 0.05
 no_material_rule=(--set dlf.gravity_scale=1.0 --set 'dlf.energy_cap="none"'
   --set joint.terms.anchor.weight=0 --set joint.terms.energy.weight=0)
 held=(--set joint.physics.hold_dlf_epochs=6 --set 'joint.physics.optim={ lr = 0.05 }')
@@ -34,6 +34,9 @@ case $variant in
     --set 'joint.physics.fit=["gravity_scale", "viscosity", "dissipation"]' "${held[@]}") ;;
   one-config-u2) rules=("${no_material_rule[@]}"
     --set 'joint.physics.fit=["gravity_scale", "dissipation"]' "${held[@]}") ;;
+  one-config-noise) rules=("${no_material_rule[@]}"
+    --set 'joint.physics.fit=["gravity_scale", "viscosity", "dissipation"]' "${held[@]}"
+    --set joint.input_noise=0.1) ;;
   *) echo "VARIANT: $variants, not $variant" >&2
      exit 2 ;;
 esac
