@@ -23,6 +23,7 @@ variant=${VARIANT:?VARIANT: $variants}
 no_material_rule=(--set dlf.gravity_scale=1.0 --set 'dlf.energy_cap="none"'
   --set joint.terms.anchor.weight=0 --set joint.terms.energy.weight=0)
 held=(--set joint.physics.hold_dlf_epochs=6 --set 'joint.physics.optim={ lr = 0.05 }')
+three=(--set 'joint.physics.fit=["gravity_scale", "viscosity", "dissipation"]')
 case $variant in
   anchor-0) rules=(--set joint.terms.anchor.weight=0) ;;
   rays-1024) rules=(--set joint.rays=1024) ;;
@@ -30,12 +31,10 @@ case $variant in
   truth) rules=(--set joint.terms.truth.weight=1) ;;
   truth-free) rules=(--set joint.terms.truth.weight=1 --set joint.terms.anchor.weight=0
     --set joint.terms.energy.weight=0) ;;
-  one-config) rules=("${no_material_rule[@]}"
-    --set 'joint.physics.fit=["gravity_scale", "viscosity", "dissipation"]' "${held[@]}") ;;
+  one-config) rules=("${no_material_rule[@]}" "${three[@]}" "${held[@]}") ;;
   one-config-u2) rules=("${no_material_rule[@]}"
     --set 'joint.physics.fit=["gravity_scale", "dissipation"]' "${held[@]}") ;;
-  one-config-noise) rules=("${no_material_rule[@]}"
-    --set 'joint.physics.fit=["gravity_scale", "viscosity", "dissipation"]' "${held[@]}"
+  one-config-noise) rules=("${no_material_rule[@]}" "${three[@]}" "${held[@]}"
     --set joint.input_noise=0.1) ;;
   *) echo "VARIANT: $variants, not $variant" >&2
      exit 2 ;;

@@ -14,15 +14,15 @@ variant=$1 scene=$2 seed=$3
 bin=${NF_BIN:-target/release/neurofluid-train}
 out=runs/one/$variant-$scene-s$seed
 variant_sets=()
+anchor_energy=(--set joint.terms.anchor.weight=0.1 --set joint.terms.energy.weight=0.005)
 case $variant in
   U1) cfg=experiments/research/physics/one-config.toml ;;
   U2) cfg=experiments/research/physics/one-config.toml
     variant_sets=(--set joint.physics.hold_dlf_epochs=6 --set 'joint.physics.fit=["gravity_scale", "dissipation"]') ;;
   U4) cfg=experiments/research/physics/one-config.toml
-    variant_sets=(--set joint.terms.anchor.weight=0.1 --set joint.terms.energy.weight=0.005) ;;
+    variant_sets=("${anchor_energy[@]}") ;;
   U4N) cfg=experiments/research/physics/one-config.toml
-    variant_sets=(--set joint.terms.anchor.weight=0.1 --set joint.terms.energy.weight=0.005
-      --set joint.input_noise=0.1) ;;
+    variant_sets=("${anchor_energy[@]}" --set joint.input_noise=0.1) ;;
   U0N) cfg=experiments/research/physics/one-config.toml
     variant_sets=(--set joint.physics.hold_dlf_epochs=6 --set joint.input_noise=0.1) ;;
   A) cfg=experiments/quick-$scene.toml ;;

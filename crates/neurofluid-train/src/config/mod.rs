@@ -283,10 +283,10 @@ impl Experiment {
             migrate_legacy(&mut table, &origin);
             keys.push((key.join("."), spec));
         }
-        let all = PathBuf::from(match specs {
-            [one] => format!("override `{}`", one.as_ref()),
-            _ => "the overrides".to_string(),
-        });
+        let all = match specs {
+            [one] => override_origin(one.as_ref()),
+            _ => PathBuf::from("the overrides"),
+        };
         let exp = from_table::<Experiment>(table, &all)
             .map(|e| e.with_preset(&all))
             .and_then(|e| e.validate(&all).map(|()| e))
