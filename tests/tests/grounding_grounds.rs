@@ -7,6 +7,7 @@
 //! published DLF out as the paper steps it (no walls), beside the DLF under the run's rules,
 //! and, given a reference file, g: the share of the way from DLF to the reference.
 
+use neurofluid_outputs::metrics_log::read_jsonl;
 use neurofluid_outputs::report::Rollout;
 use neurofluid_tests::{seeded_turn, tiny_experiment};
 use neurofluid_train::stage::Stage;
@@ -41,6 +42,7 @@ fn grounding_fits_a_faster_fall_and_lowers_d() {
         "joint.physics.fit=[\"gravity_scale\"]",
         "joint.physics.hold_dlf_epochs=2",
         "joint.physics.optim.lr=0.1",
+        "joint.preview_every=7",
         "eval.render=false",
         "eval.write_ply=false",
     ])
@@ -58,6 +60,19 @@ fn grounding_fits_a_faster_fall_and_lowers_d() {
     warmup::run(&run, &mut log).unwrap();
     let grounded = joint::run(&run, &mut log).unwrap();
     let scale = grounded.dlf.config.rules.gravity_scale;
+    // the previews' rollouts step with the scale fitted so far: with DLF held (the first two
+    // epochs of 7 transitions), their d moves only because the scale does
+    let rows = read_jsonl(&run.dir.join("metrics.jsonl")).unwrap();
+    let held_d: Vec<f64> = rows
+        .iter()
+        .filter(|r| r.stage == "joint-preview" && r.step <= 14)
+        .filter_map(|r| r.get("rollout_d"))
+        .collect();
+    assert_eq!(held_d.len(), 2, "{held_d:?}");
+    assert!(
+        held_d[0] != held_d[1],
+        "the previews' rollouts ignore the fit: {held_d:?}"
+    );
     let report = eval::run(&run, &grounded).unwrap();
     let s = report.summary();
     let [cd_dlf, cd_nf] =

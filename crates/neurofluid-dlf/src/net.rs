@@ -4,13 +4,14 @@ use burn::nn::{Initializer, Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
 
+use crate::bodies::{body_labels, damp_within_bodies};
 use crate::config::{DlfConfig, GeometryMode};
 use crate::conv::ContinuousConv;
 use crate::diff_geometry::differentiable_weights;
 use crate::energy_cap::cap_particle_energy;
 use crate::geometry::{ConvGeometry, build_host_geometry, chunk_slots, search_radius};
 use crate::physics::PhysicsValues;
-use crate::rules::EnergyCap;
+use crate::rules::{DissipationFrame, EnergyCap};
 use crate::viscosity::smooth_velocities;
 use neurofluid_core::device_pairs::{device_pairs, device_pairs_from_host};
 use neurofluid_core::device_search::{NeighbourSearch, neighbour_search};
@@ -282,8 +283,7 @@ impl DlfNet {
         boundary: &Boundary,
     ) -> Option<(ConvGeometry, ConvGeometry)> {
         let device = pos_pred.device();
-        if self.config.rules.viscosity > 0.0
-            || self.physics.is_some()
+        if self.config.rules.needs_host_pairs(self.physics.is_some())
             || neurofluid_core::device::is_host(&device)
         {
             return None;
@@ -357,7 +357,8 @@ impl DlfNet {
     }
 
     /// One step (one frame, dt): gravity pre-step, network correction, velocity from the position
-    /// difference; then, where the rules ask, viscosity, dissipation, container, energy cap (the
+    /// difference; then, where the rules ask, viscosity, dissipation (in the box's frame or each
+    /// body's), container, energy cap (the
     /// gravity scale, viscosity and dissipation from [`DlfNet::physics`] where it holds values).
     /// `pos`, `vel` `[N, 3]` are in the scene frame.
     pub fn step(&self, pos: Tensor<2>, vel: Tensor<2>, boundary: &Boundary) -> StepOutput {
@@ -381,6 +382,9 @@ impl DlfNet {
         let vel = self.to_model(vel);
         let row = |g: [f32; 3]| -> Tensor<2> {
             neurofluid_core::transfer::upload(TensorData::new(g.to_vec(), [1, 3]), &device)
+        };
+        let row1 = |c: f32| -> Tensor<2> {
+            neurofluid_core::transfer::upload(TensorData::new(vec![c], [1, 1]), &device)
         };
         let g = match &self.physics {
             None => row(cfg
@@ -420,14 +424,21 @@ impl DlfNet {
                 moved(pos_new, vel_new, smoothed)
             }
         };
-        let (pos_new, vel_new) = match &self.physics {
-            None if cfg.rules.dissipation > 0.0 => {
-                let kept = vel_new.clone() * (1.0 - cfg.rules.dissipation as f32);
+        // the share as a `[1, 1]` tensor: the rules' constant, or the fitted value
+        let share = match &self.physics {
+            None if cfg.rules.dissipation > 0.0 => Some(row1(cfg.rules.dissipation as f32)),
+            None => None,
+            Some(p) => Some(p.dissipation.clone().reshape([1, 1])),
+        };
+        let (pos_new, vel_new) = match (share, cfg.rules.dissipation_frame) {
+            (None, _) => (pos_new, vel_new),
+            (Some(c), DissipationFrame::Box) => {
+                let kept = vel_new.clone() * (c.neg() + 1.0);
                 moved(pos_new, vel_new, kept)
             }
-            None => (pos_new, vel_new),
-            Some(p) => {
-                let kept = vel_new.clone() * (p.dissipation.clone().reshape([1, 1]).neg() + 1.0);
+            (Some(c), DissipationFrame::Body) => {
+                let labels = body_labels(fluid.host());
+                let kept = damp_within_bodies(vel_new.clone(), c, &labels);
                 moved(pos_new, vel_new, kept)
             }
         };

@@ -31,6 +31,18 @@ pub enum EnergyCap {
     Particle,
 }
 
+/// The frame in which the dissipation takes its share of each velocity (`dissipation_frame`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DissipationFrame {
+    /// The box's: a drag on every velocity, a body's fall and throw included.
+    #[default]
+    Box,
+    /// Each particle's body's ([`crate::bodies`]): only the motion within a body is damped; its
+    /// motion as a whole and its momentum are kept.
+    Body,
+}
+
 /// The rules of a step. The default is the published model's step.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
@@ -51,6 +63,10 @@ pub struct StepRules {
     /// Share in [0, 1) of each particle's velocity a step takes away, after the viscosity (its
     /// move shortened to match, so v is still the move over dt). `0.0` (the reference): none.
     pub dissipation: f64,
+    /// `box` (the default: the share of each velocity) or `body` (the share of each velocity
+    /// relative to the mean velocity of the particle's body, the connected group of particles it
+    /// belongs to; [`crate::bodies`]).
+    pub dissipation_frame: DissipationFrame,
 }
 
 impl Default for StepRules {
@@ -61,6 +77,7 @@ impl Default for StepRules {
             gravity_scale: 1.0,
             viscosity: 0.0,
             dissipation: 0.0,
+            dissipation_frame: DissipationFrame::Box,
         }
     }
 }
@@ -99,6 +116,14 @@ impl StepRules {
         None
     }
 
+    /// Whether a step needs the fluid's pairs on the host (the viscosity's and the bodies'), given
+    /// whether the scalars come as fitted values (which may turn either on).
+    pub fn needs_host_pairs(&self, fitted: bool) -> bool {
+        fitted
+            || self.viscosity > 0.0
+            || (self.dissipation_frame == DissipationFrame::Body && self.dissipation > 0.0)
+    }
+
     /// The box the walls keep the particles in: `box_interior` under `containment = "box"`,
     /// refused where no box is known (DLF's records have none); `None` without walls.
     pub fn container(&self, box_interior: Option<Aabb>) -> Result<Option<Aabb>, RulesError> {
@@ -134,10 +159,17 @@ impl StepRules {
             ));
         }
         if self.dissipation != 0.0 {
-            rules.push(format!(
-                "a dissipation of {} of each velocity a step (`dlf.dissipation`)",
-                self.dissipation
-            ));
+            rules.push(match self.dissipation_frame {
+                DissipationFrame::Box => format!(
+                    "a dissipation of {} of each velocity a step (`dlf.dissipation`)",
+                    self.dissipation
+                ),
+                DissipationFrame::Body => format!(
+                    "a dissipation of {} of each velocity relative to its body's mean a step \
+                     (`dlf.dissipation`, `dlf.dissipation_frame = \"body\"`)",
+                    self.dissipation
+                ),
+            });
         }
         rules
     }

@@ -3,7 +3,8 @@
 //! and velocities with respect to the gravity scale, the viscosity and the dissipation match
 //! central finite differences, on the stored falling cube with the published weights (one step,
 //! with the differentiable geometry: the viscosity's pair weights are constants of a step, so a
-//! second step would see the first's viscosity move them where autodiff does not).
+//! second step would see the first's viscosity move them where autodiff does not), the
+//! dissipation in the box's frame and in each body's.
 
 use crate::common;
 
@@ -11,7 +12,8 @@ use burn::prelude::*;
 use common::{CaseScene, Scene, device, pretrained};
 use neurofluid_dlf::net::{points_tensor, tensor_points};
 use neurofluid_dlf::{
-    Boundary, DlfConfig, DlfNet, GeometryMode, PHYSICS_NAMES, PhysicsValues, StepRules,
+    Boundary, DissipationFrame, DlfConfig, DlfNet, GeometryMode, PHYSICS_NAMES, PhysicsValues,
+    StepRules,
 };
 
 /// Rules with every scalar away from the reference's, so each one acts.
@@ -68,6 +70,20 @@ fn the_rules_values_as_tensors_give_the_rules_step() {
 
 #[test]
 fn the_physics_gradients_match_finite_differences() {
+    gradients_match_finite_differences(rules());
+}
+
+#[test]
+fn the_physics_gradients_match_finite_differences_in_the_bodies_frame() {
+    gradients_match_finite_differences(StepRules {
+        dissipation_frame: DissipationFrame::Body,
+        ..rules()
+    });
+}
+
+/// The gradients of one step's positions and velocities with respect to each scalar under
+/// `rules` against central finite differences.
+fn gradients_match_finite_differences(rules: StepRules) {
     let device = device().autodiff();
     let mut scene = Scene::load("cubedrop2197_dlfwall");
     // velocities that vary over the cube, so that the viscosity has something to smooth
@@ -84,7 +100,7 @@ fn the_physics_gradients_match_finite_differences() {
         geometry: GeometryMode::Differentiable,
         ..DlfConfig::default()
     };
-    let net = pretrained(&device).with_config(config.with_rules(rules(), None).unwrap());
+    let net = pretrained(&device).with_config(config.with_rules(rules, None).unwrap());
     let b = scene.boundary(&net, &device);
     let n = scene.pos.len();
     let one_step = |net: &DlfNet| {
@@ -112,7 +128,7 @@ fn the_physics_gradients_match_finite_differences() {
             gravity_scale: values[0],
             viscosity: values[1],
             dissipation: values[2],
-            ..rules()
+            ..rules
         };
         let physics = PhysicsValues::of_rules(&rules, &device);
         let (p, v) = one_step(&net.clone().with_physics(Some(physics)));
@@ -126,7 +142,7 @@ fn the_physics_gradients_match_finite_differences() {
         };
         10.0 * dot(&tensor_points(&p), &a) + dot(&tensor_points(&v), &c)
     };
-    let base = rules();
+    let base = rules;
     let values = PhysicsValues::of_rules(&base, &device);
     let values = PhysicsValues {
         gravity_scale: values.gravity_scale.require_grad(),

@@ -6,9 +6,9 @@
 # d′ are the joint stage's; the joint stage's terms and DLF's rules do not touch the warm-up). A run
 # already evaluated is not run again; a stopped one resumes from its checkpoints.
 # Variants of options still in the code: anchor-0 (rule 24), rays-1024 (rule 27), epochs-12
-# (rule 28), truth and truth-free (rule 29, probes), one-config, one-config-u2 and
-# one-config-noise (issue 71: no material rule, the physical scalars fitted by the images with DLF
-# held; U0, U2 and U0N of docs/notebook/2026-12-05-quick-reference.md). The variants of rules 22-26 screened options
+# (rule 28), truth and truth-free (rule 29, probes), one-config, one-config-u2, one-config-noise
+# and one-config-noise-body (issue 71: no material rule, the physical scalars fitted by the images
+# with DLF held; U0, U2, U0N and U0NB of docs/notebook/2026-12-05-quick-reference.md). The variants of rules 22-26 screened options
 # since retired (docs/notebook/2026-12-05-retired-options.md lists them and the commits that had
 # them).
 # Usage: VARIANT=name experiments/research/bed/screen.sh SCENE [A_RUN] [SEED=10] [OUT=runs/r22]
@@ -17,7 +17,7 @@ cd "$(dirname "$0")/../../.."
 scene=$1 a=${2:-} seed=${3:-10} out=${4:-runs/r22}
 bin=${NEUROFLUID_TRAIN:-target/release/neurofluid-train}
 quick=(--set seed="$seed" --set refit.enabled=false --set eval.render=false)
-variants="anchor-0, rays-1024, epochs-12, truth, truth-free, one-config, one-config-u2 or one-config-noise"
+variants="anchor-0, rays-1024, epochs-12, truth, truth-free, one-config, one-config-u2, one-config-noise or one-config-noise-body"
 variant=${VARIANT:?VARIANT: $variants}
 # no material rule; the fitted scalars with DLF held and Adam at 0.05
 no_material_rule=(--set dlf.gravity_scale=1.0 --set 'dlf.energy_cap="none"'
@@ -36,6 +36,8 @@ case $variant in
     --set 'joint.physics.fit=["gravity_scale", "dissipation"]' "${held[@]}") ;;
   one-config-noise) rules=("${no_material_rule[@]}" "${three[@]}" "${held[@]}"
     --set joint.input_noise=0.1) ;;
+  one-config-noise-body) rules=("${no_material_rule[@]}" "${three[@]}" "${held[@]}"
+    --set joint.input_noise=0.1 --set 'dlf.dissipation_frame="body"') ;;
   *) echo "VARIANT: $variants, not $variant" >&2
      exit 2 ;;
 esac

@@ -4,9 +4,9 @@
 # scene's material) on the quick WaterCube and HoneyCone, on copies of the material probe's
 # warm-ups (same scene, seed and renderer settings) where the resume check allows, evaluated
 # without renders.
-#   bash experiments/research/physics/one-config-runs.sh VARIANT SCENE SEED    (VARIANT: U0N, U1, U2, U4, U4N or A)
+#   bash experiments/research/physics/one-config-runs.sh VARIANT SCENE SEED    (VARIANT: U0N, U0NB, U1, U2, U4, U4N or A)
 # (U4: U1 with the anchor and the energy prior; U4N: U4 with joint.input_noise = 0.1; U0N: U0
-# with joint.input_noise = 0.1)
+# with joint.input_noise = 0.1; U0NB: U0N with the dissipation in the bodies' frame)
 # (U0 is the material probe: experiments/research/physics/material-probe.sh)
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
@@ -25,8 +25,11 @@ case $variant in
     variant_sets=("${anchor_energy[@]}" --set joint.input_noise=0.1) ;;
   U0N) cfg=experiments/research/physics/one-config.toml
     variant_sets=(--set joint.physics.hold_dlf_epochs=6 --set joint.input_noise=0.1) ;;
+  U0NB) cfg=experiments/research/physics/one-config.toml
+    variant_sets=(--set joint.physics.hold_dlf_epochs=6 --set joint.input_noise=0.1
+      --set 'dlf.dissipation_frame="body"') ;;
   A) cfg=experiments/quick-$scene.toml ;;
-  *) echo "VARIANT: U0N, U1, U2, U4, U4N or A, not $variant" >&2; exit 2 ;;
+  *) echo "VARIANT: U0N, U0NB, U1, U2, U4, U4N or A, not $variant" >&2; exit 2 ;;
 esac
 [[ -f $out/eval/report.json ]] && exit 0
 warm=runs/physics-material-$scene-s$seed/warmup

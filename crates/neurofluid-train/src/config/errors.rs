@@ -108,10 +108,50 @@ fn dotted_key(path: &str, message: &str) -> String {
     base.to_string()
 }
 
-/// The dotted key of serde's error `message` at `path`, and the message, which for a retired
-/// option says where it went.
-fn key_and_message(path: &str, message: &str) -> (String, String) {
+/// The value an error `message` of serde's quotes: an unknown variant's name or a value of the
+/// wrong type (`invalid type: string "x"`, `` integer `3` ``, `` floating point `1.5` ``,
+/// `` boolean `true` ``).
+fn quoted_value(message: &str) -> Option<toml::Value> {
+    let between = |rest: &str, close: char| rest.find(close).map(|end| rest[..end].to_string());
+    if let Some(rest) = message.strip_prefix("unknown variant `") {
+        return between(rest, '`').map(toml::Value::String);
+    }
+    let rest = message.strip_prefix("invalid type: ")?;
+    if let Some(rest) = rest.strip_prefix("string \"") {
+        return between(rest, '"').map(toml::Value::String);
+    }
+    let (kind, rest) = rest.split_once(" `")?;
+    let text = between(rest, '`')?;
+    match kind {
+        "integer" => text.parse().ok().map(toml::Value::Integer),
+        "floating point" => text.parse().ok().map(toml::Value::Float),
+        "boolean" => text.parse().ok().map(toml::Value::Boolean),
+        _ => None,
+    }
+}
+
+/// Where serde names a table for an error in one of its keys (a table with flattened fields,
+/// such as `[dlf]`'s rules, loses the field's name), the key of `root` under `key` holding the
+/// value the message quotes, where exactly one does.
+fn field_in_table(root: &toml::Table, key: &str, message: &str) -> Option<String> {
+    let wanted = quoted_value(message)?;
+    let mut table = root;
+    for part in key.split('.').filter(|p| !p.is_empty()) {
+        table = table.get(part)?.as_table()?;
+    }
+    let mut holding = table.iter().filter(|(_, v)| **v == wanted);
+    match (holding.next(), holding.next()) {
+        (Some((field, _)), None) if key.is_empty() => Some(field.clone()),
+        (Some((field, _)), None) => Some(format!("{key}.{field}")),
+        _ => None,
+    }
+}
+
+/// The dotted key of serde's error `message` at `path` in the experiment `root`, and the
+/// message, which for a retired option says where it went.
+fn key_and_message(path: &str, message: &str, root: &toml::Table) -> (String, String) {
     let key = dotted_key(path, message);
+    let key = field_in_table(root, &key, message).unwrap_or(key);
     let message = match super::legacy::retired_note(&key) {
         Some(note) => format!("{message}: {note}"),
         None => message.to_string(),
@@ -130,7 +170,8 @@ pub fn from_toml_str<T: DeserializeOwned>(text: &str, origin: &Path) -> Result<T
     serde_path_to_error::deserialize(de).map_err(|e| {
         let path = e.path().to_string();
         let inner = e.into_inner();
-        let (key, message) = key_and_message(&path, inner.message());
+        let root = text.parse::<toml::Table>().unwrap_or_default();
+        let (key, message) = key_and_message(&path, inner.message(), &root);
         ConfigError::Invalid {
             path: origin.to_path_buf(),
             location: inner.span().map(|s| line_col(text, s.start)),
@@ -145,10 +186,10 @@ pub(crate) fn from_table<T: DeserializeOwned>(
     table: toml::Table,
     origin: &Path,
 ) -> Result<T, ConfigError> {
-    serde_path_to_error::deserialize(toml::Value::Table(table)).map_err(|e| {
+    serde_path_to_error::deserialize(toml::Value::Table(table.clone())).map_err(|e| {
         let path = e.path().to_string();
         let inner = e.into_inner();
-        let (key, message) = key_and_message(&path, inner.message());
+        let (key, message) = key_and_message(&path, inner.message(), &table);
         ConfigError::Invalid {
             path: origin.to_path_buf(),
             location: None,

@@ -707,6 +707,22 @@ mod tests {
                 "dlf.dissipation",
             ),
             (
+                "[scene]\nbuiltin = \"watercube\"\n[dlf]\ndissipation_frame = \"fluid\"\n",
+                "dlf.dissipation_frame",
+            ),
+            (
+                "[scene]\nbuiltin = \"watercube\"\n[dlf]\ncontainment = \"walls\"\n",
+                "dlf.containment",
+            ),
+            (
+                "[scene]\nbuiltin = \"watercube\"\n[dlf]\ngravity_scale = \"high\"\n",
+                "dlf.gravity_scale",
+            ),
+            (
+                "[scene]\nbuiltin = \"watercube\"\n[dlf]\nviscosity = true\n",
+                "dlf.viscosity",
+            ),
+            (
                 "[scene]\nbuiltin = \"watercube\"\n[joint.physics]\nfit = []\n",
                 "joint.physics.fit",
             ),

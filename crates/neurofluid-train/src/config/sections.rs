@@ -333,7 +333,7 @@ impl Default for RefitSection {
 
 /// `[dlf]`: where DLF's weights come from, how its conv geometry enters autodiff, and the rules
 /// of its step (`neurofluid_dlf::StepRules`: `containment`, `energy_cap`, `gravity_scale`,
-/// `viscosity`), in every rollout, the baseline DLF's too.
+/// `viscosity`, `dissipation`, `dissipation_frame`), in every rollout, the baseline DLF's too.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct DlfSection {

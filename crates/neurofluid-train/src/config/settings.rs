@@ -93,6 +93,7 @@ const ADDED_KEYS: &[(&str, &str)] = &[
     ("joint.terms.truth.matching", "\"index\""),
     ("scene.generate.gravity", "9.81"),
     ("joint.input_noise", "0.0"),
+    ("dlf.dissipation_frame", "\"box\""),
 ];
 
 /// Keys retired since a release, with the value that kept the behaviour of today: a checkpoint

@@ -160,9 +160,11 @@ impl JointTrainer {
             grad_alignment: (n > 0).then(|| sum / n as f64),
             ..Diagnostics::default()
         };
-        let rollout = training_rollout(&self.dlf, &self.data);
+        // the rollout as DLF steps now: with the physical scalars fitted so far, if any
+        let dlf = self.stepping_dlf();
+        let rollout = training_rollout(&dlf, &self.data);
         let steps = self.data.transitions() as usize;
-        let config = &self.dlf.config;
+        let config = &dlf.config;
         let gains = energy_gains(&rollout.pos, config.dt, config.gravity);
         d.rollout_energy_gain = Some(gains.fluid.iter().sum());
         d.rollout_particle_energy_gain = Some(gains.particle.iter().sum());

@@ -189,13 +189,27 @@ impl JointTrainer {
 
     /// The grounded models (DLF's rules holding the physical scalars fitted, if any).
     pub fn into_models(self) -> Grounded {
-        let dlf = match &self.physics {
-            Some(p) => with_fitted(self.dlf, &p.module),
-            None => self.dlf,
-        };
+        let dlf = self.stepping_dlf();
+        let rules = dlf.config.rules;
+        if self.physics.is_some() {
+            tracing::info!(
+                gravity_scale = rules.gravity_scale,
+                viscosity = rules.viscosity,
+                dissipation = rules.dissipation,
+                "the physical scalars fitted by the images"
+            );
+        }
         Grounded {
             physnerf: self.physnerf,
             dlf,
+        }
+    }
+
+    /// DLF as it steps now: its weights, its rules holding the physical scalars fitted so far.
+    fn stepping_dlf(&self) -> DlfNet {
+        match &self.physics {
+            Some(p) => with_fitted(self.dlf.clone(), &p.module),
+            None => self.dlf.clone(),
         }
     }
 
@@ -576,12 +590,6 @@ pub fn load_trained(run: &Run) -> anyhow::Result<Grounded> {
 fn with_fitted(dlf: DlfNet, physics: &Physics) -> DlfNet {
     let mut config = dlf.config;
     config.rules = physics.into_rules(config.rules);
-    tracing::info!(
-        gravity_scale = config.rules.gravity_scale,
-        viscosity = config.rules.viscosity,
-        dissipation = config.rules.dissipation,
-        "the physical scalars fitted by the images"
-    );
     dlf.with_config(config)
 }
 
