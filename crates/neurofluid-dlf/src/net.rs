@@ -358,8 +358,8 @@ impl DlfNet {
 
     /// One step (one frame, dt): gravity pre-step, network correction, velocity from the position
     /// difference; then, where the rules ask, viscosity, dissipation (in the box's frame or each
-    /// body's), container, energy cap (the
-    /// gravity scale, viscosity and dissipation from [`DlfNet::physics`] where it holds values).
+    /// body's), container, energy cap (the gravity scale, viscosity and dissipation from
+    /// [`DlfNet::physics`] where it holds values).
     /// `pos`, `vel` `[N, 3]` are in the scene frame.
     pub fn step(&self, pos: Tensor<2>, vel: Tensor<2>, boundary: &Boundary) -> StepOutput {
         self.step_traced(pos, vel, boundary).0

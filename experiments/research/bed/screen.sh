@@ -8,7 +8,9 @@
 # Variants of options still in the code: anchor-0 (rule 24), rays-1024 (rule 27), epochs-12
 # (rule 28), truth and truth-free (rule 29, probes), one-config, one-config-u2, one-config-noise
 # and one-config-noise-body (issue 71: no material rule, the physical scalars fitted by the images
-# with DLF held; U0, U2, U0N and U0NB of docs/notebook/2026-12-05-quick-reference.md). The variants of rules 22-26 screened options
+# with DLF held; U0, U2, U0N and U0NB of docs/notebook/2026-12-05-quick-reference.md) and
+# one-config-fit-then-ground (U5: U0NB for 3 epochs, then DLF grounded under the anchor and the
+# energy prior with the scalars held). The variants of rules 22-26 screened options
 # since retired (docs/notebook/2026-12-05-retired-options.md lists them and the commits that had
 # them).
 # Usage: VARIANT=name experiments/research/bed/screen.sh SCENE [A_RUN] [SEED=10] [OUT=runs/r22]
@@ -17,7 +19,7 @@ cd "$(dirname "$0")/../../.."
 scene=$1 a=${2:-} seed=${3:-10} out=${4:-runs/r22}
 bin=${NEUROFLUID_TRAIN:-target/release/neurofluid-train}
 quick=(--set seed="$seed" --set refit.enabled=false --set eval.render=false)
-variants="anchor-0, rays-1024, epochs-12, truth, truth-free, one-config, one-config-u2, one-config-noise or one-config-noise-body"
+variants="anchor-0, rays-1024, epochs-12, truth, truth-free, one-config, one-config-u2, one-config-noise, one-config-noise-body or one-config-fit-then-ground"
 variant=${VARIANT:?VARIANT: $variants}
 # no material rule; the fitted scalars with DLF held and Adam at 0.05
 no_material_rule=(--set dlf.gravity_scale=1.0 --set 'dlf.energy_cap="none"'
@@ -38,6 +40,15 @@ case $variant in
     --set joint.input_noise=0.1) ;;
   one-config-noise-body) rules=("${no_material_rule[@]}" "${three[@]}" "${held[@]}"
     --set joint.input_noise=0.1 --set 'dlf.dissipation_frame="body"') ;;
+  one-config-fit-then-ground)
+    # updates an epoch: one per window of bptt_steps transitions of 49 (the scene's config)
+    bptt=$(sed -n 's/^bptt_steps *= *\([0-9]*\).*/\1/p' "experiments/bed/$scene.toml")
+    per=$(( (49 + bptt - 1) / bptt ))
+    rules=("${no_material_rule[@]}" "${three[@]}" --set joint.input_noise=0.1
+      --set 'dlf.dissipation_frame="body"' --set joint.terms.anchor.weight=0.1
+      --set joint.terms.energy.weight=0.005 --set joint.physics.hold_dlf_epochs=3
+      --set "joint.physics.optim={ lr = 0.05, schedule = { kind = \"multi_step\", milestones = [$((3 * per - 1))], gamma = 1e-6 } }"
+      --set "joint.dlf_optim.schedule={ kind = \"multi_step\", milestones = [$((3 * per / 2)), $((9 * per / 4))], gamma = 0.5 }") ;;
   *) echo "VARIANT: $variants, not $variant" >&2
      exit 2 ;;
 esac
