@@ -128,3 +128,30 @@ fn a_held_dlf_takes_no_step_while_the_scalars_move() {
         "DLF was never grounded after the held epochs"
     );
 }
+
+/// The anchor holds DLF's weights near the pretrained ones, not the physical scalars near the
+/// rules' constants: with DLF held it costs exactly nothing, so the scalars fitted with an anchor
+/// are those fitted without one, to the bit (anchored to the rules' constants, it pulled a
+/// fitted gravity scale back toward them: docs/notebook/2026-12-05-quick-reference.md, U5).
+#[test]
+fn the_anchor_leaves_the_fitted_scalars_to_the_images() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let fitted = |anchor: f64| {
+        let mut e = experiment(tmp.path(), &format!("anchor-{anchor}"));
+        e.apply_overrides(&[
+            "joint.epochs=1".to_string(),
+            "joint.physics.hold_dlf_epochs=1".to_string(),
+            format!("joint.terms.anchor.weight={anchor}"),
+        ])
+        .unwrap();
+        let run = Run::prepare(e, Start::Resume, &Stage::ALL).unwrap();
+        let mut log = MetricsLog::open(&run.dir).unwrap();
+        warmup::run(&run, &mut log).unwrap();
+        let start = run.exp.dlf.rules;
+        let rules = joint::run(&run, &mut log).unwrap().dlf.config.rules;
+        assert_ne!(rules, start, "the scalars did not move");
+        rules
+    };
+    assert_eq!(fitted(0.0), fitted(1.0));
+}

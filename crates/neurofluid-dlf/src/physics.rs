@@ -37,6 +37,15 @@ impl PhysicsValues {
         }
     }
 
+    /// The same values, out of the graph (gradients stop here).
+    pub fn detached(&self) -> Self {
+        Self {
+            gravity_scale: self.gravity_scale.clone().detach(),
+            viscosity: self.viscosity.clone().detach(),
+            dissipation: self.dissipation.clone().detach(),
+        }
+    }
+
     /// The values, in the order of [`PHYSICS_NAMES`].
     pub fn to_array(&self) -> [f64; 3] {
         let value = |t: &Tensor<1>| neurofluid_core::transfer::read_scalar(t.clone());

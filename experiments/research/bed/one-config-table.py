@@ -1,9 +1,9 @@
 #!/usr/bin/env python3
-"""The bed screen of the one-config candidate U0 against A, the bed configs as they ship (issue
+"""The bed screen of the one-config candidates against A, the bed configs as they ship (issue
 71, item 2; the screen rule of experiments/bed/README.md, "A screen"), from
-runs/bed71/<scene>-s<seed>-{A,one-config,one-config-noise,one-config-noise-body}/eval/report.json
-(experiments/research/bed/screen.sh with VARIANT=one-config, one-config-noise or
-one-config-noise-body, OUT runs/bed71; U0, U0N and U0NB of
+runs/bed71/<scene>-s<seed>-<variant>/eval/report.json, the variants A and those of CANDIDATES
+(experiments/research/bed/screen.sh with VARIANT=one-config, one-config-noise,
+one-config-noise-body or one-config-fit-then-ground, OUT runs/bed71; U0, U0N, U0NB and U5 of
 docs/notebook/2026-12-05-quick-reference.md).
 
     python3 experiments/research/bed/one-config-table.py [SEED ...]    (default: 10)
@@ -21,7 +21,8 @@ WATER = ["water-dam-z", "water-torus-tilted-z", "water-sphere-y"]
 HONEY = ["honey-drop-z", "honey-slump-y-400"]
 # A's seed-to-seed sd of the measure per water scene (rule 24)
 SD = {"water-dam-z": 0.16, "water-torus-tilted-z": 0.38, "water-sphere-y": 0.15}
-CANDIDATES = {"one-config": "U0", "one-config-noise": "U0N", "one-config-noise-body": "U0NB"}
+CANDIDATES = {"one-config": "U0", "one-config-noise": "U0N", "one-config-noise-body": "U0NB",
+              "one-config-fit-then-ground": "U5"}
 
 
 def scores(scene, seed, variant):

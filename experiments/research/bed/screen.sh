@@ -10,7 +10,8 @@
 # and one-config-noise-body (issue 71: no material rule, the physical scalars fitted by the images
 # with DLF held; U0, U2, U0N and U0NB of docs/notebook/2026-12-05-quick-reference.md) and
 # one-config-fit-then-ground (U5: U0NB for 3 epochs, then DLF grounded under the anchor and the
-# energy prior with the scalars held). The variants of rules 22-26 screened options
+# energy prior with the scalars held; -a: U5a, the same run with the anchor that leaves the fitted
+# scalars alone). The variants of rules 22-26 screened options
 # since retired (docs/notebook/2026-12-05-retired-options.md lists them and the commits that had
 # them).
 # Usage: VARIANT=name experiments/research/bed/screen.sh SCENE [A_RUN] [SEED=10] [OUT=runs/r22]
@@ -19,7 +20,7 @@ cd "$(dirname "$0")/../../.."
 scene=$1 a=${2:-} seed=${3:-10} out=${4:-runs/r22}
 bin=${NEUROFLUID_TRAIN:-target/release/neurofluid-train}
 quick=(--set seed="$seed" --set refit.enabled=false --set eval.render=false)
-variants="anchor-0, rays-1024, epochs-12, truth, truth-free, one-config, one-config-u2, one-config-noise, one-config-noise-body or one-config-fit-then-ground"
+variants="anchor-0, rays-1024, epochs-12, truth, truth-free, one-config, one-config-u2, one-config-noise, one-config-noise-body, one-config-fit-then-ground or one-config-fit-then-ground-a"
 variant=${VARIANT:?VARIANT: $variants}
 # no material rule; the fitted scalars with DLF held and Adam at 0.05
 no_material_rule=(--set dlf.gravity_scale=1.0 --set 'dlf.energy_cap="none"'
@@ -40,7 +41,7 @@ case $variant in
     --set joint.input_noise=0.1) ;;
   one-config-noise-body) rules=("${no_material_rule[@]}" "${three[@]}" "${held[@]}"
     --set joint.input_noise=0.1 --set 'dlf.dissipation_frame="body"') ;;
-  one-config-fit-then-ground)
+  one-config-fit-then-ground|one-config-fit-then-ground-a)
     # updates an epoch: one per window of bptt_steps transitions of 49 (the scene's config)
     bptt=$(sed -n 's/^bptt_steps *= *\([0-9]*\).*/\1/p' "experiments/bed/$scene.toml")
     per=$(( (49 + bptt - 1) / bptt ))

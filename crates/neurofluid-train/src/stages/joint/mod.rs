@@ -262,26 +262,18 @@ impl JointTrainer {
         }
     }
 
-    /// The particle terms of the transition to `frame` ending in `after`: DLF's `surrogate`
-    /// with them added, their detached sum (to be read with the step's values) and each one's
-    /// detached value.
+    /// The particle terms of the transition `step`: DLF's `surrogate` with them added, their
+    /// detached sum (to be read with the step's values) and each one's detached value.
     fn add_terms(
         &self,
-        frame: usize,
-        after: &State,
+        step: &Transition,
         mut surrogate: Tensor<1>,
         boundary: &Tensor<1>,
     ) -> (Tensor<1>, Tensor<1>, Vec<Tensor<1>>) {
-        let step = Transition {
-            before: &self.state,
-            after,
-            frame,
-            walls: &self.boundary,
-        };
         let mut extra = boundary.clone().mul_scalar(0.0);
         let mut values = Vec::with_capacity(self.terms.len());
         for term in &self.terms {
-            let loss = term.loss(&step);
+            let loss = term.loss(step);
             values.push(loss.clone().detach());
             extra = extra + loss.clone().detach();
             surrogate = surrogate + loss;
@@ -387,15 +379,17 @@ impl Trainer for JointTrainer {
         if t == 0 {
             self.state = self.data.initial_state(&self.dlf.device());
         }
-        let (x, v) = (self.state.0.clone(), self.state.1.clone());
-        let v = with_input_noise(v, self.cfg.input_noise, self.seed, step);
-        let pred = match &self.physics {
+        let v = with_input_noise(self.state.1.clone(), self.cfg.input_noise, self.seed, step);
+        let input = (self.state.0.clone(), v);
+        let (x, v) = input.clone();
+        let (pred, physics) = match &self.physics {
             Some(p) => {
                 let values = p.module.step_values(&p.fit);
+                let used = values.detached();
                 let dlf = self.dlf.clone().with_physics(Some(values));
-                dlf.step(x, v, &self.boundary)
+                (dlf.step(x, v, &self.boundary), Some(used))
             }
-            None => self.dlf.step(x, v, &self.boundary),
+            None => (self.dlf.step(x, v, &self.boundary), None),
         };
         // the prediction on the host, read once: the rays, the renderer's neighbour search, the
         // alignment and the state check all use it
@@ -406,7 +400,14 @@ impl Trainer for JointTrainer {
             .mul_scalar(self.cfg.boundary_weight);
         let surrogate = dlf_surrogate(&pred.pos, image.dx.clone()) + boundary.clone();
         let after = (pred.pos, pred.vel);
-        let (surrogate, extra, terms) = self.add_terms(t + 1, &after, surrogate, &boundary);
+        let step_terms = Transition {
+            before: &input,
+            after: &after,
+            frame: t + 1,
+            walls: &self.boundary,
+            physics: physics.as_ref(),
+        };
+        let (surrogate, extra, terms) = self.add_terms(&step_terms, surrogate, &boundary);
         let alignment = image
             .dx
             .and_then(|g| self.alignment_sums(t + 1, &pred_host, g));

@@ -10,7 +10,10 @@
 //! L = w · (1/N) Σ_i |x′_i − x̂′_i|² / r²,
 //!
 //! with x̂′ the pretrained DLF's step from the same (detached) state, a constant, and r the
-//! particle radius.
+//! particle radius. Where `[joint.physics]` fits the physical scalars, x̂′ steps with the values
+//! the grounded step used: the anchor holds DLF's weights near the pretrained ones and leaves the
+//! scalars to the images (anchored to the rules' constants, it pulled a fitted gravity scale
+//! back toward them).
 
 use burn::prelude::*;
 use neurofluid_core::tensors::sum_all;
@@ -61,7 +64,16 @@ impl ParticleTerm for Anchor {
             step.before.0.clone().detach(),
             step.before.1.clone().detach(),
         );
-        let target = self.pretrained.step(x, v, step.walls).pos.detach();
+        // the pretrained weights with the scalars the step used: the anchor holds the weights,
+        // and leaves the physical scalars to the images
+        let target = match step.physics {
+            Some(values) => {
+                let pretrained = self.pretrained.clone().with_physics(Some(values.clone()));
+                pretrained.step(x, v, step.walls)
+            }
+            None => self.pretrained.step(x, v, step.walls),
+        };
+        let target = target.pos.detach();
         mean_square_distance(step.after.0.clone(), target, self.radius).mul_scalar(self.weight)
     }
 }

@@ -11,7 +11,7 @@
 //! [`TermSettings`] and its term implementing [`ParticleTerm`], and one line in the list.
 
 use burn::prelude::*;
-use neurofluid_dlf::{Boundary, DlfNet};
+use neurofluid_dlf::{Boundary, DlfNet, PhysicsValues};
 use serde::{Deserialize, Serialize};
 
 pub mod anchor;
@@ -20,7 +20,8 @@ pub mod truth;
 
 /// One transition of the joint stage as a term sees it.
 pub struct Transition<'a> {
-    /// The carried state (x_t, v_t) the step started from.
+    /// The state (x_t, v_t) the step started from, as DLF was given it (`joint.input_noise`
+    /// added to the carried velocities).
     pub before: &'a (Tensor<2>, Tensor<2>),
     /// The grounded DLF's prediction (x_{t+1}, v_{t+1}), differentiable through DLF.
     pub after: &'a (Tensor<2>, Tensor<2>),
@@ -28,6 +29,8 @@ pub struct Transition<'a> {
     pub frame: usize,
     /// DLF's walls of the scene.
     pub walls: &'a Boundary,
+    /// The physical scalars the step used, out of the graph, where `[joint.physics]` fits them.
+    pub physics: Option<&'a PhysicsValues>,
 }
 
 /// A loss on the predicted particles of one transition.
