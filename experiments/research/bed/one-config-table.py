@@ -22,7 +22,7 @@ HONEY = ["honey-drop-z", "honey-slump-y-400"]
 # A's seed-to-seed sd of the measure per water scene (rule 24)
 SD = {"water-dam-z": 0.16, "water-torus-tilted-z": 0.38, "water-sphere-y": 0.15}
 CANDIDATES = {"one-config": "U0", "one-config-noise": "U0N", "one-config-noise-body": "U0NB",
-              "one-config-fit-then-ground": "U5"}
+              "one-config-fit-then-ground": "U5", "one-config-fit-then-ground-a": "U5a"}
 
 
 def scores(scene, seed, variant):
