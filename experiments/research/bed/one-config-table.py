@@ -3,7 +3,8 @@
 71, item 2; the screen rule of experiments/bed/README.md, "A screen"), from
 runs/bed71/<scene>-s<seed>-<variant>/eval/report.json, the variants A and those of CANDIDATES
 (experiments/research/bed/screen.sh with VARIANT=one-config, one-config-noise,
-one-config-noise-body or one-config-fit-then-ground, OUT runs/bed71; U0, U0N, U0NB and U5 of
+one-config-noise-body or one-config-fit-then-ground[-a|-b], OUT runs/bed71; U0, U0N, U0NB, U5,
+U5a and U5b of
 docs/notebook/2026-12-05-quick-reference.md).
 
     python3 experiments/research/bed/one-config-table.py [SEED ...]    (default: 10)
@@ -22,7 +23,8 @@ HONEY = ["honey-drop-z", "honey-slump-y-400"]
 # A's seed-to-seed sd of the measure per water scene (rule 24)
 SD = {"water-dam-z": 0.16, "water-torus-tilted-z": 0.38, "water-sphere-y": 0.15}
 CANDIDATES = {"one-config": "U0", "one-config-noise": "U0N", "one-config-noise-body": "U0NB",
-              "one-config-fit-then-ground": "U5", "one-config-fit-then-ground-a": "U5a"}
+              "one-config-fit-then-ground": "U5", "one-config-fit-then-ground-a": "U5a",
+              "one-config-fit-then-ground-b": "U5b"}
 
 
 def scores(scene, seed, variant):

@@ -11,7 +11,7 @@
 # with DLF held; U0, U2, U0N and U0NB of docs/notebook/2026-12-05-quick-reference.md) and
 # one-config-fit-then-ground (U5: U0NB for 3 epochs, then DLF grounded under the anchor and the
 # energy prior with the scalars held; -a: U5a, the same run with the anchor that leaves the fitted
-# scalars alone). The variants of rules 22-26 screened options
+# scalars alone; -b: U5b, U5a with the scalars' rate × 0.1 over epoch 3). The variants of rules 22-26 screened options
 # since retired (docs/notebook/2026-12-05-retired-options.md lists them and the commits that had
 # them).
 # Usage: VARIANT=name experiments/research/bed/screen.sh SCENE [A_RUN] [SEED=10] [OUT=runs/r22]
@@ -20,7 +20,7 @@ cd "$(dirname "$0")/../../.."
 scene=$1 a=${2:-} seed=${3:-10} out=${4:-runs/r22}
 bin=${NEUROFLUID_TRAIN:-target/release/neurofluid-train}
 quick=(--set seed="$seed" --set refit.enabled=false --set eval.render=false)
-variants="anchor-0, rays-1024, epochs-12, truth, truth-free, one-config, one-config-u2, one-config-noise, one-config-noise-body, one-config-fit-then-ground or one-config-fit-then-ground-a"
+variants="anchor-0, rays-1024, epochs-12, truth, truth-free, one-config, one-config-u2, one-config-noise, one-config-noise-body, one-config-fit-then-ground, one-config-fit-then-ground-a or one-config-fit-then-ground-b"
 variant=${VARIANT:?VARIANT: $variants}
 # no material rule; the fitted scalars with DLF held and Adam at 0.05
 no_material_rule=(--set dlf.gravity_scale=1.0 --set 'dlf.energy_cap="none"'
@@ -49,6 +49,15 @@ case $variant in
       --set 'dlf.dissipation_frame="body"' --set joint.terms.anchor.weight=0.1
       --set joint.terms.energy.weight=0.005 --set joint.physics.hold_dlf_epochs=3
       --set "joint.physics.optim={ lr = 0.05, schedule = { kind = \"multi_step\", milestones = [$((3 * per - 1))], gamma = 1e-6 } }"
+      --set "joint.dlf_optim.schedule={ kind = \"multi_step\", milestones = [$((3 * per / 2)), $((9 * per / 4))], gamma = 0.5 }") ;;
+  one-config-fit-then-ground-b)
+    # U5b: U5a with the scalars' rate × 0.1 over epoch 3 before they are held
+    bptt=$(sed -n 's/^bptt_steps *= *\([0-9]*\).*/\1/p' "experiments/bed/$scene.toml")
+    per=$(( (49 + bptt - 1) / bptt ))
+    rules=("${no_material_rule[@]}" "${three[@]}" --set joint.input_noise=0.1
+      --set 'dlf.dissipation_frame="body"' --set joint.terms.anchor.weight=0.1
+      --set joint.terms.energy.weight=0.005 --set joint.physics.hold_dlf_epochs=3
+      --set "joint.physics.optim={ lr = 0.05, schedule = { kind = \"piecewise\", boundaries = [$((2 * per - 1)), $((3 * per - 1))], factors = [0.1, 1e-6] } }"
       --set "joint.dlf_optim.schedule={ kind = \"multi_step\", milestones = [$((3 * per / 2)), $((9 * per / 4))], gamma = 0.5 }") ;;
   *) echo "VARIANT: $variants, not $variant" >&2
      exit 2 ;;
