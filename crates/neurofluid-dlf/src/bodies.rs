@@ -61,11 +61,10 @@ pub fn body_mean_velocities(vel: Tensor<2>, labels: &[u32]) -> Tensor<2> {
     gather_rows(sums / sizes, &index)
 }
 
-/// `vel` less its share `share` (`[1, 1]`, broadcast) of each velocity relative to its body's
-/// mean: `v − c (v − v̄_body)`.
-pub fn damp_within_bodies(vel: Tensor<2>, share: Tensor<2>, labels: &[u32]) -> Tensor<2> {
-    let within = vel.clone() - body_mean_velocities(vel.clone(), labels);
-    vel - within * share
+/// Each velocity of `vel` relative to its body's mean, `v − v̄_body`: the motion within the
+/// bodies, which the dissipation in the body frame takes its share of (`v − c (v − v̄_body)`).
+pub fn motion_within_bodies(vel: Tensor<2>, labels: &[u32]) -> Tensor<2> {
+    vel.clone() - body_mean_velocities(vel, labels)
 }
 
 #[cfg(test)]
@@ -137,9 +136,10 @@ mod tests {
             .map(|p| [p[1] * 3.0 - 0.2, (p[0] * 7.0).sin(), p[0] + 0.3])
             .collect();
         let share = 0.3f32;
+        // the step's damping: v − c (v − v̄_body)
         let damp = |v: &[[f32; 3]]| {
-            let s: Tensor<2> = upload(TensorData::new(vec![share], [1, 1]), &device);
-            tensor_points(&damp_within_bodies(points_tensor(v, &device), s, &l))
+            let v = points_tensor(v, &device);
+            tensor_points(&(v.clone() - motion_within_bodies(v, &l) * share))
         };
         let out = damp(&v);
         // by hand, per body in f64

@@ -4,7 +4,7 @@ use burn::nn::{Initializer, Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
 
-use crate::bodies::{body_labels, damp_within_bodies};
+use crate::bodies::{body_labels, motion_within_bodies};
 use crate::config::{DlfConfig, GeometryMode};
 use crate::conv::ContinuousConv;
 use crate::diff_geometry::differentiable_weights;
@@ -383,9 +383,6 @@ impl DlfNet {
         let row = |g: [f32; 3]| -> Tensor<2> {
             neurofluid_core::transfer::upload(TensorData::new(g.to_vec(), [1, 3]), &device)
         };
-        let row1 = |c: f32| -> Tensor<2> {
-            neurofluid_core::transfer::upload(TensorData::new(vec![c], [1, 1]), &device)
-        };
         let g = match &self.physics {
             None => row(cfg
                 .model_gravity()
@@ -424,21 +421,28 @@ impl DlfNet {
                 moved(pos_new, vel_new, smoothed)
             }
         };
-        // the share as a `[1, 1]` tensor: the rules' constant, or the fitted value
-        let share = match &self.physics {
-            None if cfg.rules.dissipation > 0.0 => Some(row1(cfg.rules.dissipation as f32)),
-            None => None,
-            Some(p) => Some(p.dissipation.clone().reshape([1, 1])),
-        };
-        let (pos_new, vel_new) = match (share, cfg.rules.dissipation_frame) {
-            (None, _) => (pos_new, vel_new),
-            (Some(c), DissipationFrame::Box) => {
-                let kept = vel_new.clone() * (c.neg() + 1.0);
+        // the share of the velocity (the box's frame) or of its motion within its body taken away
+        let body = cfg.rules.dissipation_frame == DissipationFrame::Body;
+        let within =
+            |vel: &Tensor<2>| motion_within_bodies(vel.clone(), &body_labels(fluid.host()));
+        let (pos_new, vel_new) = match &self.physics {
+            None if cfg.rules.dissipation > 0.0 => {
+                let c = cfg.rules.dissipation as f32;
+                let kept = if body {
+                    vel_new.clone() - within(&vel_new) * c
+                } else {
+                    vel_new.clone() * (1.0 - c)
+                };
                 moved(pos_new, vel_new, kept)
             }
-            (Some(c), DissipationFrame::Body) => {
-                let labels = body_labels(fluid.host());
-                let kept = damp_within_bodies(vel_new.clone(), c, &labels);
+            None => (pos_new, vel_new),
+            Some(p) => {
+                let c = p.dissipation.clone().reshape([1, 1]);
+                let kept = if body {
+                    vel_new.clone() - within(&vel_new) * c
+                } else {
+                    vel_new.clone() * (c.neg() + 1.0)
+                };
                 moved(pos_new, vel_new, kept)
             }
         };

@@ -41,23 +41,20 @@ case $variant in
     --set joint.input_noise=0.1) ;;
   one-config-noise-body) rules=("${no_material_rule[@]}" "${three[@]}" "${held[@]}"
     --set joint.input_noise=0.1 --set 'dlf.dissipation_frame="body"') ;;
-  one-config-fit-then-ground|one-config-fit-then-ground-a)
+  one-config-fit-then-ground|one-config-fit-then-ground-a|one-config-fit-then-ground-b)
     # updates an epoch: one per window of bptt_steps transitions of 49 (the scene's config)
     bptt=$(sed -n 's/^bptt_steps *= *\([0-9]*\).*/\1/p' "experiments/bed/$scene.toml")
     per=$(( (49 + bptt - 1) / bptt ))
+    # the scalars held from epoch 4 (their rate × 1e-6); -b: at × 0.1 over epoch 3 first
+    if [[ $variant == *-b ]]; then
+      hold="{ kind = \"piecewise\", boundaries = [$((2 * per - 1)), $((3 * per - 1))], factors = [0.1, 1e-6] }"
+    else
+      hold="{ kind = \"multi_step\", milestones = [$((3 * per - 1))], gamma = 1e-6 }"
+    fi
     rules=("${no_material_rule[@]}" "${three[@]}" --set joint.input_noise=0.1
       --set 'dlf.dissipation_frame="body"' --set joint.terms.anchor.weight=0.1
       --set joint.terms.energy.weight=0.005 --set joint.physics.hold_dlf_epochs=3
-      --set "joint.physics.optim={ lr = 0.05, schedule = { kind = \"multi_step\", milestones = [$((3 * per - 1))], gamma = 1e-6 } }"
-      --set "joint.dlf_optim.schedule={ kind = \"multi_step\", milestones = [$((3 * per / 2)), $((9 * per / 4))], gamma = 0.5 }") ;;
-  one-config-fit-then-ground-b)
-    # U5b: U5a with the scalars' rate × 0.1 over epoch 3 before they are held
-    bptt=$(sed -n 's/^bptt_steps *= *\([0-9]*\).*/\1/p' "experiments/bed/$scene.toml")
-    per=$(( (49 + bptt - 1) / bptt ))
-    rules=("${no_material_rule[@]}" "${three[@]}" --set joint.input_noise=0.1
-      --set 'dlf.dissipation_frame="body"' --set joint.terms.anchor.weight=0.1
-      --set joint.terms.energy.weight=0.005 --set joint.physics.hold_dlf_epochs=3
-      --set "joint.physics.optim={ lr = 0.05, schedule = { kind = \"piecewise\", boundaries = [$((2 * per - 1)), $((3 * per - 1))], factors = [0.1, 1e-6] } }"
+      --set "joint.physics.optim={ lr = 0.05, schedule = $hold }"
       --set "joint.dlf_optim.schedule={ kind = \"multi_step\", milestones = [$((3 * per / 2)), $((9 * per / 4))], gamma = 0.5 }") ;;
   *) echo "VARIANT: $variants, not $variant" >&2
      exit 2 ;;

@@ -31,17 +31,14 @@ case $variant in
   U0NB) cfg=experiments/research/physics/one-config.toml
     variant_sets=(--set joint.physics.hold_dlf_epochs=6 --set joint.input_noise=0.1
       --set 'dlf.dissipation_frame="body"') ;;
-  U5|U5a) cfg=experiments/research/physics/one-config.toml
-    # 13 updates an epoch (bptt_steps 4): the scalars' rate × 1e-6 from update 39, DLF's halved at
-    # 1/2 and 3/4 of its own 39
+  U5|U5a|U5b) cfg=experiments/research/physics/one-config.toml
+    # 13 updates an epoch (bptt_steps 4): the scalars' rate × 1e-6 from update 39 (U5b: × 0.1 over
+    # epoch 3, updates 26-38, first), DLF's halved at 1/2 and 3/4 of its own 39
+    hold='{ kind = "multi_step", milestones = [38], gamma = 1e-6 }'
+    [[ $variant == U5b ]] && hold='{ kind = "piecewise", boundaries = [25, 38], factors = [0.1, 1e-6] }'
     variant_sets=("${anchor_energy[@]}" --set joint.input_noise=0.1 --set 'dlf.dissipation_frame="body"'
       --set joint.physics.hold_dlf_epochs=3
-      --set 'joint.physics.optim={ lr = 0.05, schedule = { kind = "multi_step", milestones = [38], gamma = 1e-6 } }') ;;
-  U5b) cfg=experiments/research/physics/one-config.toml
-    # U5a with the scalars' rate × 0.1 over epoch 3 (updates 26-38) before they are held
-    variant_sets=("${anchor_energy[@]}" --set joint.input_noise=0.1 --set 'dlf.dissipation_frame="body"'
-      --set joint.physics.hold_dlf_epochs=3
-      --set 'joint.physics.optim={ lr = 0.05, schedule = { kind = "piecewise", boundaries = [25, 38], factors = [0.1, 1e-6] } }') ;;
+      --set "joint.physics.optim={ lr = 0.05, schedule = $hold }") ;;
   A) cfg=experiments/quick-$scene.toml ;;
   *) echo "VARIANT: U0N, U0NB, U1, U2, U4, U4N, U5, U5a, U5b or A, not $variant" >&2; exit 2 ;;
 esac
