@@ -11,7 +11,8 @@
 # with DLF held; U0, U2, U0N and U0NB of docs/notebook/2026-12-05-quick-reference.md) and
 # one-config-fit-then-ground (U5: U0NB for 3 epochs, then DLF grounded under the anchor and the
 # energy prior with the scalars held; -a: U5a, the same run with the anchor that leaves the fitted
-# scalars alone; -b: U5b, U5a with the scalars' rate × 0.1 over epoch 3). The variants of rules 22-26 screened options
+# scalars alone; -b: U5b, U5a with the scalars' rate × 0.1 over epoch 3; -c: U5c, U5b with the one
+# config's 4 transitions unrolled on every scene, so its schedules are the quick U5b's). The variants of rules 22-26 screened options
 # since retired (docs/notebook/2026-12-05-retired-options.md lists them and the commits that had
 # them).
 # Usage: VARIANT=name experiments/research/bed/screen.sh SCENE [A_RUN] [SEED=10] [OUT=runs/r22]
@@ -20,7 +21,7 @@ cd "$(dirname "$0")/../../.."
 scene=$1 a=${2:-} seed=${3:-10} out=${4:-runs/r22}
 bin=${NEUROFLUID_TRAIN:-target/release/neurofluid-train}
 quick=(--set seed="$seed" --set refit.enabled=false --set eval.render=false)
-variants="anchor-0, rays-1024, epochs-12, truth, truth-free, one-config, one-config-u2, one-config-noise, one-config-noise-body, one-config-fit-then-ground, one-config-fit-then-ground-a or one-config-fit-then-ground-b"
+variants="anchor-0, rays-1024, epochs-12, truth, truth-free, one-config, one-config-u2, one-config-noise, one-config-noise-body, one-config-fit-then-ground, one-config-fit-then-ground-a, one-config-fit-then-ground-b or one-config-fit-then-ground-c"
 variant=${VARIANT:?VARIANT: $variants}
 # no material rule; the fitted scalars with DLF held and Adam at 0.05
 no_material_rule=(--set dlf.gravity_scale=1.0 --set 'dlf.energy_cap="none"'
@@ -41,12 +42,17 @@ case $variant in
     --set joint.input_noise=0.1) ;;
   one-config-noise-body) rules=("${no_material_rule[@]}" "${three[@]}" "${held[@]}"
     --set joint.input_noise=0.1 --set 'dlf.dissipation_frame="body"') ;;
-  one-config-fit-then-ground|one-config-fit-then-ground-a|one-config-fit-then-ground-b)
-    # updates an epoch: one per window of bptt_steps transitions of 49 (the scene's config)
+  one-config-fit-then-ground|one-config-fit-then-ground-[abc])
+    # updates an epoch: one per window of bptt_steps transitions of 49 (the scene's config; -c:
+    # the one config's 4 on every scene)
     bptt=$(sed -n 's/^bptt_steps *= *\([0-9]*\).*/\1/p' "experiments/bed/$scene.toml")
+    [[ $variant == *-c ]] && bptt=4
     per=$(( (49 + bptt - 1) / bptt ))
-    # the scalars held from epoch 4 (their rate × 1e-6); -b: at × 0.1 over epoch 3 first
-    if [[ $variant == *-b ]]; then
+    # the scalars held from epoch 4 (their rate × 1e-6); -b, -c: at × 0.1 over epoch 3 first
+    dlf_milestones="$((3 * per / 2)), $((9 * per / 4))"
+    # -c: the quick one config's DLF schedule (experiments/research/physics/one-config.toml)
+    [[ $variant == *-c ]] && dlf_milestones="19, 28"
+    if [[ $variant == *-[bc] ]]; then
       hold="{ kind = \"piecewise\", boundaries = [$((2 * per - 1)), $((3 * per - 1))], factors = [0.1, 1e-6] }"
     else
       hold="{ kind = \"multi_step\", milestones = [$((3 * per - 1))], gamma = 1e-6 }"
@@ -55,7 +61,8 @@ case $variant in
       --set 'dlf.dissipation_frame="body"' --set joint.terms.anchor.weight=0.1
       --set joint.terms.energy.weight=0.005 --set joint.physics.hold_dlf_epochs=3
       --set "joint.physics.optim={ lr = 0.05, schedule = $hold }"
-      --set "joint.dlf_optim.schedule={ kind = \"multi_step\", milestones = [$((3 * per / 2)), $((9 * per / 4))], gamma = 0.5 }") ;;
+      --set "joint.dlf_optim.schedule={ kind = \"multi_step\", milestones = [$dlf_milestones], gamma = 0.5 }")
+    [[ $variant == *-c ]] && rules+=(--set joint.bptt_steps=4) ;;
   *) echo "VARIANT: $variants, not $variant" >&2
      exit 2 ;;
 esac
