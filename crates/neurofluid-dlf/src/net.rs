@@ -403,17 +403,18 @@ impl DlfNet {
         let num_fluid_neighbors = fluid.counts();
         let (raw, features) = self.correction(vel_pred.clone(), boundary, &fluid, &solid);
         let shift = raw.clone() * cfg.output_scale;
-        // the bodies in free flight, where their centres move as projectiles
         // the bodies of the step, found where a rule asks for them
         let labels = OnceCell::new();
         let labels = || labels.get_or_init(|| body_labels(fluid.host())).as_slice();
+        // the bodies in free flight, where their centres move as projectiles
         let free = (cfg.rules.free_flight == FreeFlight::Ballistic).then(|| {
             let touching: Vec<bool> = solid.counts().iter().map(|&c| c > 0).collect();
             in_free_flight(labels(), &touching)
         });
         let half_g_dt = cfg.model_gravity().map(|c| 0.5 * cfg.dt * c);
         let shift = match &free {
-            // the pre-step moved each centre by dt·v + ½·s·g·dt², the projectile by dt·v + ½·g·dt²
+            // the pre-step moved each centre by dt·v + ½·s·g·dt², a projectile's moves by
+            // dt·v + ½·g·dt²: the body's mean correction is ½·(1 − s)·g·dt²
             Some(free) => {
                 let projectile = row(half_g_dt.map(|c| c * cfg.dt));
                 let mean = match &self.physics {
