@@ -3,8 +3,8 @@
 71, item 2; the screen rule of experiments/bed/README.md, "A screen"), from
 runs/bed71/<scene>-s<seed>-<variant>/eval/report.json, the variants A and those of CANDIDATES
 (experiments/research/bed/screen.sh with VARIANT=one-config, one-config-noise,
-one-config-noise-body, one-config-fit-then-ground[-a|-b|-c] or one-config-free-flight[-c],
-OUT runs/bed71; U0, U0N, U0NB, U5, U5a, U5b, U5c, U6 and U6c of
+one-config-noise-body, one-config-fit-then-ground[-a|-b|-c] or one-config-free-flight[-c|-u7],
+OUT runs/bed71; U0, U0N, U0NB, U5, U5a, U5b, U5c, U6, U6c and U7 of
 docs/notebook/2026-12-05-quick-reference.md).
 
     python3 experiments/research/bed/one-config-table.py [SEED ...]    (default: 10)
@@ -25,7 +25,8 @@ SD = {"water-dam-z": 0.16, "water-torus-tilted-z": 0.38, "water-sphere-y": 0.15}
 CANDIDATES = {"one-config": "U0", "one-config-noise": "U0N", "one-config-noise-body": "U0NB",
               "one-config-fit-then-ground": "U5", "one-config-fit-then-ground-a": "U5a",
               "one-config-fit-then-ground-b": "U5b", "one-config-fit-then-ground-c": "U5c",
-              "one-config-free-flight": "U6", "one-config-free-flight-c": "U6c"}
+              "one-config-free-flight": "U6", "one-config-free-flight-c": "U6c",
+              "one-config-free-flight-u7": "U7"}
 # U5c is U5b with the one config's 4 transitions unrolled: on a scene whose config already unrolls
 # 4 (honey's) their commands are the same to the argument, and U5b's run is U5c's
 SAME_RUN = {("one-config-fit-then-ground-c", "honey-drop-z"): "one-config-fit-then-ground-b",
