@@ -4,7 +4,7 @@
 runs/bed71/<scene>-s<seed>-<variant>/eval/report.json, the variants A and those of CANDIDATES
 (experiments/research/bed/screen.sh with VARIANT=one-config, one-config-noise,
 one-config-noise-body, one-config-fit-then-ground[-a|-b|-c] or one-config-free-flight[-c|-u7],
-OUT runs/bed71; U0, U0N, U0NB, U5, U5a, U5b, U5c, U6, U6c and U7 of
+OUT runs/bed71; U0, U0N, U0NB, U5, U5a, U5b, U5c, U6, U6c, U7 and U8 (-ff) of
 docs/notebook/2026-12-05-quick-reference.md).
 
     python3 experiments/research/bed/one-config-table.py [SEED ...]    (default: 10)
@@ -26,7 +26,7 @@ CANDIDATES = {"one-config": "U0", "one-config-noise": "U0N", "one-config-noise-b
               "one-config-fit-then-ground": "U5", "one-config-fit-then-ground-a": "U5a",
               "one-config-fit-then-ground-b": "U5b", "one-config-fit-then-ground-c": "U5c",
               "one-config-free-flight": "U6", "one-config-free-flight-c": "U6c",
-              "one-config-free-flight-u7": "U7"}
+              "one-config-free-flight-u7": "U7", "one-config-fit-then-ground-ff": "U8"}
 # U5c is U5b with the one config's 4 transitions unrolled: on a scene whose config already unrolls
 # 4 (honey's) their commands are the same to the argument, and U5b's run is U5c's
 SAME_RUN = {("one-config-fit-then-ground-c", "honey-drop-z"): "one-config-fit-then-ground-b",
