@@ -6,12 +6,6 @@
 //! fall, a throw) is kept, its momentum too, and only the motion within it (spreading, spin,
 //! splashing) is damped; it is the same in every frame that moves uniformly (Galilean invariant),
 //! where the dissipation in the box frame is a drag on every velocity.
-//!
-//! A body none of whose particles has a box particle within the step's reach is in free flight:
-//! a closed system for that step, its internal forces cancel, and its centre of mass is a
-//! projectile. The published weights break this (a falling clump accelerates at about two thirds
-//! of g); under `dlf.free_flight = "ballistic"` ([`ballistic`]) each such body's mean correction is
-//! the projectile's and its particles' motion about the centre stays the network's.
 
 use burn::prelude::*;
 use neurofluid_core::rows::{RowIndex, add_rows, gather_rows};
@@ -71,46 +65,6 @@ pub fn body_mean_velocities(vel: Tensor<2>, labels: &[u32]) -> Tensor<2> {
 /// bodies, which the dissipation in the body frame takes its share of (`v − c (v − v̄_body)`).
 pub fn motion_within_bodies(vel: Tensor<2>, labels: &[u32]) -> Tensor<2> {
     vel.clone() - body_mean_velocities(vel, labels)
-}
-
-/// Whether each particle's body (`labels`) is in free flight: `touching[i]`, whether particle
-/// `i` has a box particle within the step's reach, holds for none of the body's particles.
-pub fn in_free_flight(labels: &[u32], touching: &[bool]) -> Vec<bool> {
-    let bodies = labels.iter().max().map_or(0, |&m| m as usize + 1);
-    let mut held = vec![false; bodies];
-    for (&b, &t) in labels.iter().zip(touching) {
-        held[b as usize] |= t;
-    }
-    labels.iter().map(|&b| !held[b as usize]).collect()
-}
-
-/// `rows [N, 3]` with the mean over each body in free flight (`free`, from [`in_free_flight`])
-/// made `mean [1, 3]`, the motion about it kept; the rows of bodies the walls reach as they are.
-/// Gradients flow through `rows` and `mean`.
-pub fn ballistic(rows: Tensor<2>, labels: &[u32], free: &[bool], mean: Tensor<2>) -> Tensor<2> {
-    if !free.contains(&true) {
-        return rows;
-    }
-    let member = free_rows(free, &rows);
-    rows.clone() - (body_mean_velocities(rows, labels) - mean) * member
-}
-
-/// `rows [N, 3]` with `add [1, 3]` added to the rows of the particles in free flight (`free`).
-pub fn add_in_free_flight(rows: Tensor<2>, free: &[bool], add: Tensor<2>) -> Tensor<2> {
-    if !free.contains(&true) {
-        return rows;
-    }
-    let member = free_rows(free, &rows);
-    rows + member * add
-}
-
-/// 1 for the particles in free flight, 0 for the others, `[N, 1]` on `like`'s device and dtype.
-fn free_rows(free: &[bool], like: &Tensor<2>) -> Tensor<2> {
-    let member: Vec<f32> = free.iter().map(|&f| if f { 1.0 } else { 0.0 }).collect();
-    upload(
-        TensorData::new(member, [free.len(), 1]),
-        (&like.device(), like.dtype()),
-    )
 }
 
 #[cfg(test)]
@@ -221,43 +175,6 @@ mod tests {
         for w in damp(&rigid) {
             for k in 0..3 {
                 assert!((w[k] - u[k]).abs() < 1e-6);
-            }
-        }
-    }
-
-    /// The bodies the walls reach are left alone; each body in free flight gets the mean asked
-    /// for with its rows' motion about the mean kept (a lone particle: the mean).
-    #[test]
-    fn ballistic_sets_the_mean_of_each_free_body_only() {
-        let device = neurofluid_core::device::cpu();
-        let x = two_clumps_and_a_drop();
-        let l = labels(&x);
-        // one particle of the second clump touches a wall
-        let touching: Vec<bool> = (0..x.len()).map(|i| i == 15).collect();
-        let free = in_free_flight(&l, &touching);
-        assert_eq!(free, (0..x.len()).map(|i| l[i] != 1).collect::<Vec<_>>());
-        let rows: Vec<[f32; 3]> = x.iter().map(|p| [p[0] * 2.0, p[1] - 0.3, 0.1]).collect();
-        let mean = [0.01f32, -0.02, 0.005];
-        let out = tensor_points(&ballistic(
-            points_tensor(&rows, &device),
-            &l,
-            &free,
-            points_tensor(&[mean], &device),
-        ));
-        for b in 0..3u32 {
-            let members: Vec<usize> = (0..x.len()).filter(|&i| l[i] == b).collect();
-            let avg = |w: &[[f32; 3]], k: usize| {
-                members.iter().map(|&i| w[i][k] as f64).sum::<f64>() / members.len() as f64
-            };
-            for k in 0..3 {
-                for &i in &members {
-                    let want = if b == 1 {
-                        rows[i][k] as f64
-                    } else {
-                        rows[i][k] as f64 - avg(&rows, k) + mean[k] as f64
-                    };
-                    assert!((out[i][k] as f64 - want).abs() < 1e-6, "body {b}, row {i}");
-                }
             }
         }
     }

@@ -33,5 +33,5 @@ pub use geometry::{ConvGeometry, FILTER_EXTENT, HostGeometry, build_host_geometr
 pub use loss::{dlf_step_loss, two_step_loss};
 pub use net::{Boundary, DlfNet, StepOutput, StepTrace};
 pub use physics::{PHYSICS_NAMES, PhysicsValues};
-pub use rules::{Containment, DissipationFrame, EnergyCap, FreeFlight, RulesError, StepRules};
+pub use rules::{Containment, DissipationFrame, EnergyCap, RulesError, StepRules};
 pub use weights::{WeightsError, load_checkpoint, load_dlf, save_checkpoint};

@@ -1,21 +1,17 @@
 //! The DLF network (docs/spec/dlf.md §3) and its integrator (§4).
 
-use std::cell::OnceCell;
-
 use burn::nn::{Initializer, Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
 
-use crate::bodies::{
-    add_in_free_flight, ballistic, body_labels, in_free_flight, motion_within_bodies,
-};
+use crate::bodies::{body_labels, motion_within_bodies};
 use crate::config::{DlfConfig, GeometryMode};
 use crate::conv::ContinuousConv;
 use crate::diff_geometry::differentiable_weights;
 use crate::energy_cap::cap_particle_energy;
 use crate::geometry::{ConvGeometry, build_host_geometry, chunk_slots, search_radius};
 use crate::physics::PhysicsValues;
-use crate::rules::{DissipationFrame, EnergyCap, FreeFlight};
+use crate::rules::{DissipationFrame, EnergyCap};
 use crate::viscosity::smooth_velocities;
 use neurofluid_core::device_pairs::{device_pairs, device_pairs_from_host};
 use neurofluid_core::device_search::{NeighbourSearch, neighbour_search};
@@ -360,9 +356,8 @@ impl DlfNet {
         (h3, features)
     }
 
-    /// One step (one frame, dt): gravity pre-step, network correction (each body in free flight's
-    /// mean the projectile's, where the rules ask), velocity from the position difference; then,
-    /// where the rules ask, viscosity, dissipation (in the box's frame or each
+    /// One step (one frame, dt): gravity pre-step, network correction, velocity from the position
+    /// difference; then, where the rules ask, viscosity, dissipation (in the box's frame or each
     /// body's), container, energy cap (the gravity scale, viscosity and dissipation from
     /// [`DlfNet::physics`] where it holds values).
     /// `pos`, `vel` `[N, 3]` are in the scene frame.
@@ -403,35 +398,8 @@ impl DlfNet {
         let num_fluid_neighbors = fluid.counts();
         let (raw, features) = self.correction(vel_pred.clone(), boundary, &fluid, &solid);
         let shift = raw.clone() * cfg.output_scale;
-        // the bodies of the step, found where a rule asks for them
-        let labels = OnceCell::new();
-        let labels = || labels.get_or_init(|| body_labels(fluid.host())).as_slice();
-        // the bodies in free flight, where their centres move as projectiles
-        let free = (cfg.rules.free_flight == FreeFlight::Ballistic).then(|| {
-            let touching: Vec<bool> = solid.counts().iter().map(|&c| c > 0).collect();
-            in_free_flight(labels(), &touching)
-        });
-        let half_g_dt = cfg.model_gravity().map(|c| 0.5 * cfg.dt * c);
-        let shift = match &free {
-            // the pre-step moved each centre by dt·v + ½·s·g·dt², a projectile's moves by
-            // dt·v + ½·g·dt²: the body's mean correction is ½·(1 − s)·g·dt²
-            Some(free) => {
-                let projectile = row(half_g_dt.map(|c| c * cfg.dt));
-                let mean = match &self.physics {
-                    None => projectile.mul_scalar(1.0 - cfg.rules.gravity_scale as f32),
-                    Some(p) => projectile * (p.gravity_scale.clone().reshape([1, 1]).neg() + 1.0),
-                };
-                ballistic(shift, labels(), free, mean)
-            }
-            None => shift,
-        };
         let pos_new = pos_pred.clone() + shift;
         let vel_new = (pos_new.clone() - pos) / cfg.dt;
-        // the step's mean velocity lags a projectile's at the step's end by ½·g·dt
-        let vel_new = match &free {
-            Some(free) => add_in_free_flight(vel_new, free, row(half_g_dt)),
-            None => vel_new,
-        };
         let (pos_new, vel_new) = (self.to_scene(pos_new), self.to_scene(vel_new));
         let radius = search_radius(cfg.extent);
         // each changes the velocities and shortens or lengthens the move to match
@@ -455,7 +423,8 @@ impl DlfNet {
         };
         // the share of the velocity (the box's frame) or of its motion within its body taken away
         let body = cfg.rules.dissipation_frame == DissipationFrame::Body;
-        let within = |vel: &Tensor<2>| motion_within_bodies(vel.clone(), labels());
+        let within =
+            |vel: &Tensor<2>| motion_within_bodies(vel.clone(), &body_labels(fluid.host()));
         let (pos_new, vel_new) = match &self.physics {
             None if cfg.rules.dissipation > 0.0 => {
                 let c = cfg.rules.dissipation as f32;

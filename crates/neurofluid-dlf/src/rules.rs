@@ -1,6 +1,6 @@
 //! The rules of a DLF step beyond the published model's: walls that hold every particle, an
-//! energy cap per particle, a scale of the pre-step's gravity, bodies in free flight moving as
-//! projectiles, an XSPH viscosity and a dissipation. They apply
+//! energy cap per particle, a scale of the pre-step's gravity, an XSPH viscosity and a
+//! dissipation. They apply
 //! in every rollout (training, diagnostics, evaluation, the baseline DLF's too); an experiment's
 //! `[dlf]` table holds them under these names.
 
@@ -43,21 +43,6 @@ pub enum DissipationFrame {
     Body,
 }
 
-/// How a body in free flight moves (`free_flight`): one none of whose particles has a box
-/// particle within the step's search radius ([`crate::bodies`]).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum FreeFlight {
-    /// The reference: as the network moves it (the published weights let a falling clump
-    /// accelerate at about two thirds of g).
-    #[default]
-    Network,
-    /// Its centre of mass as a projectile under the true gravity, its particles' motion about it
-    /// the network's ([`crate::bodies::ballistic`]); the gravity scale then acts only on fluid the
-    /// walls reach.
-    Ballistic,
-}
-
 /// The rules of a step. The default is the published model's step.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
@@ -72,8 +57,6 @@ pub struct StepRules {
     /// gravity. `1.0` (the reference). The published weights let a falling clump accelerate at
     /// about 6.3 m/s² of 9.81; 1.7 makes it 9.8 (`tests/free_fall.rs`).
     pub gravity_scale: f64,
-    /// `network` (the reference) or `ballistic` (each body in free flight falls as a projectile).
-    pub free_flight: FreeFlight,
     /// Strength in [0, 1] of an XSPH viscosity on each step's velocities (each moves this share
     /// of the way toward its neighbours'; [`crate::viscosity`]). `0.0` (the reference): none.
     pub viscosity: f64,
@@ -92,7 +75,6 @@ impl Default for StepRules {
             containment: Containment::None,
             energy_cap: EnergyCap::None,
             gravity_scale: 1.0,
-            free_flight: FreeFlight::Network,
             viscosity: 0.0,
             dissipation: 0.0,
             dissipation_frame: DissipationFrame::Box,
@@ -139,7 +121,6 @@ impl StepRules {
     pub fn needs_host_pairs(&self, fitted: bool) -> bool {
         fitted
             || self.viscosity > 0.0
-            || self.free_flight == FreeFlight::Ballistic
             || (self.dissipation_frame == DissipationFrame::Body && self.dissipation > 0.0)
     }
 
@@ -170,13 +151,6 @@ impl StepRules {
                 "the pre-step's gravity scaled by {} (`dlf.gravity_scale`)",
                 self.gravity_scale
             ));
-        }
-        if self.free_flight == FreeFlight::Ballistic {
-            rules.push(
-                "each body in free flight falling as a projectile under the true gravity \
-                 (`dlf.free_flight = \"ballistic\"`)"
-                    .to_string(),
-            );
         }
         if self.viscosity != 0.0 {
             rules.push(format!(

@@ -2,16 +2,14 @@
 //! fall at g. The clump is the stored cube drop (2,197 particles, 0.3 m above the floor), whose
 //! first steps are free fall; the acceleration is the second difference of its mean height.
 //! `viscosity` (XSPH) and the dissipation in the bodies' frame must leave that fall alone, and
-//! the viscosity keep each step's momentum; the ballistic free flight (`free_flight`) must make the
-//! fall g's at any scale, leave the clump's own motion as the network made it, and leave a clump
-//! the walls reach alone.
+//! the viscosity keep each step's momentum.
 
 use crate::common;
 
 use common::*;
 use neurofluid_core::npz::NpzReader;
 use neurofluid_dlf::rollout::{mean_coordinate, rollout};
-use neurofluid_dlf::{DissipationFrame, DlfConfig, FreeFlight, StepRules, load_dlf};
+use neurofluid_dlf::{DissipationFrame, DlfConfig, StepRules, load_dlf};
 
 const CASE: &str = "cubedrop2197_dlfwall";
 const DT: f32 = 1.0 / 50.0;
@@ -171,91 +169,4 @@ fn viscosity_keeps_the_momentum_and_brings_neighbours_together() {
     let (rp, rs) = (roughness(&plain), roughness(&smooth));
     eprintln!("neighbours' velocity difference² {rp:.3e} → {rs:.3e} m²/s²");
     assert!(rs < 0.85 * rp, "{rs} vs {rp}");
-}
-
-/// One step of the published weights under `rules` from the clump's velocities at `pos`.
-fn one_step(rules: StepRules, pos: &[[f32; 3]]) -> Vec<[f32; 3]> {
-    let device = device();
-    let cfg = DlfConfig {
-        rules,
-        ..DlfConfig::default()
-    };
-    let net = load_dlf(&weights("pretrained_model_weights.pt"), cfg, &device).unwrap();
-    let scene = Scene::load(CASE);
-    let boundary = scene.boundary(&net, &device);
-    rollout(&net, pos, &scene.vel, &boundary, 1, |_| {}).pos[1].clone()
-}
-
-fn ballistic(gravity_scale: f64) -> StepRules {
-    StepRules {
-        gravity_scale,
-        free_flight: FreeFlight::Ballistic,
-        ..StepRules::default()
-    }
-}
-
-/// Ballistic free flight: the clump, out of the walls' reach, follows the projectile's path from
-/// its first state (mean height h₀ + v₀·t − ½·g·t², the velocity read as the instantaneous one,
-/// as the data's is) whatever the pre-step's scale, and its particles' positions relative to its
-/// centre after a step are the network's.
-#[test]
-fn ballistic_free_flight_falls_as_a_projectile_and_keeps_the_clump_motion() {
-    let scene = Scene::load(CASE);
-    let n = scene.pos.len() as f64;
-    let h0 = scene.pos.iter().map(|p| f64::from(p[1])).sum::<f64>() / n;
-    let v0 = scene.vel.iter().map(|v| f64::from(v[1])).sum::<f64>() / n;
-    for scale in [1.0, 1.7] {
-        let y = heights_under(DlfConfig {
-            rules: ballistic(scale),
-            ..DlfConfig::default()
-        });
-        let a = fall_acceleration(&y);
-        eprintln!("ballistic fall at scale {scale}: {a:.4} m/s²");
-        assert!((a + 9.81).abs() < 0.002 * 9.81, "fall {a} m/s² at {scale}");
-        for (k, &h) in y.iter().enumerate() {
-            let t = k as f64 * f64::from(DT);
-            let want = h0 + v0 * t - 0.5 * 9.81 * t * t;
-            assert!(
-                (f64::from(h) - want).abs() < 2e-5,
-                "scale {scale}, step {k}: height {h} against the projectile's {want}"
-            );
-        }
-    }
-    let centred = |p: Vec<[f32; 3]>| {
-        let n = p.len() as f32;
-        let m: [f32; 3] = std::array::from_fn(|c| p.iter().map(|q| q[c]).sum::<f32>() / n);
-        p.iter()
-            .flat_map(|q| (0..3).map(move |c| q[c] - m[c]))
-            .collect::<Vec<f32>>()
-    };
-    let plain = centred(one_step(StepRules::default(), &scene.pos));
-    let thrown = centred(one_step(ballistic(1.0), &scene.pos));
-    let err = rel_err(&thrown, &plain);
-    eprintln!("the clump's own motion: relative error {err:.2e}");
-    assert!(err < 1e-5, "{err}");
-}
-
-/// A clump the walls reach (lowered onto the floor) is left as the network moves it, to the bit
-/// (on a GPU within rounding: the rule's step makes its geometry on the host).
-#[test]
-fn ballistic_free_flight_leaves_a_clump_on_the_floor_alone() {
-    let scene = Scene::load(CASE);
-    let lowest = scene.pos.iter().map(|p| p[1]).fold(f32::INFINITY, f32::min);
-    let drop = lowest - scene.box_lo[1] - 0.02;
-    let landed: Vec<[f32; 3]> = scene
-        .pos
-        .iter()
-        .map(|p| [p[0], p[1] - drop, p[2]])
-        .collect();
-    let plain = one_step(StepRules::default(), &landed);
-    let thrown = one_step(ballistic(1.0), &landed);
-    if neurofluid_core::device::is_host(&device()) {
-        assert_eq!(plain, thrown);
-    } else {
-        let err = rel_err(&flat(&thrown), &flat(&plain));
-        assert!(
-            err < 1e-5,
-            "the rule moved the particles: relative error {err:.2e}"
-        );
-    }
 }

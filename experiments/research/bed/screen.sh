@@ -12,19 +12,18 @@
 # one-config-fit-then-ground (U5: U0NB for 3 epochs, then DLF grounded under the anchor and the
 # energy prior with the scalars held; -a: U5a, the same run with the anchor that leaves the fitted
 # scalars alone; -b: U5b, U5a with the scalars' rate × 0.1 over epoch 3; -c: U5c, U5b with the one
-# config's 4 transitions unrolled on every scene, so its schedules are the quick U5b's) and
-# one-config-free-flight (U6: U0NB with the bodies in free flight as projectiles; -c: U6c, U6 with
-# the one config's 4 transitions unrolled on every scene; -u7: U7, U6c without the viscosity
-# fitted); one-config-fit-then-ground-ff (U8: U5a with the free flight). The variants of rules 22-26 screened options
-# since retired (docs/notebook/2026-12-05-retired-options.md lists them and the commits that had
-# them).
+# config's 4 transitions unrolled on every scene, so its schedules are the quick U5b's). The
+# free flight's variants (one-config-free-flight[-c|-u7], one-config-fit-then-ground-ff: U6, U6c,
+# U7, U8) ran at 9b78745's code and are in 6b5d68d; the option was retired again. The variants of
+# rules 22-26 screened options since retired (docs/notebook/2026-12-05-retired-options.md lists
+# them and the commits that had them).
 # Usage: VARIANT=name experiments/research/bed/screen.sh SCENE [A_RUN] [SEED=10] [OUT=runs/r22]
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
 scene=$1 a=${2:-} seed=${3:-10} out=${4:-runs/r22}
 bin=${NEUROFLUID_TRAIN:-target/release/neurofluid-train}
 quick=(--set seed="$seed" --set refit.enabled=false --set eval.render=false)
-variants="anchor-0, rays-1024, epochs-12, truth, truth-free, one-config, one-config-u2, one-config-noise, one-config-noise-body, one-config-fit-then-ground, one-config-fit-then-ground-a, one-config-fit-then-ground-b, one-config-fit-then-ground-c, one-config-free-flight, one-config-free-flight-c, one-config-free-flight-u7 or one-config-fit-then-ground-ff"
+variants="anchor-0, rays-1024, epochs-12, truth, truth-free, one-config, one-config-u2, one-config-noise, one-config-noise-body, one-config-fit-then-ground, one-config-fit-then-ground-a, one-config-fit-then-ground-b or one-config-fit-then-ground-c"
 variant=${VARIANT:?VARIANT: $variants}
 # no material rule; the fitted scalars with DLF held and Adam at 0.05
 no_material_rule=(--set dlf.gravity_scale=1.0 --set 'dlf.energy_cap="none"'
@@ -45,14 +44,7 @@ case $variant in
     --set joint.input_noise=0.1) ;;
   one-config-noise-body) rules=("${no_material_rule[@]}" "${three[@]}" "${held[@]}"
     --set joint.input_noise=0.1 --set 'dlf.dissipation_frame="body"') ;;
-  one-config-free-flight|one-config-free-flight-c|one-config-free-flight-u7)
-    fitted=("${three[@]}")
-    [[ $variant == *-u7 ]] && fitted=(--set 'joint.physics.fit=["gravity_scale", "dissipation"]')
-    rules=("${no_material_rule[@]}" "${fitted[@]}" "${held[@]}"
-      --set joint.input_noise=0.1 --set 'dlf.dissipation_frame="body"'
-      --set 'dlf.free_flight="ballistic"')
-    [[ $variant == *-c || $variant == *-u7 ]] && rules+=(--set joint.bptt_steps=4) ;;
-  one-config-fit-then-ground|one-config-fit-then-ground-[abc]|one-config-fit-then-ground-ff)
+  one-config-fit-then-ground|one-config-fit-then-ground-[abc])
     # updates an epoch: one per window of bptt_steps transitions of 49 (the scene's config; -c:
     # the one config's 4 on every scene)
     bptt=$(sed -n 's/^bptt_steps *= *\([0-9]*\).*/\1/p' "experiments/bed/$scene.toml")
@@ -72,8 +64,7 @@ case $variant in
       --set joint.terms.energy.weight=0.005 --set joint.physics.hold_dlf_epochs=3
       --set "joint.physics.optim={ lr = 0.05, schedule = $hold }"
       --set "joint.dlf_optim.schedule={ kind = \"multi_step\", milestones = [$dlf_milestones], gamma = 0.5 }")
-    [[ $variant == *-c ]] && rules+=(--set joint.bptt_steps=4)
-    [[ $variant == *-ff ]] && rules+=(--set 'dlf.free_flight="ballistic"') ;;
+    [[ $variant == *-c ]] && rules+=(--set joint.bptt_steps=4) ;;
   *) echo "VARIANT: $variants, not $variant" >&2
      exit 2 ;;
 esac

@@ -94,7 +94,6 @@ const ADDED_KEYS: &[(&str, &str)] = &[
     ("scene.generate.gravity", "9.81"),
     ("joint.input_noise", "0.0"),
     ("dlf.dissipation_frame", "\"box\""),
-    ("dlf.free_flight", "\"network\""),
 ];
 
 /// Keys retired since a release, with the value that kept the behaviour of today: a checkpoint
@@ -114,6 +113,7 @@ pub(super) const RETIRED_KEYS: &[(&str, &str)] = &[
     ("joint.colour_head", "\"trained\""),
     ("joint.energy_per", "\"fluid\""),
     ("dlf.no_slip", "false"),
+    ("dlf.free_flight", "\"network\""),
 ];
 
 /// Keys moved since a release: a checkpoint's value under the old key is the new key's; at the
@@ -570,7 +570,7 @@ mod tests {
             ("joint.anchor_weight", "0.1"),
             ("joint.energy_weight", "0.0"),
             ("joint.silhouette_weight", "0.0"),
-            ("dlf.no_slip", "false"),
+            ("dlf.free_flight", "\"network\""),
             ("joint.epochs", "6"),
         ]);
         assert_eq!(now.changes_since(&before), vec![]);
