@@ -26,7 +26,8 @@ CANDIDATES = {"one-config": "U0", "one-config-noise": "U0N", "one-config-noise-b
               "one-config-fit-then-ground": "U5", "one-config-fit-then-ground-a": "U5a",
               "one-config-fit-then-ground-b": "U5b", "one-config-fit-then-ground-c": "U5c",
               "one-config-free-flight": "U6", "one-config-free-flight-c": "U6c",
-              "one-config-free-flight-u7": "U7", "one-config-fit-then-ground-ff": "U8"}
+              "one-config-free-flight-u7": "U7", "one-config-fit-then-ground-ff": "U8",
+              "one-config-fit-then-ground-u9": "U9"}
 # U5c is U5b with the one config's 4 transitions unrolled: on a scene whose config already unrolls
 # 4 (honey's) their commands are the same to the argument, and U5b's run is U5c's
 SAME_RUN = {("one-config-fit-then-ground-c", "honey-drop-z"): "one-config-fit-then-ground-b",

@@ -12,7 +12,8 @@
 # one-config-fit-then-ground (U5: U0NB for 3 epochs, then DLF grounded under the anchor and the
 # energy prior with the scalars held; -a: U5a, the same run with the anchor that leaves the fitted
 # scalars alone; -b: U5b, U5a with the scalars' rate × 0.1 over epoch 3; -c: U5c, U5b with the one
-# config's 4 transitions unrolled on every scene, so its schedules are the quick U5b's). The
+# config's 4 transitions unrolled on every scene, so its schedules are the quick U5b's; -u9: U9,
+# U5a without the viscosity fitted). The
 # free flight's variants (one-config-free-flight[-c|-u7], one-config-fit-then-ground-ff: U6, U6c,
 # U7, U8) ran at 9b78745's code and are in 6b5d68d; the option was retired again. The variants of
 # rules 22-26 screened options since retired (docs/notebook/2026-12-05-retired-options.md lists
@@ -23,7 +24,7 @@ cd "$(dirname "$0")/../../.."
 scene=$1 a=${2:-} seed=${3:-10} out=${4:-runs/r22}
 bin=${NEUROFLUID_TRAIN:-target/release/neurofluid-train}
 quick=(--set seed="$seed" --set refit.enabled=false --set eval.render=false)
-variants="anchor-0, rays-1024, epochs-12, truth, truth-free, one-config, one-config-u2, one-config-noise, one-config-noise-body, one-config-fit-then-ground, one-config-fit-then-ground-a, one-config-fit-then-ground-b or one-config-fit-then-ground-c"
+variants="anchor-0, rays-1024, epochs-12, truth, truth-free, one-config, one-config-u2, one-config-noise, one-config-noise-body, one-config-fit-then-ground, one-config-fit-then-ground-a, one-config-fit-then-ground-b, one-config-fit-then-ground-c or one-config-fit-then-ground-u9"
 variant=${VARIANT:?VARIANT: $variants}
 # no material rule; the fitted scalars with DLF held and Adam at 0.05
 no_material_rule=(--set dlf.gravity_scale=1.0 --set 'dlf.energy_cap="none"'
@@ -44,7 +45,7 @@ case $variant in
     --set joint.input_noise=0.1) ;;
   one-config-noise-body) rules=("${no_material_rule[@]}" "${three[@]}" "${held[@]}"
     --set joint.input_noise=0.1 --set 'dlf.dissipation_frame="body"') ;;
-  one-config-fit-then-ground|one-config-fit-then-ground-[abc])
+  one-config-fit-then-ground|one-config-fit-then-ground-[abc]|one-config-fit-then-ground-u9)
     # updates an epoch: one per window of bptt_steps transitions of 49 (the scene's config; -c:
     # the one config's 4 on every scene)
     bptt=$(sed -n 's/^bptt_steps *= *\([0-9]*\).*/\1/p' "experiments/bed/$scene.toml")
@@ -59,7 +60,9 @@ case $variant in
     else
       hold="{ kind = \"multi_step\", milestones = [$((3 * per - 1))], gamma = 1e-6 }"
     fi
-    rules=("${no_material_rule[@]}" "${three[@]}" --set joint.input_noise=0.1
+    fitted=("${three[@]}")
+    [[ $variant == *-u9 ]] && fitted=(--set 'joint.physics.fit=["gravity_scale", "dissipation"]')
+    rules=("${no_material_rule[@]}" "${fitted[@]}" --set joint.input_noise=0.1
       --set 'dlf.dissipation_frame="body"' --set joint.terms.anchor.weight=0.1
       --set joint.terms.energy.weight=0.005 --set joint.physics.hold_dlf_epochs=3
       --set "joint.physics.optim={ lr = 0.05, schedule = $hold }"
