@@ -13,11 +13,10 @@
 # energy prior with the scalars held; -a: U5a, the same run with the anchor that leaves the fitted
 # scalars alone; -b: U5b, U5a with the scalars' rate × 0.1 over epoch 3; -c: U5c, U5b with the one
 # config's 4 transitions unrolled on every scene, so its schedules are the quick U5b's; -u9: U9,
-# U5a without the viscosity fitted). The
-# free flight's variants (one-config-free-flight[-c|-u7], one-config-fit-then-ground-ff: U6, U6c,
-# U7, U8) ran at 9b78745's code and are in 6b5d68d; the option was retired again. The variants of
-# rules 22-26 screened options since retired (docs/notebook/2026-12-05-retired-options.md lists
-# them and the commits that had them).
+# U5a without the viscosity fitted). The free flight's variants (one-config-free-flight[-c|-u7],
+# one-config-fit-then-ground-ff: U6, U6c, U7, U8) ran at 9b78745's code and are in 6b5d68d; the
+# option was retired again. The variants of rules 22-26 screened options since retired
+# (docs/notebook/2026-12-05-retired-options.md lists them and the commits that had them).
 # Usage: VARIANT=name experiments/research/bed/screen.sh SCENE [A_RUN] [SEED=10] [OUT=runs/r22]
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
@@ -31,6 +30,7 @@ no_material_rule=(--set dlf.gravity_scale=1.0 --set 'dlf.energy_cap="none"'
   --set joint.terms.anchor.weight=0 --set joint.terms.energy.weight=0)
 held=(--set joint.physics.hold_dlf_epochs=6 --set 'joint.physics.optim={ lr = 0.05 }')
 three=(--set 'joint.physics.fit=["gravity_scale", "viscosity", "dissipation"]')
+two=(--set 'joint.physics.fit=["gravity_scale", "dissipation"]')
 case $variant in
   anchor-0) rules=(--set joint.terms.anchor.weight=0) ;;
   rays-1024) rules=(--set joint.rays=1024) ;;
@@ -39,8 +39,7 @@ case $variant in
   truth-free) rules=(--set joint.terms.truth.weight=1 --set joint.terms.anchor.weight=0
     --set joint.terms.energy.weight=0) ;;
   one-config) rules=("${no_material_rule[@]}" "${three[@]}" "${held[@]}") ;;
-  one-config-u2) rules=("${no_material_rule[@]}"
-    --set 'joint.physics.fit=["gravity_scale", "dissipation"]' "${held[@]}") ;;
+  one-config-u2) rules=("${no_material_rule[@]}" "${two[@]}" "${held[@]}") ;;
   one-config-noise) rules=("${no_material_rule[@]}" "${three[@]}" "${held[@]}"
     --set joint.input_noise=0.1) ;;
   one-config-noise-body) rules=("${no_material_rule[@]}" "${three[@]}" "${held[@]}"
@@ -61,7 +60,7 @@ case $variant in
       hold="{ kind = \"multi_step\", milestones = [$((3 * per - 1))], gamma = 1e-6 }"
     fi
     fitted=("${three[@]}")
-    [[ $variant == *-u9 ]] && fitted=(--set 'joint.physics.fit=["gravity_scale", "dissipation"]')
+    [[ $variant == *-u9 ]] && fitted=("${two[@]}")
     rules=("${no_material_rule[@]}" "${fitted[@]}" --set joint.input_noise=0.1
       --set 'dlf.dissipation_frame="body"' --set joint.terms.anchor.weight=0.1
       --set joint.terms.energy.weight=0.005 --set joint.physics.hold_dlf_epochs=3
