@@ -155,3 +155,56 @@ fn the_anchor_leaves_the_fitted_scalars_to_the_images() {
     };
     assert_eq!(fitted(0.0), fitted(1.0));
 }
+
+/// `settle`: the fit is held after the first held epoch (from the second) over which no fitted
+/// scalar moved by more than that share of its range, or at the latest after `hold_dlf_epochs`.
+/// Until then DLF's weights take no step; from then the scalars take none and DLF's weights do.
+/// Both runs stop at the hold and resume, so the hold is also carried by the checkpoint.
+#[test]
+fn a_settled_fit_is_held_while_dlf_is_grounded() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    // a share of 0.99 settles at the first comparison (after epoch 2); 1e-9 only at the cap (3)
+    for (settle, held_after) in [(0.99, 2u64), (1e-9, 3)] {
+        let mut e = experiment(tmp.path(), &format!("settle-{settle}"));
+        e.apply_overrides(&[
+            "joint.epochs=4".to_string(),
+            "joint.physics.hold_dlf_epochs=3".to_string(),
+            format!("joint.physics.settle={settle}"),
+        ])
+        .unwrap();
+        let run = Run::prepare(e, Start::Resume, &Stage::ALL).unwrap();
+        let start = run.exp.dlf.rules;
+        let pretrained = run.load_dlf(&run.exp.dlf.weights).unwrap();
+        let mut log = MetricsLog::open(&run.dir).unwrap();
+        warmup::run(&run, &mut log).unwrap();
+        let transitions = run.scene.frames(neurofluid_core::scene::Role::Train).len() as u64 - 1;
+        joint::run_until(&run, &mut log, Some(held_after * transitions)).unwrap();
+        let at_hold = joint::load_trained(&run).unwrap();
+        assert!(
+            params(&at_hold.dlf) == params(&pretrained),
+            "settle {settle}: DLF's weights moved before the fit was held"
+        );
+        assert_ne!(at_hold.dlf.config.rules, start, "settle {settle}: no fit");
+        let end = joint::run(&run, &mut log).unwrap();
+        assert_eq!(
+            end.dlf.config.rules, at_hold.dlf.config.rules,
+            "settle {settle}: the scalars moved after the hold"
+        );
+        assert!(
+            params(&end.dlf) != params(&pretrained),
+            "settle {settle}: DLF was not grounded after the hold"
+        );
+        let rows = read_jsonl(&run.dir.join("metrics.jsonl")).unwrap();
+        let held: Vec<f64> = rows
+            .iter()
+            .filter(|r| r.stage == "joint")
+            .filter_map(|r| r.get("physics/held_after_epoch"))
+            .collect();
+        assert!(!held.is_empty(), "settle {settle}: the hold is not logged");
+        assert!(
+            held.iter().all(|&h| h == held_after as f64),
+            "settle {settle}: held after {held:?}, expected {held_after}"
+        );
+    }
+}

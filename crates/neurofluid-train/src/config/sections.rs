@@ -613,12 +613,32 @@ pub struct PhysicsFit {
     /// `joint.epochs` = the scalars alone).
     #[serde(default)]
     pub hold_dlf_epochs: u64,
+    /// Hold the fit once it has settled: at the end of each held epoch from the second on, the
+    /// fit has settled when no fitted scalar moved by more than this share of its bounds' range
+    /// over the epoch; from then, and at the latest after `hold_dlf_epochs`, the scalars take no
+    /// step and DLF's weights are grounded with them held (unset: after the held epochs the
+    /// scalars and DLF are grounded together).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub settle: Option<f64>,
 }
 
 impl PhysicsFit {
     /// Whether `scalar` is fitted.
     pub fn fits(&self, scalar: PhysicalScalar) -> bool {
         self.fit.contains(&scalar)
+    }
+
+    /// Whether the fit has settled between the values `before` and `after` one epoch apart
+    /// (in the order of [`PhysicalScalar::ALL`]), by `settle`; never without it.
+    pub fn has_settled(&self, before: [f64; 3], after: [f64; 3]) -> bool {
+        let Some(share) = self.settle else {
+            return false;
+        };
+        self.fit.iter().all(|s| {
+            let (lo, hi) = s.bounds();
+            let k = s.index();
+            (after[k] - before[k]).abs() <= share * (hi - lo)
+        })
     }
 }
 

@@ -18,6 +18,9 @@ pub const COLUMNS: [&str; 3] = [
     "physics/dissipation",
 ];
 
+/// The metrics column of the epochs after which the fit was held (`[joint.physics] settle`).
+pub const HELD_AFTER: &str = "physics/held_after_epoch";
+
 /// The three scalars as one trainable parameter `[3]`.
 #[derive(Module, Debug)]
 pub struct Physics {
@@ -112,10 +115,30 @@ mod tests {
             fit: vec![PhysicalScalar::Viscosity],
             optim: Default::default(),
             hold_dlf_epochs: 0,
+            settle: None,
         };
         let back = p.into_rules(StepRules::default());
         assert!((back.gravity_scale - 1.7).abs() < 1e-6);
         let v = p.step_values(&fit).to_array();
         assert!((v[1] - 0.2).abs() < 1e-6, "{v:?}");
+    }
+
+    /// The fit has settled when every fitted scalar moved by at most the share of its range;
+    /// the scalars not fitted do not count, and without `settle` it never settles.
+    #[test]
+    fn the_fit_settles_by_each_fitted_scalars_range() {
+        let fit = |settle| PhysicsFit {
+            fit: vec![PhysicalScalar::GravityScale, PhysicalScalar::Dissipation],
+            optim: Default::default(),
+            hold_dlf_epochs: 6,
+            settle,
+        };
+        let before = [1.5, 0.3, 0.10];
+        // 1 % of the ranges: gravity scale 0.0375, dissipation 0.005
+        let one = fit(Some(0.01));
+        assert!(one.has_settled(before, [1.53, 0.9, 0.104]));
+        assert!(!one.has_settled(before, [1.54, 0.3, 0.10]));
+        assert!(!one.has_settled(before, [1.5, 0.3, 0.094]));
+        assert!(!fit(None).has_settled(before, before));
     }
 }
