@@ -337,7 +337,9 @@ impl JointTrainer {
             return;
         }
         let now = p.module.to_array();
-        let settled = p.epoch_end.is_some_and(|before| p.fit.has_settled(before, now));
+        let settled = p
+            .epoch_end
+            .is_some_and(|before| p.fit.has_settled(before, now));
         p.epoch_end = Some(now);
         if settled || epochs >= p.fit.hold_dlf_epochs {
             p.held_after = Some(epochs);
@@ -395,7 +397,9 @@ impl JointTrainer {
             stats.updated = true;
             if let (Some(lr), Some(values)) = (lr_physics, fitted) {
                 let held_after = self.physics.as_ref().and_then(|p| p.held_after);
-                stats.lrs.push(("physics", if held_after.is_some() { 0.0 } else { lr }));
+                stats
+                    .lrs
+                    .push(("physics", if held_after.is_some() { 0.0 } else { lr }));
                 stats
                     .scalars
                     .extend(physics::COLUMNS.into_iter().zip(values));
@@ -549,7 +553,8 @@ impl Trainer for JointTrainer {
             checkpoint::save_module(&p.module, &files::JOINT_PHYSICS.save_path(dir))?;
             let adam = files::JOINT_PHYSICS_ADAM.save_path(dir);
             checkpoint::save_group(&p.opt, &adam, "physics", &mut own)?;
-            let settle = serde_json::json!({ "epoch_end": p.epoch_end, "held_after": p.held_after });
+            let settle =
+                serde_json::json!({ "epoch_end": p.epoch_end, "held_after": p.held_after });
             own.insert(SETTLE_KEY.into(), settle);
         }
         let mut w = NpzWriter::new();
