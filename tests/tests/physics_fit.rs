@@ -208,3 +208,34 @@ fn a_settled_fit_is_held_while_dlf_is_grounded() {
         );
     }
 }
+
+/// `shrink`: each fitted damping is moved toward 0 after every update, so with a step larger than
+/// any update the images can make it stays at 0, while the gravity scale is fitted as without it
+/// and a damping not fitted keeps the rules' constant.
+#[test]
+fn a_shrunk_damping_stays_off_unless_the_images_push_it() {
+    let _turn = seeded_turn();
+    let tmp = tempfile::tempdir().unwrap();
+    let mut e = experiment(tmp.path(), "shrink");
+    e.apply_overrides(&[
+        "joint.epochs=1",
+        "joint.physics.fit=[\"gravity_scale\", \"dissipation\"]",
+        "joint.physics.shrink=1.0",
+    ])
+    .unwrap();
+    let run = Run::prepare(e, Start::Resume, &Stage::ALL).unwrap();
+    let start = run.exp.dlf.rules;
+    let mut log = MetricsLog::open(&run.dir).unwrap();
+    warmup::run(&run, &mut log).unwrap();
+    let rules = joint::run(&run, &mut log).unwrap().dlf.config.rules;
+    assert_eq!(rules.dissipation, 0.0, "the dissipation was not shrunk off");
+    // (the scalars are held in f32)
+    assert_eq!(
+        rules.viscosity as f32, start.viscosity as f32,
+        "a damping not fitted moved"
+    );
+    assert_ne!(
+        rules.gravity_scale, start.gravity_scale,
+        "the gravity scale was not fitted"
+    );
+}

@@ -3,8 +3,9 @@
 71, item 2; the screen rule of experiments/bed/README.md, "A screen"), from
 runs/bed71/<scene>-s<seed>-<variant>/eval/report.json, the variants A and those of CANDIDATES
 (experiments/research/bed/screen.sh with VARIANT=one-config, one-config-noise,
-one-config-noise-body, one-config-fit-then-ground[-a|-b|-c|-u9] or one-config-settle-u10, OUT
-runs/bed71; U0, U0N, U0NB, U5, U5a, U5b, U5c, U9 and U10 of
+one-config-noise-body, one-config-fit-then-ground[-a|-b|-c|-u9], one-config-settle-u10 or
+one-config-shrink-u11, OUT
+runs/bed71; U0, U0N, U0NB, U5, U5a, U5b, U5c, U9, U10 and U11 of
 docs/notebook/2026-12-05-quick-reference.md; and the runs of U6, U6c,
 U7 and U8, whose free-flight variants left screen.sh with the option, 6b5d68d).
 
@@ -28,7 +29,8 @@ CANDIDATES = {"one-config": "U0", "one-config-noise": "U0N", "one-config-noise-b
               "one-config-fit-then-ground-b": "U5b", "one-config-fit-then-ground-c": "U5c",
               "one-config-free-flight": "U6", "one-config-free-flight-c": "U6c",
               "one-config-free-flight-u7": "U7", "one-config-fit-then-ground-ff": "U8",
-              "one-config-fit-then-ground-u9": "U9", "one-config-settle-u10": "U10"}
+              "one-config-fit-then-ground-u9": "U9", "one-config-settle-u10": "U10",
+              "one-config-shrink-u11": "U11"}
 # U5c and U6c are U5b and U6 with the one config's 4 transitions unrolled: on a scene whose config
 # already unrolls 4 (honey's) their commands are the same to the argument, and the other's run is
 # theirs

@@ -236,6 +236,14 @@ impl Section for JointSection {
             if let Some(p) = under("physics.optim", physics.optim.problem()) {
                 return Some(p);
             }
+            if let Some(by) = physics.shrink
+                && !(by.is_finite() && by >= 0.0)
+            {
+                return problem(
+                    "physics.shrink",
+                    &format!("expected a step ≥ 0 toward no damping, not {by}"),
+                );
+            }
             if let Some(share) = physics.settle {
                 if !(share > 0.0 && share < 1.0) {
                     return problem(

@@ -743,6 +743,10 @@ mod tests {
                 "joint.physics.settle",
             ),
             (
+                "[scene]\nbuiltin = \"watercube\"\n[joint.physics]\nfit = [\"viscosity\"]\nshrink = -0.01\n",
+                "joint.physics.shrink",
+            ),
+            (
                 "[scene]\nbuiltin = \"watercube\"\n[eval]\nviews = [\"view_5\", \"view_5\"]\n",
                 "eval.views",
             ),

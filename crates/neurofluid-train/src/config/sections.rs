@@ -595,6 +595,11 @@ impl PhysicalScalar {
             Self::Dissipation => (0.0, 0.5),
         }
     }
+
+    /// Whether it damps the flow, 0 being no damping (the viscosity, the dissipation).
+    pub fn damps(self) -> bool {
+        matches!(self, Self::Viscosity | Self::Dissipation)
+    }
 }
 
 /// `[joint.physics]`: physical scalars of DLF's step fitted by the images, starting from the
@@ -620,12 +625,28 @@ pub struct PhysicsFit {
     /// scalars and DLF are grounded together).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub settle: Option<f64>,
+    /// An L1 prior on the fitted dampings (the viscosity, the dissipation): after each update
+    /// each is moved this far toward 0 (a proximal step), so a damping stays off unless the
+    /// images push it by more than this per update (unset: none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shrink: Option<f64>,
 }
 
 impl PhysicsFit {
     /// Whether `scalar` is fitted.
     pub fn fits(&self, scalar: PhysicalScalar) -> bool {
         self.fit.contains(&scalar)
+    }
+
+    /// `values` after an update: each fitted damping moved `shrink` toward 0 (not past it).
+    pub fn shrunk(&self, mut values: [f64; 3]) -> [f64; 3] {
+        if let Some(by) = self.shrink {
+            for s in self.fit.iter().filter(|s| s.damps()) {
+                let v = &mut values[s.index()];
+                *v = v.signum() * (v.abs() - by).max(0.0);
+            }
+        }
+        values
     }
 
     /// Whether the fit has settled between the values `before` and `after` one epoch apart

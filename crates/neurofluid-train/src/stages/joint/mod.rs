@@ -381,7 +381,7 @@ impl JointTrainer {
                 fitted = Some(match p.held_after {
                     None => {
                         let values;
-                        (p.module, values) = p.opt.step(p.module.clone(), g).clamped();
+                        (p.module, values) = p.opt.step(p.module.clone(), g).clamped(&p.fit);
                         values
                     }
                     Some(_) => p.module.to_array(),

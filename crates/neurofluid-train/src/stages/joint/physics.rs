@@ -58,15 +58,16 @@ impl Physics {
         [0, 1, 2].map(|k| s.get(k).copied().unwrap_or(f64::NAN))
     }
 
-    /// These values clamped into their bounds (after an update), and the values clamped (one
-    /// read of the device).
-    pub fn clamped(self) -> (Self, [f64; 3]) {
+    /// These values after an update: the fitted dampings shrunk toward 0 by `fit`'s `shrink`,
+    /// then all clamped into their bounds; and the values (one read of the device).
+    pub fn clamped(self, fit: &PhysicsFit) -> (Self, [f64; 3]) {
         let v = self.to_array();
+        let shrunk = fit.shrunk(v);
         let clamped: Vec<f32> = PhysicalScalar::ALL
             .iter()
             .map(|s| {
                 let (lo, hi) = s.bounds();
-                v[s.index()].clamp(lo, hi) as f32
+                shrunk[s.index()].clamp(lo, hi) as f32
             })
             .collect();
         let read = [0, 1, 2].map(|k| f64::from(clamped[k]));
@@ -100,7 +101,14 @@ mod tests {
             ..StepRules::default()
         };
         let p = Physics::of_rules(&rules, &device);
-        let inside = p.clone().clamped().1;
+        let fit = PhysicsFit {
+            fit: vec![PhysicalScalar::Viscosity],
+            optim: Default::default(),
+            hold_dlf_epochs: 0,
+            settle: None,
+            shrink: None,
+        };
+        let inside = p.clone().clamped(&fit).1;
         assert!((inside[0] - 1.7).abs() < 1e-6 && (inside[1] - 0.2).abs() < 1e-6);
         let wild = Physics {
             values: Param::from_tensor(upload(
@@ -108,15 +116,9 @@ mod tests {
                 &device,
             )),
         };
-        let (wild, values) = wild.clamped();
+        let (wild, values) = wild.clamped(&fit);
         assert_eq!(values, [4.0, 0.0, 0.5]);
         assert_eq!(wild.to_array(), values);
-        let fit = PhysicsFit {
-            fit: vec![PhysicalScalar::Viscosity],
-            optim: Default::default(),
-            hold_dlf_epochs: 0,
-            settle: None,
-        };
         let back = p.into_rules(StepRules::default());
         assert!((back.gravity_scale - 1.7).abs() < 1e-6);
         let v = p.step_values(&fit).to_array();
@@ -132,6 +134,7 @@ mod tests {
             optim: Default::default(),
             hold_dlf_epochs: 6,
             settle,
+            shrink: None,
         };
         let before = [1.5, 0.3, 0.10];
         // 1 % of the ranges: gravity scale 0.0375, dissipation 0.005
@@ -140,5 +143,42 @@ mod tests {
         assert!(!one.has_settled(before, [1.54, 0.3, 0.10]));
         assert!(!one.has_settled(before, [1.5, 0.3, 0.094]));
         assert!(!fit(None).has_settled(before, before));
+    }
+
+    /// `shrink` moves each fitted damping toward 0 by its step and not past it, and leaves the
+    /// gravity scale and a damping not fitted (a rule's constant) alone.
+    #[test]
+    fn the_fitted_dampings_shrink_toward_no_damping() {
+        let fit = |fit: Vec<PhysicalScalar>, shrink| PhysicsFit {
+            fit,
+            optim: Default::default(),
+            hold_dlf_epochs: 0,
+            settle: None,
+            shrink,
+        };
+        let all = PhysicalScalar::ALL.to_vec();
+        let v = [1.5, 0.3, 0.004];
+        let got = fit(all.clone(), Some(0.01)).shrunk(v);
+        assert_eq!(got[0], 1.5);
+        assert!((got[1] - 0.29).abs() < 1e-12, "{got:?}");
+        assert_eq!(got[2], 0.0);
+        let no_viscosity = vec![PhysicalScalar::GravityScale, PhysicalScalar::Dissipation];
+        assert_eq!(fit(no_viscosity, Some(0.01)).shrunk(v)[1], 0.3);
+        assert_eq!(fit(all, None).shrunk(v), v);
+        // after an update the module's values are shrunk, then clamped
+        let device = neurofluid_core::device::cpu();
+        let p = Physics::of_rules(
+            &StepRules {
+                gravity_scale: 1.5,
+                viscosity: 0.3,
+                dissipation: 0.004,
+                ..StepRules::default()
+            },
+            &device,
+        );
+        let dissipation = fit(vec![PhysicalScalar::Dissipation], Some(0.01));
+        let (p, values) = p.clamped(&dissipation);
+        assert_eq!(values[2], 0.0);
+        assert_eq!(p.to_array(), values);
     }
 }
