@@ -643,7 +643,12 @@ impl PhysicsFit {
         if let Some(by) = self.shrink {
             for s in self.fit.iter().filter(|s| s.damps()) {
                 let v = &mut values[s.index()];
-                *v = v.signum() * (v.abs() - by).max(0.0);
+                // (+0 where it reaches 0, from either side)
+                *v = if v.abs() <= by {
+                    0.0
+                } else {
+                    *v - by * v.signum()
+                };
             }
         }
         values

@@ -161,7 +161,10 @@ mod tests {
         let got = fit(all.clone(), Some(0.01)).shrunk(v);
         assert_eq!(got[0], 1.5);
         assert!((got[1] - 0.29).abs() < 1e-12, "{got:?}");
-        assert_eq!(got[2], 0.0);
+        assert_eq!(got[2].to_bits(), 0.0f64.to_bits());
+        let below = fit(all.clone(), Some(0.01)).shrunk([1.0, -0.004, -0.3]);
+        assert_eq!(below[1].to_bits(), 0.0f64.to_bits(), "{below:?}");
+        assert!((below[2] + 0.29).abs() < 1e-12, "{below:?}");
         let no_viscosity = vec![PhysicalScalar::GravityScale, PhysicalScalar::Dissipation];
         assert_eq!(fit(no_viscosity, Some(0.01)).shrunk(v)[1], 0.3);
         assert_eq!(fit(all, None).shrunk(v), v);
