@@ -13,10 +13,10 @@
 # energy prior with the scalars held; -a: U5a, the same run with the anchor that leaves the fitted
 # scalars alone; -b: U5b, U5a with the scalars' rate × 0.1 over epoch 3; -c: U5c, U5b with the one
 # config's 4 transitions unrolled on every scene, so its schedules are the quick U5b's; -u9: U9,
-# U5a without the viscosity fitted) and one-config-settle-u10 (U10: U9 with the fit held once it
-# has settled, joint.physics.settle = 0.01, at the latest after 6 of 9 epochs) and
-# one-config-shrink-u11 (U11: U10 with the fitted dissipation shrunk toward 0 by 0.01 after each
-# update, joint.physics.shrink). The free flight's variants (one-config-free-flight[-c|-u7],
+# U5a without the viscosity fitted). one-config-settle-u10 and one-config-shrink-u11 (U10: U9 with
+# the fit held once it had settled, joint.physics.settle = 0.01, at the latest after 6 of 9 epochs,
+# DLF grounded after it; U11: U10 with joint.physics.shrink = 0.01) ran at fba426a's code, where
+# they are; both options failed and were retired. The free flight's variants (one-config-free-flight[-c|-u7],
 # one-config-fit-then-ground-ff: U6, U6c, U7, U8) ran at 9b78745's code and are in 6b5d68d; the
 # option was retired again. The variants of rules 22-26 screened options since retired
 # (docs/notebook/2026-12-05-retired-options.md lists them and the commits that had them).
@@ -26,7 +26,7 @@ cd "$(dirname "$0")/../../.."
 scene=$1 a=${2:-} seed=${3:-10} out=${4:-runs/r22}
 bin=${NEUROFLUID_TRAIN:-target/release/neurofluid-train}
 quick=(--set seed="$seed" --set refit.enabled=false --set eval.render=false)
-variants="anchor-0, rays-1024, epochs-12, truth, truth-free, one-config, one-config-u2, one-config-noise, one-config-noise-body, one-config-fit-then-ground, one-config-fit-then-ground-a, one-config-fit-then-ground-b, one-config-fit-then-ground-c, one-config-fit-then-ground-u9, one-config-settle-u10 or one-config-shrink-u11"
+variants="anchor-0, rays-1024, epochs-12, truth, truth-free, one-config, one-config-u2, one-config-noise, one-config-noise-body, one-config-fit-then-ground, one-config-fit-then-ground-a, one-config-fit-then-ground-b, one-config-fit-then-ground-c or one-config-fit-then-ground-u9"
 variant=${VARIANT:?VARIANT: $variants}
 # no material rule; the fitted scalars with DLF held and Adam at 0.05
 no_material_rule=(--set dlf.gravity_scale=1.0 --set 'dlf.energy_cap="none"'
@@ -71,10 +71,6 @@ case $variant in
     rules=("${then_ground[@]}" "${fitted[@]}" --set joint.physics.hold_dlf_epochs=3
       --set "joint.physics.optim={ lr = 0.05, schedule = $hold }" "${dlf_schedule[@]}")
     [[ $variant == *-c ]] && rules+=(--set joint.bptt_steps=4) ;;
-  one-config-settle-u10|one-config-shrink-u11)
-    rules=("${then_ground[@]}" "${two[@]}" --set joint.epochs=9 --set joint.physics.hold_dlf_epochs=6
-      --set joint.physics.settle=0.01 --set 'joint.physics.optim={ lr = 0.05 }' "${dlf_schedule[@]}")
-    [[ $variant == *-u11 ]] && rules+=(--set joint.physics.shrink=0.01) ;;
   *) echo "VARIANT: $variants, not $variant" >&2
      exit 2 ;;
 esac

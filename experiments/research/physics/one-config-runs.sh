@@ -4,14 +4,14 @@
 # scene's material) on the quick WaterCube and HoneyCone, on copies of the material probe's
 # warm-ups (same scene, seed and renderer settings) where the resume check allows, evaluated
 # without renders.
-#   bash experiments/research/physics/one-config-runs.sh VARIANT SCENE SEED    (VARIANT: U0N, U0NB, U1, U2, U4, U4N, U5, U5a, U5b, U9, U10, U11 or A)
+#   bash experiments/research/physics/one-config-runs.sh VARIANT SCENE SEED    (VARIANT: U0N, U0NB, U1, U2, U4, U4N, U5, U5a, U5b, U9 or A)
 # (U4: U1 with the anchor and the energy prior; U4N: U4 with joint.input_noise = 0.1; U0N: U0
 # with joint.input_noise = 0.1; U0NB: U0N with the dissipation in the bodies' frame; U5: U0NB for
 # 3 epochs, then DLF grounded under the anchor and the energy prior with the scalars held; U5a:
 # the same sets, run with the anchor that leaves the fitted scalars alone; U5b: U5a with the
-# scalars' rate × 0.1 over epoch 3; U9: U5a without the viscosity fitted; U10: U9 with the fit
-# held once it has settled, joint.physics.settle = 0.01, at the latest after 6 of 9 epochs; U11:
-# U10 with the fitted dissipation shrunk toward 0 by 0.01 after each update)
+# scalars' rate × 0.1 over epoch 3; U9: U5a without the viscosity fitted)
+# (U10 and U11, with joint.physics.settle and joint.physics.shrink, ran at fba426a's code, where
+# they are; both options were retired)
 # (U6, U7 and U8, with the free flight, ran at 9b78745's code and are in 6b5d68d; the option was
 # retired again)
 # (U0 is the material probe: experiments/research/physics/material-probe.sh)
@@ -44,15 +44,8 @@ case $variant in
       --set joint.physics.hold_dlf_epochs=3
       --set "joint.physics.optim={ lr = 0.05, schedule = $hold }")
     [[ $variant == U9 ]] && variant_sets+=(--set 'joint.physics.fit=["gravity_scale", "dissipation"]') ;;
-  U10|U11) cfg=experiments/research/physics/one-config.toml
-    # DLF's schedule the config's (halved after 19 and 28 of its own updates)
-    variant_sets=("${anchor_energy[@]}" --set joint.input_noise=0.1 --set 'dlf.dissipation_frame="body"'
-      --set 'joint.physics.fit=["gravity_scale", "dissipation"]' --set joint.epochs=9
-      --set joint.physics.hold_dlf_epochs=6 --set joint.physics.settle=0.01
-      --set 'joint.physics.optim={ lr = 0.05 }')
-    [[ $variant == U11 ]] && variant_sets+=(--set joint.physics.shrink=0.01) ;;
   A) cfg=experiments/quick-$scene.toml ;;
-  *) echo "VARIANT: U0N, U0NB, U1, U2, U4, U4N, U5, U5a, U5b, U9, U10, U11 or A, not $variant" >&2; exit 2 ;;
+  *) echo "VARIANT: U0N, U0NB, U1, U2, U4, U4N, U5, U5a, U5b, U9 or A, not $variant" >&2; exit 2 ;;
 esac
 [[ -f $out/eval/report.json ]] && exit 0
 warm=runs/physics-material-$scene-s$seed/warmup

@@ -236,29 +236,6 @@ impl Section for JointSection {
             if let Some(p) = under("physics.optim", physics.optim.problem()) {
                 return Some(p);
             }
-            if let Some(by) = physics.shrink
-                && !(by.is_finite() && by >= 0.0)
-            {
-                return problem(
-                    "physics.shrink",
-                    &format!("expected a step ≥ 0 toward no damping, not {by}"),
-                );
-            }
-            if let Some(share) = physics.settle {
-                if !(share > 0.0 && share < 1.0) {
-                    return problem(
-                        "physics.settle",
-                        &format!("expected a share of each scalar's range in (0, 1), not {share}"),
-                    );
-                }
-                if physics.hold_dlf_epochs < 2 {
-                    return problem(
-                        "physics.settle",
-                        "needs joint.physics.hold_dlf_epochs ≥ 2 (the fit settles over a held \
-                         epoch after the first)",
-                    );
-                }
-            }
         }
         views_problem(&self.extra_views, "extra_views", false)
     }

@@ -735,18 +735,6 @@ mod tests {
                 "joint.physics.optim.lr",
             ),
             (
-                "[scene]\nbuiltin = \"watercube\"\n[joint.physics]\nfit = [\"viscosity\"]\nhold_dlf_epochs = 3\nsettle = 1.5\n",
-                "joint.physics.settle",
-            ),
-            (
-                "[scene]\nbuiltin = \"watercube\"\n[joint.physics]\nfit = [\"viscosity\"]\nhold_dlf_epochs = 1\nsettle = 0.01\n",
-                "joint.physics.settle",
-            ),
-            (
-                "[scene]\nbuiltin = \"watercube\"\n[joint.physics]\nfit = [\"viscosity\"]\nshrink = -0.01\n",
-                "joint.physics.shrink",
-            ),
-            (
                 "[scene]\nbuiltin = \"watercube\"\n[eval]\nviews = [\"view_5\", \"view_5\"]\n",
                 "eval.views",
             ),

@@ -595,11 +595,6 @@ impl PhysicalScalar {
             Self::Dissipation => (0.0, 0.5),
         }
     }
-
-    /// Whether it damps the flow, 0 being no damping (the viscosity, the dissipation).
-    pub fn damps(self) -> bool {
-        matches!(self, Self::Viscosity | Self::Dissipation)
-    }
 }
 
 /// `[joint.physics]`: physical scalars of DLF's step fitted by the images, starting from the
@@ -618,53 +613,12 @@ pub struct PhysicsFit {
     /// `joint.epochs` = the scalars alone).
     #[serde(default)]
     pub hold_dlf_epochs: u64,
-    /// Hold the fit once it has settled: at the end of each held epoch from the second on, the
-    /// fit has settled when no fitted scalar moved by more than this share of its bounds' range
-    /// over the epoch; from then, and at the latest after `hold_dlf_epochs`, the scalars take no
-    /// step and DLF's weights are grounded with them held (unset: after the held epochs the
-    /// scalars and DLF are grounded together).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub settle: Option<f64>,
-    /// An L1 prior on the fitted dampings (the viscosity, the dissipation): after each update
-    /// each is moved this far toward 0 (a proximal step), so a damping stays off unless the
-    /// images push it by more than this per update (unset: none).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub shrink: Option<f64>,
 }
 
 impl PhysicsFit {
     /// Whether `scalar` is fitted.
     pub fn fits(&self, scalar: PhysicalScalar) -> bool {
         self.fit.contains(&scalar)
-    }
-
-    /// `values` after an update: each fitted damping moved `shrink` toward 0 (not past it).
-    pub fn shrunk(&self, mut values: [f64; 3]) -> [f64; 3] {
-        if let Some(by) = self.shrink {
-            for s in self.fit.iter().filter(|s| s.damps()) {
-                let v = &mut values[s.index()];
-                // (+0 where it reaches 0, from either side)
-                *v = if v.abs() <= by {
-                    0.0
-                } else {
-                    *v - by * v.signum()
-                };
-            }
-        }
-        values
-    }
-
-    /// Whether the fit has settled between the values `before` and `after` one epoch apart
-    /// (in the order of [`PhysicalScalar::ALL`]), by `settle`; never without it.
-    pub fn has_settled(&self, before: [f64; 3], after: [f64; 3]) -> bool {
-        let Some(share) = self.settle else {
-            return false;
-        };
-        self.fit.iter().all(|s| {
-            let (lo, hi) = s.bounds();
-            let k = s.index();
-            (after[k] - before[k]).abs() <= share * (hi - lo)
-        })
     }
 }
 

@@ -62,14 +62,7 @@ struct PhysicsFitting {
     fit: PhysicsFit,
     module: Physics,
     opt: Group<JointPhysicsGroup>,
-    /// `settle`: the values at the end of the last epoch.
-    epoch_end: Option<[f64; 3]>,
-    /// `settle`: the epochs after which the fit was held (settled, or at `hold_dlf_epochs`).
-    held_after: Option<u64>,
 }
-
-/// The key of [`PhysicsFitting`]'s settling in a checkpoint's `state.json`.
-const SETTLE_KEY: &str = "physics_settle";
 
 /// Folder of the stage inside the run folder.
 pub const STAGE: Stage = Stage::Joint;
@@ -169,8 +162,6 @@ impl JointTrainer {
             fit: fit.clone(),
             module: Physics::of_rules(&dlf.config.rules, &device),
             opt: fit.optim.group(),
-            epoch_end: None,
-            held_after: None,
         });
         Ok(Self {
             opt_physnerf: cfg.physnerf_optim.group(),
@@ -320,38 +311,11 @@ impl JointTrainer {
     }
 
     /// Whether DLF's weights are held at 0-based iteration `step` (`[joint.physics]
-    /// hold_dlf_epochs`, until the fit has settled where `settle` is set).
+    /// hold_dlf_epochs`).
     fn dlf_held(&self, step: u64) -> bool {
-        self.physics.as_ref().is_some_and(|p| {
-            p.held_after.is_none() && step / self.data.transitions() < p.fit.hold_dlf_epochs
-        })
-    }
-
-    /// At the end of the `epochs`-th epoch, with `[joint.physics] settle`: whether the fit has
-    /// settled over it or reached `hold_dlf_epochs`; from then the scalars are held.
-    fn settle_check(&mut self, epochs: u64) {
-        let Some(p) = &mut self.physics else {
-            return;
-        };
-        if p.fit.settle.is_none() || p.held_after.is_some() {
-            return;
-        }
-        let now = p.module.to_array();
-        let settled = p
-            .epoch_end
-            .is_some_and(|before| p.fit.has_settled(before, now));
-        p.epoch_end = Some(now);
-        if settled || epochs >= p.fit.hold_dlf_epochs {
-            p.held_after = Some(epochs);
-            tracing::info!(
-                epochs,
-                settled,
-                gravity_scale = now[0],
-                viscosity = now[1],
-                dissipation = now[2],
-                "the physical scalars are held from here; DLF's weights are grounded with them"
-            );
-        }
+        self.physics
+            .as_ref()
+            .is_some_and(|p| step / self.data.transitions() < p.fit.hold_dlf_epochs)
     }
 
     /// Steps both Adams with the window's gradients, unless a norm (from the square sums `sums`)
@@ -378,14 +342,9 @@ impl JointTrainer {
                 self.dlf = self.opt_dlf.step(self.dlf.clone(), grads);
             }
             if let (Some(p), Some(g)) = (&mut self.physics, physics) {
-                fitted = Some(match p.held_after {
-                    None => {
-                        let values;
-                        (p.module, values) = p.opt.step(p.module.clone(), g).clamped(&p.fit);
-                        values
-                    }
-                    Some(_) => p.module.to_array(),
-                });
+                let values;
+                (p.module, values) = p.opt.step(p.module.clone(), g).clamped();
+                fitted = Some(values);
             }
         }
         // a point to log, evaluate and checkpoint at: nothing pending in either group (between
@@ -396,16 +355,10 @@ impl JointTrainer {
             stats.lrs = vec![("physnerf", lr_p), ("dlf", lr_d)];
             stats.updated = true;
             if let (Some(lr), Some(values)) = (lr_physics, fitted) {
-                let held_after = self.physics.as_ref().and_then(|p| p.held_after);
-                stats
-                    .lrs
-                    .push(("physics", if held_after.is_some() { 0.0 } else { lr }));
+                stats.lrs.push(("physics", lr));
                 stats
                     .scalars
                     .extend(physics::COLUMNS.into_iter().zip(values));
-                if let Some(epochs) = held_after {
-                    stats.scalars.push((physics::HELD_AFTER, epochs as f64));
-                }
             }
         }
     }
@@ -495,9 +448,6 @@ impl Trainer for JointTrainer {
             grads.n_physnerf,
             &mut stats,
         );
-        if (step + 1).is_multiple_of(transitions) {
-            self.settle_check((step + 1) / transitions);
-        }
         // the carried state leaves the graph: truncated backpropagation through time (DLF's
         // pending surrogate keeps the graphs of its transitions until its own step)
         self.state = (self.state.0.clone().detach(), self.state.1.clone().detach());
@@ -553,9 +503,6 @@ impl Trainer for JointTrainer {
             checkpoint::save_module(&p.module, &files::JOINT_PHYSICS.save_path(dir))?;
             let adam = files::JOINT_PHYSICS_ADAM.save_path(dir);
             checkpoint::save_group(&p.opt, &adam, "physics", &mut own)?;
-            let settle =
-                serde_json::json!({ "epoch_end": p.epoch_end, "held_after": p.held_after });
-            own.insert(SETTLE_KEY.into(), settle);
         }
         let mut w = NpzWriter::new();
         w.add_points("pos", &tensor_points(&self.state.0));
@@ -583,14 +530,6 @@ impl Trainer for JointTrainer {
             checkpoint::load_group(&mut p.opt, &p.module, &adam, "physics", &state, || {
                 implied.1
             })?;
-            let settle = state.get(SETTLE_KEY);
-            let field = |key: &str| settle.and_then(|s| s.get(key)).cloned();
-            p.epoch_end = field("epoch_end")
-                .map(serde_json::from_value)
-                .transpose()
-                .context("the checkpoint's physics_settle.epoch_end")?
-                .flatten();
-            p.held_after = field("held_after").and_then(|v| v.as_u64());
         }
         self.rng = Rng::from_stage_state(&state, dir)?;
         if !done.is_multiple_of(self.data.transitions()) {

@@ -18,9 +18,6 @@ pub const COLUMNS: [&str; 3] = [
     "physics/dissipation",
 ];
 
-/// The metrics column of the epochs after which the fit was held (`[joint.physics] settle`).
-pub const HELD_AFTER: &str = "physics/held_after_epoch";
-
 /// The three scalars as one trainable parameter `[3]`.
 #[derive(Module, Debug)]
 pub struct Physics {
@@ -58,16 +55,15 @@ impl Physics {
         [0, 1, 2].map(|k| s.get(k).copied().unwrap_or(f64::NAN))
     }
 
-    /// These values after an update: the fitted dampings shrunk toward 0 by `fit`'s `shrink`,
-    /// then all clamped into their bounds; and the values (one read of the device).
-    pub fn clamped(self, fit: &PhysicsFit) -> (Self, [f64; 3]) {
+    /// These values clamped into their bounds (after an update), and the values clamped (one
+    /// read of the device).
+    pub fn clamped(self) -> (Self, [f64; 3]) {
         let v = self.to_array();
-        let shrunk = fit.shrunk(v);
         let clamped: Vec<f32> = PhysicalScalar::ALL
             .iter()
             .map(|s| {
                 let (lo, hi) = s.bounds();
-                shrunk[s.index()].clamp(lo, hi) as f32
+                v[s.index()].clamp(lo, hi) as f32
             })
             .collect();
         let read = [0, 1, 2].map(|k| f64::from(clamped[k]));
@@ -101,14 +97,7 @@ mod tests {
             ..StepRules::default()
         };
         let p = Physics::of_rules(&rules, &device);
-        let fit = PhysicsFit {
-            fit: vec![PhysicalScalar::Viscosity],
-            optim: Default::default(),
-            hold_dlf_epochs: 0,
-            settle: None,
-            shrink: None,
-        };
-        let inside = p.clone().clamped(&fit).1;
+        let inside = p.clone().clamped().1;
         assert!((inside[0] - 1.7).abs() < 1e-6 && (inside[1] - 0.2).abs() < 1e-6);
         let wild = Physics {
             values: Param::from_tensor(upload(
@@ -116,72 +105,17 @@ mod tests {
                 &device,
             )),
         };
-        let (wild, values) = wild.clamped(&fit);
+        let (wild, values) = wild.clamped();
         assert_eq!(values, [4.0, 0.0, 0.5]);
         assert_eq!(wild.to_array(), values);
+        let fit = PhysicsFit {
+            fit: vec![PhysicalScalar::Viscosity],
+            optim: Default::default(),
+            hold_dlf_epochs: 0,
+        };
         let back = p.into_rules(StepRules::default());
         assert!((back.gravity_scale - 1.7).abs() < 1e-6);
         let v = p.step_values(&fit).to_array();
         assert!((v[1] - 0.2).abs() < 1e-6, "{v:?}");
-    }
-
-    /// The fit has settled when every fitted scalar moved by at most the share of its range;
-    /// the scalars not fitted do not count, and without `settle` it never settles.
-    #[test]
-    fn the_fit_settles_by_each_fitted_scalars_range() {
-        let fit = |settle| PhysicsFit {
-            fit: vec![PhysicalScalar::GravityScale, PhysicalScalar::Dissipation],
-            optim: Default::default(),
-            hold_dlf_epochs: 6,
-            settle,
-            shrink: None,
-        };
-        let before = [1.5, 0.3, 0.10];
-        // 1 % of the ranges: gravity scale 0.0375, dissipation 0.005
-        let one = fit(Some(0.01));
-        assert!(one.has_settled(before, [1.53, 0.9, 0.104]));
-        assert!(!one.has_settled(before, [1.54, 0.3, 0.10]));
-        assert!(!one.has_settled(before, [1.5, 0.3, 0.094]));
-        assert!(!fit(None).has_settled(before, before));
-    }
-
-    /// `shrink` moves each fitted damping toward 0 by its step and not past it, and leaves the
-    /// gravity scale and a damping not fitted (a rule's constant) alone.
-    #[test]
-    fn the_fitted_dampings_shrink_toward_no_damping() {
-        let fit = |fit: Vec<PhysicalScalar>, shrink| PhysicsFit {
-            fit,
-            optim: Default::default(),
-            hold_dlf_epochs: 0,
-            settle: None,
-            shrink,
-        };
-        let all = PhysicalScalar::ALL.to_vec();
-        let v = [1.5, 0.3, 0.004];
-        let got = fit(all.clone(), Some(0.01)).shrunk(v);
-        assert_eq!(got[0], 1.5);
-        assert!((got[1] - 0.29).abs() < 1e-12, "{got:?}");
-        assert_eq!(got[2].to_bits(), 0.0f64.to_bits());
-        let below = fit(all.clone(), Some(0.01)).shrunk([1.0, -0.004, -0.3]);
-        assert_eq!(below[1].to_bits(), 0.0f64.to_bits(), "{below:?}");
-        assert!((below[2] + 0.29).abs() < 1e-12, "{below:?}");
-        let no_viscosity = vec![PhysicalScalar::GravityScale, PhysicalScalar::Dissipation];
-        assert_eq!(fit(no_viscosity, Some(0.01)).shrunk(v)[1], 0.3);
-        assert_eq!(fit(all, None).shrunk(v), v);
-        // after an update the module's values are shrunk, then clamped
-        let device = neurofluid_core::device::cpu();
-        let p = Physics::of_rules(
-            &StepRules {
-                gravity_scale: 1.5,
-                viscosity: 0.3,
-                dissipation: 0.004,
-                ..StepRules::default()
-            },
-            &device,
-        );
-        let dissipation = fit(vec![PhysicalScalar::Dissipation], Some(0.01));
-        let (p, values) = p.clamped(&dissipation);
-        assert_eq!(values[2], 0.0);
-        assert_eq!(p.to_array(), values);
     }
 }
