@@ -3,11 +3,10 @@
 71, item 2; the screen rule of experiments/bed/README.md, "A screen"), from
 runs/bed71/<scene>-s<seed>-<variant>/eval/report.json, the variants A and those of CANDIDATES
 (experiments/research/bed/screen.sh with VARIANT=one-config, one-config-noise,
-one-config-noise-body, one-config-fit-then-ground[-a|-b|-c|-u9], one-config-settle-u10 or
-one-config-shrink-u11, OUT
-runs/bed71; U0, U0N, U0NB, U5, U5a, U5b, U5c, U9, U10 and U11 of
-docs/notebook/2026-12-05-quick-reference.md; and the runs of U6, U6c,
-U7 and U8, whose free-flight variants left screen.sh with the option, 6b5d68d).
+one-config-noise-body or one-config-fit-then-ground[-a|-b|-c|-u9], OUT runs/bed71; U0, U0N,
+U0NB, U5, U5a, U5b, U5c and U9 of docs/notebook/2026-12-05-quick-reference.md; and the runs of
+U6, U6c, U7 and U8, whose free-flight variants left screen.sh with the option, 6b5d68d, and of
+U10 and U11, whose variants left it with theirs, fba426a).
 
     python3 experiments/research/bed/one-config-table.py [SEED ...]    (default: 10)
 

@@ -16,9 +16,9 @@
 # U5a without the viscosity fitted). one-config-settle-u10 and one-config-shrink-u11 (U10: U9 with
 # the fit held once it had settled, joint.physics.settle = 0.01, at the latest after 6 of 9 epochs,
 # DLF grounded after it; U11: U10 with joint.physics.shrink = 0.01) ran at fba426a's code, where
-# they are; both options failed and were retired. The free flight's variants (one-config-free-flight[-c|-u7],
-# one-config-fit-then-ground-ff: U6, U6c, U7, U8) ran at 9b78745's code and are in 6b5d68d; the
-# option was retired again. The variants of rules 22-26 screened options since retired
+# they are; both options failed and were retired. The free flight's variants
+# (one-config-free-flight[-c|-u7], one-config-fit-then-ground-ff: U6, U6c, U7, U8) ran at
+# 9b78745's code and are in 6b5d68d; the option was retired again. The variants of rules 22-26 screened options since retired
 # (docs/notebook/2026-12-05-retired-options.md lists them and the commits that had them).
 # Usage: VARIANT=name experiments/research/bed/screen.sh SCENE [A_RUN] [SEED=10] [OUT=runs/r22]
 set -euo pipefail
@@ -34,18 +34,6 @@ no_material_rule=(--set dlf.gravity_scale=1.0 --set 'dlf.energy_cap="none"'
 held=(--set joint.physics.hold_dlf_epochs=6 --set 'joint.physics.optim={ lr = 0.05 }')
 three=(--set 'joint.physics.fit=["gravity_scale", "viscosity", "dissipation"]')
 two=(--set 'joint.physics.fit=["gravity_scale", "dissipation"]')
-# the fitted scalars held while DLF is grounded under the anchor and the energy prior (U5a's sets)
-then_ground=("${no_material_rule[@]}" --set joint.input_noise=0.1 --set 'dlf.dissipation_frame="body"'
-  --set joint.terms.anchor.weight=0.1 --set joint.terms.energy.weight=0.005)
-# updates an epoch: one per window of bptt_steps transitions of 49 (the scene's config; -c: the one
-# config's 4 on every scene), and DLF's milestones at 1/2 and 3/4 of 3 epochs' updates
-bptt=$(sed -n 's/^bptt_steps *= *\([0-9]*\).*/\1/p' "experiments/bed/$scene.toml")
-[[ $variant == *-c ]] && bptt=4
-per=$(( (49 + bptt - 1) / bptt ))
-dlf_milestones="$((3 * per / 2)), $((9 * per / 4))"
-# -c: the quick one config's DLF schedule (experiments/research/physics/one-config.toml)
-[[ $variant == *-c ]] && dlf_milestones="19, 28"
-dlf_schedule=(--set "joint.dlf_optim.schedule={ kind = \"multi_step\", milestones = [$dlf_milestones], gamma = 0.5 }")
 case $variant in
   anchor-0) rules=(--set joint.terms.anchor.weight=0) ;;
   rays-1024) rules=(--set joint.rays=1024) ;;
@@ -60,7 +48,15 @@ case $variant in
   one-config-noise-body) rules=("${no_material_rule[@]}" "${three[@]}" "${held[@]}"
     --set joint.input_noise=0.1 --set 'dlf.dissipation_frame="body"') ;;
   one-config-fit-then-ground|one-config-fit-then-ground-[abc]|one-config-fit-then-ground-u9)
+    # updates an epoch: one per window of bptt_steps transitions of 49 (the scene's config; -c:
+    # the one config's 4 on every scene)
+    bptt=$(sed -n 's/^bptt_steps *= *\([0-9]*\).*/\1/p' "experiments/bed/$scene.toml")
+    [[ $variant == *-c ]] && bptt=4
+    per=$(( (49 + bptt - 1) / bptt ))
     # the scalars held from epoch 4 (their rate × 1e-6); -b, -c: at × 0.1 over epoch 3 first
+    dlf_milestones="$((3 * per / 2)), $((9 * per / 4))"
+    # -c: the quick one config's DLF schedule (experiments/research/physics/one-config.toml)
+    [[ $variant == *-c ]] && dlf_milestones="19, 28"
     if [[ $variant == *-[bc] ]]; then
       hold="{ kind = \"piecewise\", boundaries = [$((2 * per - 1)), $((3 * per - 1))], factors = [0.1, 1e-6] }"
     else
@@ -68,8 +64,11 @@ case $variant in
     fi
     fitted=("${three[@]}")
     [[ $variant == *-u9 ]] && fitted=("${two[@]}")
-    rules=("${then_ground[@]}" "${fitted[@]}" --set joint.physics.hold_dlf_epochs=3
-      --set "joint.physics.optim={ lr = 0.05, schedule = $hold }" "${dlf_schedule[@]}")
+    rules=("${no_material_rule[@]}" "${fitted[@]}" --set joint.input_noise=0.1
+      --set 'dlf.dissipation_frame="body"' --set joint.terms.anchor.weight=0.1
+      --set joint.terms.energy.weight=0.005 --set joint.physics.hold_dlf_epochs=3
+      --set "joint.physics.optim={ lr = 0.05, schedule = $hold }"
+      --set "joint.dlf_optim.schedule={ kind = \"multi_step\", milestones = [$dlf_milestones], gamma = 0.5 }")
     [[ $variant == *-c ]] && rules+=(--set joint.bptt_steps=4) ;;
   *) echo "VARIANT: $variants, not $variant" >&2
      exit 2 ;;
