@@ -1,9 +1,11 @@
 #!/usr/bin/env python3
 """The quick reference's table and file (issue 71, item 3; protocol in
-docs/notebook/2026-12-05-quick-reference.md), and the one-config screen scored against it.
+docs/notebook/2026-12-05-quick-reference.md), and the one-config screen scored against it; with
+--bed, the bed's DLF† reference (docs/notebook/2026-12-06-bed-reference.md).
 
     python3 experiments/research/reference/quick-table.py            # the tables
     python3 experiments/research/reference/quick-table.py --write    # and experiments/reference/quick-walls.toml
+    python3 experiments/research/reference/quick-table.py --bed [--write]   # experiments/reference/bed-walls-dagger.toml
 
 CD = (d + d′)/2, averaged over the grounding window (t = 1–49) and the prediction window
 (t = 50–59). Runs are read from runs/ref (quick-reference.sh), runs/one (one-config-runs.sh) and
@@ -23,9 +25,31 @@ _spec = importlib.util.spec_from_file_location(
 bed_table = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(bed_table)
 
-SCENES = ["watercube", "honeycone"]
 SEEDS = [10, 11, 12]
-REFERENCE = "experiments/reference/quick-walls.toml"
+QUICK = {
+    "scenes": ["watercube", "honeycone"],
+    "candidates": ("T1", "T1h", "T4", "S1", "S4"),
+    "file": "experiments/reference/quick-walls.toml",
+    "header": "# The supervised reference on the built-in quick scenes (issue 71, item 3): protocol and\n"
+              "# figures in docs/notebook/2026-12-05-quick-reference.md; written by\n"
+              "#   python3 experiments/research/reference/quick-table.py --write\n",
+    "description": "R: the lowest mean CD over seeds 10-12 of the joint stage given the truth "
+                   "(the quick budget; DLF trained or held) and DLF-dagger (300 steps) under the walls",
+}
+# the bed's scenes in specs.py's order (CHOOSE, then REPORT_ONLY)
+BED = {
+    "scenes": ["water-dam-z", "honey-drop-z", "water-torus-tilted-z", "water-sphere-y", "honey-slump-y-400",
+               "water-pool-rest-z", "water-drop-settle-y", "syrup-column-y-256"],
+    "candidates": ("S1", "S4"),
+    "file": "experiments/reference/bed-walls-dagger.toml",
+    "header": "# The bed's supervised reference, its DLF-dagger half (issue 71, item 3): protocol and figures\n"
+              "# in docs/notebook/2026-12-06-bed-reference.md; written by\n"
+              "#   python3 experiments/research/reference/quick-table.py --bed --write\n"
+              "# R = min(this, the joint stage given the truth), so this is no lower than R and a share of\n"
+              "# the way to it is an optimistic bound on the issue's g.\n",
+    "description": "R_S (the DLF-dagger half of R): the lowest mean CD over seeds 10-12 of DLF-dagger "
+                   "(300 or 1,200 supervised steps) under the walls; the joint stage given the truth not run",
+}
 
 
 def report_scores(run):
@@ -86,19 +110,71 @@ def mean_over_seeds(scene, step):
     return out, len(done)
 
 
+def scalar_scan(scene):
+    """P: per window, the lowest CD over the scene's grid of the scalars (scalar-scan.sh), with
+    the point that gives it and that point's energy per particle over t < 50; None before a
+    point is rolled out."""
+    folder = f"runs/ref/{scene}-scan"
+    points = {}
+    for name in sorted(os.listdir(folder)) if os.path.isdir(folder) else []:
+        r = rollout_scores(os.path.join(folder, name))
+        if r:
+            points[name.removesuffix(".log")] = r
+    if not points:
+        return None
+    best = [min(points.items(), key=lambda kv: kv[1]["cd"][w]) for w in (0, 1)]
+    return {"cd": tuple(best[w][1]["cd"][w] for w in (0, 1)), "at": tuple(b[0] for b in best),
+            "energy": best[0][1]["energy"], "points": len(points)}
+
+
+def share(d, cd, best, w):
+    s = bed_table.gap_share(d["cd"][w], cd[w], best[w][0]) if best else None
+    return "–" if not best else "n/a" if s is None else f"{s:.2f}"
+
+
+def shipped_rules_share(dlf, reference):
+    """The bed: what the shipped material rules alone (D_A) and the best point of the scalars'
+    grid (P) buy the pretrained DLF against D, as shares of the way to R_S (g_S ≥ g), and each
+    rollout's energy against the issue's bound."""
+    print("\n## The shares of the way to R_S of D_A and P (g_S = (CD_D − CD) / (CD_D − R_S) ≥ g)\n")
+    print("| scene | D's CD | R_S | D_A's CD | g_S of D_A | P's CD (its point, of n) | g_S of P | "
+          "J/kg t < 50: D / D_A / P (bound) |")
+    print("|---|---|---|---|---|---|---|---|")
+    for (scene, step), d in dlf.items():
+        a = dlf.get((scene, "DA"))
+        if step != "D" or not d or not a:
+            continue
+        best = reference.get(scene)
+        p = scalar_scan(scene)
+        r = f"{best[0][0]:.2f} \\| {best[1][0]:.2f}" if best else "–"
+        p_cd = (f"{p['cd'][0]:.2f} \\| {p['cd'][1]:.2f} ({p['at'][0]} \\| {p['at'][1]}, {p['points']})"
+                if p else "–")
+        p_share = f"{share(d, p['cd'], best, 0)} \\| {share(d, p['cd'], best, 1)}" if p else "–"
+        p_energy = f"{p['energy']:.3f}" if p else "–"
+        bound = 2 * d["truth_energy"] + 0.1
+        print(f"| {scene} | {d['cd'][0]:.2f} \\| {d['cd'][1]:.2f} | {r} | {a['cd'][0]:.2f} \\| {a['cd'][1]:.2f} | "
+              f"{share(d, a['cd'], best, 0)} \\| {share(d, a['cd'], best, 1)} | {p_cd} | {p_share} | "
+              f"{d['energy']:.3f} / {a['energy']:.3f} / {p_energy} ({bound:.3f}) |")
+
+
 def main():
     write = "--write" in sys.argv
+    bed = "--bed" in sys.argv
+    setting = BED if bed else QUICK
     print("## The candidates for R (means over the seeds run; CD = (d + d′)/2, t < 50 | t ≥ 50)\n")
     print("| scene | candidate | seeds | CD | J/kg per particle, t < 50 (truth's) |")
     print("|---|---|---:|---|---|")
     reference = {}
-    for scene in SCENES:
-        d = rollout_scores(f"runs/ref/{scene}-D.log")
-        if d:
-            print(f"| {scene} | D (pretrained, walls) | – | {d['cd'][0]:.2f} \\| {d['cd'][1]:.2f} | "
-                  f"{d['energy']:.3f} ({d['truth_energy']:.3f}) |")
+    dlf = {}
+    for scene in setting["scenes"]:
+        for step, label in (("D", "D (pretrained, walls)"), ("DA", "D_A (pretrained, the shipped rules)")):
+            d = rollout_scores(f"runs/ref/{scene}-{step}.log")
+            dlf[scene, step] = d
+            if d:
+                print(f"| {scene} | {label} | – | {d['cd'][0]:.2f} \\| {d['cd'][1]:.2f} | "
+                      f"{d['energy']:.3f} ({d['truth_energy']:.3f}) |")
         best = [None, None]
-        for step in ("T1", "T1h", "T4", "S1", "S4"):
+        for step in setting["candidates"]:
             m, n = mean_over_seeds(scene, step)
             if not m:
                 continue
@@ -116,23 +192,24 @@ def main():
     for scene, best in reference.items():
         print(f"- {scene}: t < 50 {best[0][0]:.2f} ({best[0][1]}), t ≥ 50 {best[1][0]:.2f} ({best[1][1]})")
     if write and reference:
-        os.makedirs(os.path.dirname(REFERENCE), exist_ok=True)
-        with open(REFERENCE, "w") as f:
-            f.write("# The supervised reference on the built-in quick scenes (issue 71, item 3): protocol and\n"
-                    "# figures in docs/notebook/2026-12-05-quick-reference.md; written by\n"
-                    "#   python3 experiments/research/reference/quick-table.py --write\n")
-            f.write('description = "R: the lowest mean CD over seeds 10-12 of the joint stage given the truth '
-                    '(the quick budget; DLF trained or held) and DLF-dagger (300 steps) under the walls"\n')
+        path = setting["file"]
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        with open(path, "w") as f:
+            f.write(setting["header"])
+            f.write(f'description = "{setting["description"]}"\n')
             f.write('rules = "the walls (`dlf.containment = \\"box\\"`)"\n')
             for scene, best in reference.items():
                 f.write(f"\n[scenes.{scene}]\ngrounding = {best[0][0]:.4f}\nprediction = {best[1][0]:.4f}\n"
                         f'source = "{best[0][1]} (grounding), {best[1][1]} (prediction)"\n')
-        print(f"\nwrote {REFERENCE}")
+        print(f"\nwrote {path}")
+    if bed:
+        shipped_rules_share(dlf, reference)
+        return
 
     print("\n## The one-config screen (means over seeds 10–12; g = (CD_D − CD) / (CD_D − CD_R))\n")
     print("| scene | run | seeds | CD t < 50 | g t < 50 | CD t ≥ 50 | g t ≥ 50 | D's CD | J/kg (bound) | fitted (seed 10) |")
     print("|---|---|---:|---|---:|---|---:|---|---|---|")
-    for scene in SCENES:
+    for scene in setting["scenes"]:
         for step in ("U0", "U0N", "U0NB", "U1", "U2", "U4", "U4N", "U5", "U5a", "U5b", "U6", "U7", "U8", "U9", "U10", "U11", "A"):
             m, n = mean_over_seeds(scene, step)
             if not m:
