@@ -110,11 +110,11 @@ def mean_over_seeds(scene, step):
     return out, len(done)
 
 
-def scalar_scan(scene):
-    """P: per window, the lowest CD over the scene's grid of the scalars (scalar-scan.sh), with
-    the point that gives it and that point's energy per particle over t < 50; None before a
-    point is rolled out."""
-    folder = f"runs/ref/{scene}-scan"
+def scalar_scan(scene, frame=""):
+    """P (the dissipation in the box's frame; P_B with frame "-body"): per window, the lowest CD
+    over the scene's grid of the scalars (scalar-scan.sh), with the point that gives it and that
+    point's energy per particle over t < 50; None before a point is rolled out."""
+    folder = f"runs/ref/{scene}-scan{frame}"
     points = {}
     for name in sorted(os.listdir(folder)) if os.path.isdir(folder) else []:
         r = rollout_scores(os.path.join(folder, name))
@@ -134,27 +134,28 @@ def share(d, cd, best, w):
 
 def shipped_rules_share(dlf, reference):
     """The bed: what the shipped material rules alone (D_A) and the best point of the scalars'
-    grid (P) buy the pretrained DLF against D, as shares of the way to R_S (g_S ≥ g), and each
-    rollout's energy against the issue's bound."""
-    print("\n## The shares of the way to R_S of D_A and P (g_S = (CD_D − CD) / (CD_D − R_S) ≥ g)\n")
+    grid (P; P_B in the bodies' frame) buy the pretrained DLF against D, as shares of the way to
+    R_S (g_S ≥ g), and each rollout's energy against the issue's bound."""
+    print("\n## The shares of the way to R_S of D_A, P and P_B (g_S = (CD_D − CD) / (CD_D − R_S) ≥ g)\n")
     print("| scene | D's CD | R_S | D_A's CD | g_S of D_A | P's CD (its point, of n) | g_S of P | "
-          "J/kg t < 50: D / D_A / P (bound) |")
-    print("|---|---|---|---|---|---|---|---|")
+          "P_B's CD (its point, of n) | g_S of P_B | J/kg t < 50: D / D_A / P / P_B (bound) |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for (scene, step), d in dlf.items():
         a = dlf.get((scene, "DA"))
         if step != "D" or not d or not a:
             continue
         best = reference.get(scene)
-        p = scalar_scan(scene)
         r = f"{best[0][0]:.2f} \\| {best[1][0]:.2f}" if best else "–"
-        p_cd = (f"{p['cd'][0]:.2f} \\| {p['cd'][1]:.2f} ({p['at'][0]} \\| {p['at'][1]}, {p['points']})"
-                if p else "–")
-        p_share = f"{share(d, p['cd'], best, 0)} \\| {share(d, p['cd'], best, 1)}" if p else "–"
-        p_energy = f"{p['energy']:.3f}" if p else "–"
+        cells, energies = [], []
+        for p in (scalar_scan(scene), scalar_scan(scene, "-body")):
+            cells.append(f"{p['cd'][0]:.2f} \\| {p['cd'][1]:.2f} ({p['at'][0]} \\| {p['at'][1]}, {p['points']})"
+                         if p else "–")
+            cells.append(f"{share(d, p['cd'], best, 0)} \\| {share(d, p['cd'], best, 1)}" if p else "–")
+            energies.append(f"{p['energy']:.3f}" if p else "–")
         bound = 2 * d["truth_energy"] + 0.1
         print(f"| {scene} | {d['cd'][0]:.2f} \\| {d['cd'][1]:.2f} | {r} | {a['cd'][0]:.2f} \\| {a['cd'][1]:.2f} | "
-              f"{share(d, a['cd'], best, 0)} \\| {share(d, a['cd'], best, 1)} | {p_cd} | {p_share} | "
-              f"{d['energy']:.3f} / {a['energy']:.3f} / {p_energy} ({bound:.3f}) |")
+              f"{share(d, a['cd'], best, 0)} \\| {share(d, a['cd'], best, 1)} | {' | '.join(cells)} | "
+              f"{d['energy']:.3f} / {a['energy']:.3f} / {' / '.join(energies)} ({bound:.3f}) |")
 
 
 def main():
