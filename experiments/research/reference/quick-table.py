@@ -124,7 +124,9 @@ def scalar_scan(scene, frame=""):
         return None
     best = [min(points.items(), key=lambda kv: kv[1]["cd"][w]) for w in (0, 1)]
     return {"cd": tuple(best[w][1]["cd"][w] for w in (0, 1)), "at": tuple(b[0] for b in best),
-            "energy": best[0][1]["energy"], "points": len(points)}
+            "energy": best[0][1]["energy"], "points": len(points),
+            # t ≥ 50 at the point chosen on t < 50 (the point a fit to the training frames picks)
+            "fit_prediction": best[0][1]["cd"][1]}
 
 
 def share(d, cd, best, w):
@@ -148,8 +150,8 @@ def shipped_rules_share(dlf, reference):
         r = f"{best[0][0]:.2f} \\| {best[1][0]:.2f}" if best else "–"
         cells, energies = [], []
         for p in (scalar_scan(scene), scalar_scan(scene, "-body")):
-            cells.append(f"{p['cd'][0]:.2f} \\| {p['cd'][1]:.2f} ({p['at'][0]} \\| {p['at'][1]}, {p['points']})"
-                         if p else "–")
+            cells.append(f"{p['cd'][0]:.2f} \\| {p['cd'][1]:.2f} ({p['at'][0]} \\| {p['at'][1]}, {p['points']}; "
+                         f"t ≥ 50 at {p['at'][0]}: {p['fit_prediction']:.2f})" if p else "–")
             cells.append(f"{share(d, p['cd'], best, 0)} \\| {share(d, p['cd'], best, 1)}" if p else "–")
             energies.append(f"{p['energy']:.3f}" if p else "–")
         bound = 2 * d["truth_energy"] + 0.1
