@@ -71,13 +71,15 @@ def main():
             # colour up to 2× the best, so the scene's good region is readable
             shown = [[min(v, 2 * lo) if v is not None else float("nan") for v in row] for row in values]
             ax.imshow(shown, cmap="viridis_r", origin="lower", aspect="auto")
+            # dark text on the light (low) half of the colour scale, light text on the rest
+            middle = (lo + min(max(flat), 2 * lo)) / 2
             for a, row in enumerate(values):
                 for b, v in enumerate(row):
                     if v is None:
                         continue
                     best = v == lo
                     ax.text(b, a, f"{v:.1f}{'★' if best else ''}", ha="center", va="center", fontsize=7.5,
-                            color="black" if v < 1.45 * lo else "white", fontweight="bold" if best else None)
+                            color="black" if v < middle else "white", fontweight="bold" if best else None)
             ax.set_xticks(range(len(DISSIPATION)), DISSIPATION, fontsize=8)
             ax.set_yticks(range(len(GRAVITY)), GRAVITY, fontsize=8)
             ax.set_xlabel(f"dissipation ({label})", fontsize=8)
