@@ -21,21 +21,18 @@ _spec = importlib.util.spec_from_file_location(
 quick_table = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(quick_table)
 
-GRAVITY = ["1.0", "1.25", "1.5", "1.75", "2.0"]
-DISSIPATION = ["0", "0.02", "0.05", "0.15", "0.4"]
 FRAMES = [("", "box frame"), ("-body", "bodies' frame")]
 
 
 def grid(scene, frame):
-    """CD over t < 50 as rows of gravity × columns of dissipation (None where not rolled out)."""
-    rows = []
-    for g in GRAVITY:
-        row = []
-        for d in DISSIPATION:
-            r = quick_table.rollout_scores(f"runs/ref/{scene}-scan{frame}/g{g}-d{d}.log")
-            row.append(r["cd"][0] if r else None)
-        rows.append(row)
-    return rows
+    """The gravity scales and dissipations rolled out (as the file names write them, in
+    increasing order) and CD over t < 50 as rows of gravity × columns of dissipation (None where
+    a point is missing)."""
+    points = quick_table.scan_points(scene, frame)
+    gravity = sorted({g for g, _ in points}, key=float)
+    dissipation = sorted({d for _, d in points}, key=float)
+    rows = [[points[g, d]["cd"][0] if (g, d) in points else None for d in dissipation] for g in gravity]
+    return gravity, dissipation, rows
 
 
 def dagger(scene):
@@ -62,7 +59,7 @@ def main():
         r_s, n = dagger(scene)
         for j, (frame, label) in enumerate(FRAMES):
             ax = axes[k // 2][2 * (k % 2) + j]
-            values = grid(scene, frame)
+            gravity, dissipation, values = grid(scene, frame)
             flat = [v for row in values for v in row if v is not None]
             if not flat:
                 ax.set_axis_off()
@@ -80,8 +77,8 @@ def main():
                     best = v == lo
                     ax.text(b, a, f"{v:.1f}{'★' if best else ''}", ha="center", va="center", fontsize=7.5,
                             color="black" if v < middle else "white", fontweight="bold" if best else None)
-            ax.set_xticks(range(len(DISSIPATION)), DISSIPATION, fontsize=8)
-            ax.set_yticks(range(len(GRAVITY)), GRAVITY, fontsize=8)
+            ax.set_xticks(range(len(dissipation)), dissipation, fontsize=8)
+            ax.set_yticks(range(len(gravity)), gravity, fontsize=8)
             ax.set_xlabel(f"dissipation ({label})", fontsize=8)
             ax.set_ylabel("gravity scale", fontsize=8)
             dlf = f"D {d_run['cd'][0]:.1f}" if d_run else ""

@@ -21,11 +21,13 @@ mkdir -p runs/ref
 # the scene as the material probe's runs named it (their warm-ups are reused)
 on_scene=(--set "scene.builtin=\"$scene\"" --set "scene.dir=\"data/${scene}_quick\""
   --set scene.generate.gravity=9.81)
-data=data/${scene}_quick rollout_cfg=$cfg
+data=data/${scene}_quick rollout_cfg=$cfg bed=
 if [[ -f experiments/bed/$scene.toml ]]; then
-  # a bed scene: its own config with the material rule removed (the walls alone, as $cfg's)
-  data=${BED_DATA:-data/bed-particles}/$scene rollout_cfg=experiments/bed/$scene.toml
-  on_scene=(--set "scene.path=\"$data\"" --set dlf.gravity_scale=1.0 --set 'dlf.energy_cap="none"')
+  # a bed scene: its own config (as it ships: DA) with the material rule removed (the walls
+  # alone, as $cfg's)
+  bed=1 data=${BED_DATA:-data/bed-particles}/$scene rollout_cfg=experiments/bed/$scene.toml
+  shipped=(--set "scene.path=\"$data\"")
+  on_scene=("${shipped[@]}" --set dlf.gravity_scale=1.0 --set 'dlf.energy_cap="none"')
   [[ $step == D || $step == DA || $step == S1 || $step == S4 ]] ||
     { echo "$step: a bed scene has D, DA, S1 and S4 only" >&2; exit 2; }
 fi
@@ -34,9 +36,9 @@ case $step in
     out=runs/ref/$scene-D
     [[ -f $out.log ]] || "$bin" rollout "$rollout_cfg" "${on_scene[@]}" > "$out.log" 2>&1 ;;
   DA)
-    [[ $rollout_cfg != "$cfg" ]] || { echo "DA: bed scenes only" >&2; exit 2; }
+    [[ $bed ]] || { echo "DA: bed scenes only" >&2; exit 2; }
     out=runs/ref/$scene-DA
-    [[ -f $out.log ]] || "$bin" rollout "$rollout_cfg" "${on_scene[0]}" "${on_scene[1]}" > "$out.log" 2>&1 ;;
+    [[ -f $out.log ]] || "$bin" rollout "$rollout_cfg" "${shipped[@]}" > "$out.log" 2>&1 ;;
   T1|T1h|T4)
     [[ -f $out/eval/report.json ]] && exit 0
     epochs=(); [[ $step == T4 ]] && epochs=(--set joint.epochs=24

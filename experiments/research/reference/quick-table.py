@@ -24,6 +24,11 @@ _spec = importlib.util.spec_from_file_location(
     "bed_table", os.path.join(os.path.dirname(__file__), "..", "..", "..", "scripts", "bed-table.py"))
 bed_table = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(bed_table)
+# the bed's scenes: scripts/testbed/specs.py's (CHOOSE, then REPORT_ONLY)
+_spec = importlib.util.spec_from_file_location(
+    "specs", os.path.join(os.path.dirname(__file__), "..", "..", "..", "scripts", "testbed", "specs.py"))
+specs = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(specs)
 
 SEEDS = [10, 11, 12]
 QUICK = {
@@ -36,10 +41,8 @@ QUICK = {
     "description": "R: the lowest mean CD over seeds 10-12 of the joint stage given the truth "
                    "(the quick budget; DLF trained or held) and DLF-dagger (300 steps) under the walls",
 }
-# the bed's scenes in specs.py's order (CHOOSE, then REPORT_ONLY)
 BED = {
-    "scenes": ["water-dam-z", "honey-drop-z", "water-torus-tilted-z", "water-sphere-y", "honey-slump-y-400",
-               "water-pool-rest-z", "water-drop-settle-y", "syrup-column-y-256"],
+    "scenes": specs.ORDER,
     "candidates": ("S1", "S4"),
     "file": "experiments/reference/bed-walls-dagger.toml",
     "header": "# The bed's supervised reference, its DLF-dagger half (issue 71, item 3): protocol and figures\n"
@@ -110,16 +113,25 @@ def mean_over_seeds(scene, step):
     return out, len(done)
 
 
-def scalar_scan(scene, frame=""):
-    """P (the dissipation in the box's frame; P_B with frame "-body"): per window, the lowest CD
-    over the scene's grid of the scalars (scalar-scan.sh), with the point that gives it and that
-    point's energy per particle over t < 50; None before a point is rolled out."""
+def scan_points(scene, frame=""):
+    """The rollouts of the scene's grid of the scalars (scalar-scan.sh; frame "-body" for the
+    bodies' frame's): {(gravity scale, dissipation) as written in the file name: rollout_scores},
+    the points rolled out so far."""
     folder = f"runs/ref/{scene}-scan{frame}"
     points = {}
     for name in sorted(os.listdir(folder)) if os.path.isdir(folder) else []:
-        r = rollout_scores(os.path.join(folder, name))
+        m = re.fullmatch(r"g(.+)-d(.+)\.log", name)
+        r = rollout_scores(os.path.join(folder, name)) if m else None
         if r:
-            points[name.removesuffix(".log")] = r
+            points[m.group(1), m.group(2)] = r
+    return points
+
+
+def scalar_scan(scene, frame=""):
+    """P (the dissipation in the box's frame; P_B with frame "-body"): per window, the lowest CD
+    over the scene's grid of the scalars, with the point that gives it and that point's energy
+    per particle over t < 50; None before a point is rolled out."""
+    points = {f"g{g}-d{d}": r for (g, d), r in scan_points(scene, frame).items()}
     if not points:
         return None
     best = [min(points.items(), key=lambda kv: kv[1]["cd"][w]) for w in (0, 1)]
@@ -129,12 +141,14 @@ def scalar_scan(scene, frame=""):
             "fit_prediction": best[0][1]["cd"][1]}
 
 
-def share(d, cd, best, w):
-    s = bed_table.gap_share(d["cd"][w], cd[w], best[w][0]) if best else None
+def share(d_cd, cd, best, w):
+    """g in window w of CD `cd` from D's `d_cd` toward the reference `best` (R per window, as
+    main() builds it), formatted; "–" without a reference."""
+    s = bed_table.gap_share(d_cd[w], cd[w], best[w][0]) if best else None
     return "–" if not best else "n/a" if s is None else f"{s:.2f}"
 
 
-def shipped_rules_share(dlf, reference):
+def shipped_rules_share(scenes, dlf, reference):
     """The bed: what the shipped material rules alone (D_A) and the best point of the scalars'
     grid (P; P_B in the bodies' frame) buy the pretrained DLF against D, as shares of the way to
     R_S (g_S ≥ g), and each rollout's energy against the issue's bound."""
@@ -142,9 +156,9 @@ def shipped_rules_share(dlf, reference):
     print("| scene | D's CD | R_S | D_A's CD | g_S of D_A | P's CD (its point, of n) | g_S of P | "
           "P_B's CD (its point, of n) | g_S of P_B | J/kg t < 50: D / D_A / P / P_B (bound) |")
     print("|---|---|---|---|---|---|---|---|---|---|")
-    for (scene, step), d in dlf.items():
-        a = dlf.get((scene, "DA"))
-        if step != "D" or not d or not a:
+    for scene in scenes:
+        d, a = dlf[scene, "D"], dlf[scene, "DA"]
+        if not d or not a:
             continue
         best = reference.get(scene)
         r = f"{best[0][0]:.2f} \\| {best[1][0]:.2f}" if best else "–"
@@ -152,11 +166,11 @@ def shipped_rules_share(dlf, reference):
         for p in (scalar_scan(scene), scalar_scan(scene, "-body")):
             cells.append(f"{p['cd'][0]:.2f} \\| {p['cd'][1]:.2f} ({p['at'][0]} \\| {p['at'][1]}, {p['points']}; "
                          f"t ≥ 50 at {p['at'][0]}: {p['fit_prediction']:.2f})" if p else "–")
-            cells.append(f"{share(d, p['cd'], best, 0)} \\| {share(d, p['cd'], best, 1)}" if p else "–")
+            cells.append(f"{share(d['cd'], p['cd'], best, 0)} \\| {share(d['cd'], p['cd'], best, 1)}" if p else "–")
             energies.append(f"{p['energy']:.3f}" if p else "–")
         bound = 2 * d["truth_energy"] + 0.1
         print(f"| {scene} | {d['cd'][0]:.2f} \\| {d['cd'][1]:.2f} | {r} | {a['cd'][0]:.2f} \\| {a['cd'][1]:.2f} | "
-              f"{share(d, a['cd'], best, 0)} \\| {share(d, a['cd'], best, 1)} | {' | '.join(cells)} | "
+              f"{share(d['cd'], a['cd'], best, 0)} \\| {share(d['cd'], a['cd'], best, 1)} | {' | '.join(cells)} | "
               f"{d['energy']:.3f} / {a['energy']:.3f} / {' / '.join(energies)} ({bound:.3f}) |")
 
 
@@ -206,7 +220,7 @@ def main():
                         f'source = "{best[0][1]} (grounding), {best[1][1]} (prediction)"\n')
         print(f"\nwrote {path}")
     if bed:
-        shipped_rules_share(dlf, reference)
+        shipped_rules_share(setting["scenes"], dlf, reference)
         return
 
     print("\n## The one-config screen (means over seeds 10–12; g = (CD_D − CD) / (CD_D − CD_R))\n")
@@ -218,10 +232,8 @@ def main():
             if not m:
                 continue
             g = ["–", "–"]
-            if scene in reference and "d_cd" in m:
-                for w in (0, 1):
-                    share = bed_table.gap_share(m["d_cd"][w], m["cd"][w], reference[scene][w][0])
-                    g[w] = "n/a" if share is None else f"{share:.2f}"
+            if "d_cd" in m:
+                g = [share(m["d_cd"], m["cd"], reference.get(scene), w) for w in (0, 1)]
             if step == "A":
                 g = ["(own rules)", "(own rules)"]
             first = candidate(scene, step, SEEDS[0])
