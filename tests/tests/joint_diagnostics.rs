@@ -325,6 +325,37 @@ fn diagnostics_reach_the_metrics_and_match_an_independent_rollout() {
         (logged - gained).abs() <= 1e-6 * gained.max(1.0),
         "logged {logged}, by hand {gained}"
     );
+    // the renderer on that rollout at psnr_true's pixels: the logged value is the independent
+    // rollout's; on the truth it is psnr_true; on the truth moved a box length away (the fluid
+    // gone from where the images show it) it is worse
+    let data = JointData::load(&run.scene, &run.exp.joint).unwrap();
+    let psnr = |frames: &[Vec<[f32; 3]>]| {
+        joint::psnr_on_frames(&grounded.physnerf, &data, frames, 512, run.exp.seed)
+            .unwrap()
+            .expect("a PSNR")
+    };
+    let logged = rows[1].get("rollout_psnr").expect("the rollout's PSNR");
+    let independent = psnr(&rollout.pos);
+    assert!(
+        (logged - independent).abs() <= 1e-9 * independent.abs().max(1.0),
+        "logged {logged}, independent {independent}"
+    );
+    let true_pos: Vec<Vec<[f32; 3]>> = truth.iter().map(|f| f.pos.clone()).collect();
+    let on_truth = psnr(&true_pos);
+    assert_eq!(Some(on_truth), rows[1].get("psnr_true"));
+    let (lo, hi) = (
+        walls.points.iter().fold(f32::MAX, |m, p| m.min(p[0])),
+        walls.points.iter().fold(f32::MIN, |m, p| m.max(p[0])),
+    );
+    let moved: Vec<Vec<[f32; 3]>> = true_pos
+        .iter()
+        .map(|f| f.iter().map(|p| [p[0] + (hi - lo), p[1], p[2]]).collect())
+        .collect();
+    let away = psnr(&moved);
+    assert!(
+        away < on_truth,
+        "moved away {away} dB, the truth {on_truth} dB"
+    );
 }
 
 #[test]

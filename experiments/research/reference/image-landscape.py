@@ -3,12 +3,14 @@
 image loss puts the gravity scale and the bodies'-frame dissipation, against where the truth
 does, on scalar-scan.sh's grid.
 
-    python3 experiments/research/reference/image-landscape.py [--grids]
+    python3 experiments/research/reference/image-landscape.py [--grids] [--figure docs/image-landscapes.png]
 
 Reads runs/land/<scene>-s<seed>[...]/ (image-landscape.sh: I, the mean image loss over the 49
 transitions at each point) and runs/ref/<scene>-scan-body/ (FRAME=body scalar-scan.sh: CD over
 t < 50 at each point), D and R_S as quick-table.py reads them. --grids also prints each
-landscape as a gravity × dissipation table.
+landscape as a gravity × dissipation table; --figure draws, per scene, the truth's landscape
+beside the image loss's (the mean over the seeds run, one view and two), each best starred
+(needs matplotlib).
 """
 
 import csv
@@ -28,14 +30,17 @@ TRANSITIONS = 49
 
 def image_loss(run):
     """The mean logged loss over the joint epoch's transitions of a run folder (None unless it
-    logged all of them)."""
+    logged all of them) and its evaluation's (psnr_true, rollout_psnr) (None without them)."""
     path = os.path.join(run, "metrics.csv")
     if not os.path.exists(path):
         return None
-    rows = [r for r in csv.DictReader(open(path)) if r["stage"] == "joint"]
-    if len(rows) != TRANSITIONS:
+    rows = list(csv.DictReader(open(path)))
+    joint = [r for r in rows if r["stage"] == "joint"]
+    if len(joint) != TRANSITIONS:
         return None
-    return statistics.mean(float(r["loss"]) for r in rows)
+    preview = [r for r in rows if r["stage"] == "joint-preview" and r.get("rollout_psnr")]
+    psnr = (float(preview[-1]["psnr_true"]), float(preview[-1]["rollout_psnr"])) if preview else None
+    return statistics.mean(float(r["loss"]) for r in joint), psnr
 
 
 def landscapes():
@@ -52,6 +57,17 @@ def landscapes():
             if i is not None:
                 out.setdefault((m.group(1), int(m.group(2)), p.group(3) or ""), {})[p.group(1), p.group(2)] = i
     return out
+
+
+def psnr_column(image):
+    """The renderer's PSNR on the truth and the best on a rollout of the grid (with its point),
+    at the diagnostics' frames and pixels, where the evaluation logged them."""
+    psnr = {p: v[1] for p, v in image.items() if v[1]}
+    if not psnr:
+        return "–"
+    best = max(psnr, key=lambda p: psnr[p][1])
+    on_truth = statistics.mean(v[0] for v in psnr.values())
+    return f"{on_truth:.2f} / {psnr[best][1]:.2f} (g {best[0]}, d {best[1]})"
 
 
 def ranks(values):
@@ -77,6 +93,66 @@ def spearman(a, b):
     return num / den if den else float("nan")
 
 
+def seed_means(lands):
+    """{(scene, view suffix): ({point: I's mean over the seeds run}, seeds)} over the points every
+    seed has."""
+    out = {}
+    for (scene, _, view), image in lands.items():
+        out.setdefault((scene, view), []).append(image)
+    means = {}
+    for key, images in out.items():
+        common = set.intersection(*(set(i) for i in images))
+        means[key] = ({p: statistics.mean(i[p][0] for i in images) for p in common}, len(images))
+    return means
+
+
+def figure(path, lands):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    means = seed_means(lands)
+    scenes = [s for s in quick_table.BED["scenes"] if any(k[0] == s for k in means)]
+    fig, axes = plt.subplots(len(scenes), 3, figsize=(13, 3.6 * len(scenes)), squeeze=False)
+    for row, scene in zip(axes, scenes):
+        truth = {p: v["cd"][0] for p, v in quick_table.scan_points(scene, "-body").items()}
+        panels = [(truth, "(d + d′)/2 over t < 50 (the truth's)", "{:.1f}")]
+        for view, label in (("", "one view"), ("-view_3", "two views")):
+            if (scene, view) in means:
+                image, n = means[scene, view]
+                panels.append(({p: 1000 * v for p, v in image.items()},
+                               f"image loss × 1000, {label} ({n} seed{'s' * (n != 1)})", "{:.2f}"))
+        for ax, panel in zip(row, panels + [None] * (3 - len(panels))):
+            if not panel or not panel[0]:
+                ax.set_axis_off()
+                continue
+            values, title, form = panel
+            gs = sorted({g for g, _ in values}, key=float)
+            ds = sorted({d for _, d in values}, key=float)
+            grid = [[values.get((g, d), float("nan")) for d in ds] for g in gs]
+            best = min(values, key=values.get)
+            ax.imshow(grid, cmap="viridis_r", origin="lower", aspect="auto")
+            lo, hi = min(values.values()), max(values.values())
+            for a, g in enumerate(gs):
+                for b, d in enumerate(ds):
+                    if (g, d) in values:
+                        v = values[g, d]
+                        ax.text(b, a, form.format(v) + ("★" if (g, d) == best else ""), ha="center",
+                                va="center", fontsize=7.5, color="black" if v < (lo + hi) / 2 else "white",
+                                fontweight="bold" if (g, d) == best else None)
+            ax.set_xticks(range(len(ds)), ds, fontsize=8)
+            ax.set_yticks(range(len(gs)), gs, fontsize=8)
+            ax.set_xlabel("dissipation (bodies' frame)", fontsize=8)
+            ax.set_ylabel("gravity scale", fontsize=8)
+            ax.set_title(f"{scene}: {title}", fontsize=9)
+    fig.suptitle("Where the truth and the training view's image loss put the scalars (the pretrained DLF, "
+                 "the warm-up renderer; ★ each landscape's best)", fontsize=11)
+    fig.tight_layout(rect=(0, 0, 1, 0.98))
+    fig.savefig(path, dpi=80)
+    print(f"wrote {path}")
+
+
 def share(d, cd, best):
     return (d - cd) / (d - best) if best is not None and d != best else None
 
@@ -87,17 +163,22 @@ def fmt(v):
 
 def main():
     grids = "--grids" in sys.argv
+    lands = landscapes()
+    if "--figure" in sys.argv:
+        figure(sys.argv[sys.argv.index("--figure") + 1], lands)
+        return
     print("| scene | seed | views | points | I* (image loss's best) | CD(I*) | P_B's point | CD(P_B) | "
-          "rank of P_B's point on I | Spearman(I, CD) | D | R_S | g_P | g_S |")
-    print("|---|---:|---|---:|---|---:|---|---:|---:|---:|---:|---:|---:|---:|")
-    for (scene, seed, view), image in landscapes().items():
+          "rank of P_B's point on I | Spearman(I, CD) | D | R_S | g_P | g_S | PSNR on the truth / "
+          "the best rollout's (its point) |")
+    print("|---|---:|---|---:|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---|")
+    for (scene, seed, view), image in lands.items():
         truth = quick_table.scan_points(scene, "-body")
         common = [p for p in image if p in truth]
         if not common:
             continue
         cds = [truth[p]["cd"][0] for p in common]
-        ims = [image[p] for p in common]
-        i_star = min(common, key=lambda p: image[p])
+        ims = [image[p][0] for p in common]
+        i_star = min(common, key=lambda p: image[p][0])
         p_b = min(truth, key=lambda p: truth[p]["cd"][0])
         rank_pb = int(ranks(ims)[common.index(p_b)]) if p_b in common else None
         d = quick_table.rollout_scores(f"runs/ref/{scene}-D.log")
@@ -108,7 +189,8 @@ def main():
         print(f"| {scene} | {seed} | {1 + bool(view)}{view and ' (' + view[1:] + ')'} | {len(common)} | "
               f"g {i_star[0]}, d {i_star[1]} | {cd_star:.2f} | g {p_b[0]}, d {p_b[1]} | {cd_pb:.2f} | "
               f"{rank_pb or '–'} | {spearman(ims, cds):.2f} | {d_cd:.2f} | {fmt(r_s and r_s['cd'][0])} | "
-              f"{fmt(share(d_cd, cd_star, cd_pb))} | {fmt(share(d_cd, cd_star, r_s and r_s['cd'][0]))} |")
+              f"{fmt(share(d_cd, cd_star, cd_pb))} | {fmt(share(d_cd, cd_star, r_s and r_s['cd'][0]))} | "
+              f"{psnr_column(image)} |")
         if grids:
             gs = sorted({g for g, _ in common}, key=float)
             ds = sorted({x for _, x in common}, key=float)
@@ -116,7 +198,7 @@ def main():
             print("| g \\ d | " + " | ".join(ds) + " |")
             print("|---" * (len(ds) + 1) + "|")
             for g in gs:
-                cells = [f"{1000 * image[g, x]:.3f} ({truth[g, x]['cd'][0]:.1f})" if (g, x) in common else "–"
+                cells = [f"{1000 * image[g, x][0]:.3f} ({truth[g, x]['cd'][0]:.1f})" if (g, x) in common else "–"
                          for x in ds]
                 print(f"| {g} | " + " | ".join(cells) + " |")
             print()

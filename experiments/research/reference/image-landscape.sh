@@ -3,7 +3,9 @@
 # on scalar-scan.sh's grid (the gravity scale × the bodies'-frame dissipation), with nothing
 # trained: A's warm-up (the bed config as it ships, at SEED), then at each point one joint epoch
 # on a copy of it with every learning rate 0, no particle terms, one transition a window and
-# uniform rays (the same pixels at every point). EXTRA_VIEW adds a second view of the dynamics
+# uniform rays (the same pixels at every point), evaluated once at the end (the diagnostics:
+# `rollout_psnr` beside `psnr_true`, the renderer on the rollout and on the truth at the same
+# pixels). EXTRA_VIEW adds a second view of the dynamics
 # (`joint.extra_views`). A point already done is skipped.
 #   bash experiments/research/reference/image-landscape.sh SCENE [SEED=10] [EXTRA_VIEW]
 # Writes runs/land/<scene>-s<seed>/A (the warm-up) and g<gravity>-d<dissipation>[-<view>]/; the
@@ -26,7 +28,7 @@ if [[ -n $extra ]]; then
   view_sets=(--set "joint.extra_views=[\"$extra\"]") suffix=-$extra
 fi
 frozen=(--set joint.epochs=1 --set joint.bptt_steps=1 --set joint.log_every=1
-  --set joint.ckpt_every=0 --set joint.preview_every=0 --set joint.foreground_rays=0
+  --set joint.ckpt_every=0 --set joint.preview_every=49 --set joint.foreground_rays=0
   --set joint.physnerf_optim.lr=0 --set joint.dlf_optim.lr=0
   --set joint.terms.anchor.weight=0 --set joint.terms.energy.weight=0
   --set 'dlf.energy_cap="none"' --set 'dlf.dissipation_frame="body"')

@@ -18,7 +18,7 @@ use neurofluid_outputs::metrics_log::psnr_from_mse;
 
 /// What the joint stage measures besides its loss, at every evaluation (metrics columns
 /// `rollout_d`, `rollout_d_prime`, `rollout_energy_gain`, `rollout_particle_energy_gain`,
-/// `rollout_density`, `grad_alignment`, `psnr_true`, `psnr_held_out`).
+/// `rollout_density`, `rollout_psnr`, `grad_alignment`, `psnr_true`, `psnr_held_out`).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Diagnostics {
     /// d (× 1000) of DLF's rollout from the first true frame over the training frames
@@ -38,6 +38,11 @@ pub struct Diagnostics {
     /// over the training frames ([`neurofluid_core::metrics::mean_density`]): below 1, the fluid
     /// spread thinner than it started. Needs no true particles.
     pub rollout_density: Option<f64>,
+    /// PSNR of the renderer on the same rollout's particles at `psnr_true`'s frames and pixels:
+    /// with `psnr_true` beside it, how much of the image error is the dynamics' (the two equal
+    /// when the rollout is the truth; above `psnr_true`, the renderer prefers the rollout to the
+    /// truth).
+    pub rollout_psnr: Option<f64>,
     /// The mean, over the transitions since the last evaluation, of the cosine between the image
     /// loss's descent direction at the prediction, −∂L/∂x_{t+1}, and the true error
     /// x_true − x_pred (particles matched by index): does the image signal point at the truth?
@@ -66,6 +71,7 @@ impl Diagnostics {
                 self.rollout_particle_energy_gain,
             ),
             ("rollout_density", self.rollout_density),
+            ("rollout_psnr", self.rollout_psnr),
         ]
         .into_iter()
         .filter_map(|(k, v)| v.map(|v| (k, v)))
@@ -100,19 +106,32 @@ pub fn psnr_on_truth(
     rays: usize,
     seed: u64,
 ) -> anyhow::Result<Option<f64>> {
-    let Some(truth) = &data.truth else {
-        return Ok(None);
-    };
+    match &data.truth {
+        Some(truth) => psnr_on_frames(physnerf, data, truth, rays, seed),
+        None => Ok(None),
+    }
+}
+
+/// PSNR of `physnerf` on `particles[t]` (per training frame, from the first) at the frames and
+/// pixels of [`psnr_on_truth`]. `None` with fewer than two frames.
+pub fn psnr_on_frames(
+    physnerf: &PhysNerf,
+    data: &JointData,
+    particles: &[Vec<[f32; 3]>],
+    rays: usize,
+    seed: u64,
+) -> anyhow::Result<Option<f64>> {
     let physnerf = physnerf.valid();
     let device = physnerf.device();
     let mut rng = Rng::stream(seed, "joint-diagnostics");
     let (mut mse, mut frames) = (0.0, 0);
-    for t in (1..truth.len()).step_by(PSNR_TRUE_EVERY) {
+    let last = particles.len().min(data.transitions() as usize + 1);
+    for t in (1..last).step_by(PSNR_TRUE_EVERY) {
         let target = data.target(t);
         let (w, h) = (target.camera.width, target.camera.height);
         let pixels = rng.sample_pixels(rays, w, h, None)?;
         let (rays, colours) = target.batch(&pixels, &device);
-        let out = physnerf.render_rays(&points_tensor(&truth[t], &device), &rays, None)?;
+        let out = physnerf.render_rays(&points_tensor(&particles[t], &device), &rays, None)?;
         mse += scalar(&physnerf.loss(&out, colours).fine);
         frames += 1;
     }
@@ -180,6 +199,13 @@ impl JointTrainer {
         {
             d.psnr_held_out = render_beside_truth(&self.physnerf, view, particles)?.psnr;
         }
+        d.rollout_psnr = psnr_on_frames(
+            &self.physnerf,
+            &self.data,
+            &rollout.pos,
+            self.cfg.rays,
+            self.seed,
+        )?;
         let Some(truth) = &self.data.truth else {
             return Ok(d);
         };

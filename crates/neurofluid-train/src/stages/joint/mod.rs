@@ -48,7 +48,9 @@ pub mod terms;
 mod windows;
 
 pub use data::{JointData, State, training_rollout};
-pub use diagnostics::{Diagnostics, cosine_of_sums, cosine_sums, held_out_view, psnr_on_truth};
+pub use diagnostics::{
+    Diagnostics, cosine_of_sums, cosine_sums, held_out_view, psnr_on_frames, psnr_on_truth,
+};
 pub use loss::{SplitImageLoss, boundary_penalty, dlf_surrogate, split_image_loss, training_rays};
 pub use windows::{Updates, updates_after, updates_before};
 
