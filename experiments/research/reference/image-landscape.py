@@ -169,8 +169,8 @@ def main():
         return
     print("| scene | seed | views | points | I* (image loss's best) | CD(I*) | P_B's point | CD(P_B) | "
           "rank of P_B's point on I | Spearman(I, CD) | D | R_S | g_P | g_S | PSNR on the truth / "
-          "the best rollout's (its point) |")
-    print("|---|---:|---|---:|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---|")
+          "the best rollout's (its point) | t ≥ 50: CD(I*) (D's) |")
+    print("|---|---:|---|---:|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---|---|")
     for (scene, seed, view), image in lands.items():
         truth = quick_table.scan_points(scene, "-body")
         common = [p for p in image if p in truth]
@@ -190,7 +190,7 @@ def main():
               f"g {i_star[0]}, d {i_star[1]} | {cd_star:.2f} | g {p_b[0]}, d {p_b[1]} | {cd_pb:.2f} | "
               f"{rank_pb or '–'} | {spearman(ims, cds):.2f} | {d_cd:.2f} | {fmt(r_s and r_s['cd'][0])} | "
               f"{fmt(share(d_cd, cd_star, cd_pb))} | {fmt(share(d_cd, cd_star, r_s and r_s['cd'][0]))} | "
-              f"{psnr_column(image)} |")
+              f"{psnr_column(image)} | {truth[i_star]['cd'][1]:.2f} ({d['cd'][1]:.2f}) |")
         if grids:
             gs = sorted({g for g, _ in common}, key=float)
             ds = sorted({x for _, x in common}, key=float)

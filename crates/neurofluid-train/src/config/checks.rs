@@ -236,6 +236,13 @@ impl Section for JointSection {
             if let Some(p) = under("physics.optim", physics.optim.problem()) {
                 return Some(p);
             }
+            if let Some((field, msg)) = physics
+                .search
+                .as_ref()
+                .and_then(|g| g.problem(&physics.fit))
+            {
+                return Some((format!("physics.search.{field}"), msg));
+            }
         }
         views_problem(&self.extra_views, "extra_views", false)
     }

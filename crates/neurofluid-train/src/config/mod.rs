@@ -41,7 +41,7 @@ pub use preset::Preset;
 pub use sections::{
     BuiltinScene, DiagnosticsSection, DlfSection, EvalSection, InitialParticles, InitialSection,
     JointSection, NerfSection, NerfTImages, NovelViews, PhysicalScalar, PhysicsFit, PlyEncoding,
-    RefitSection, SceneScale, SceneSection, SurfaceThreshold, WarmupSection,
+    RefitSection, ScalarGrid, SceneScale, SceneSection, SurfaceThreshold, WarmupSection,
 };
 pub use settings::Settings;
 
@@ -733,6 +733,18 @@ mod tests {
             (
                 "[scene]\nbuiltin = \"watercube\"\n[joint.physics]\nfit = [\"viscosity\"]\noptim = { lr = -1.0 }\n",
                 "joint.physics.optim.lr",
+            ),
+            (
+                "[scene]\nbuiltin = \"watercube\"\n[joint.physics]\nfit = [\"viscosity\"]\nsearch = { dissipation = [0.0, 0.1] }\n",
+                "joint.physics.search.dissipation",
+            ),
+            (
+                "[scene]\nbuiltin = \"watercube\"\n[joint.physics]\nfit = [\"dissipation\"]\nsearch = { dissipation = [0.0, 0.6] }\n",
+                "joint.physics.search.dissipation",
+            ),
+            (
+                "[scene]\nbuiltin = \"watercube\"\n[joint.physics]\nfit = [\"gravity_scale\"]\nsearch = {}\n",
+                "joint.physics.search.gravity_scale",
             ),
             (
                 "[scene]\nbuiltin = \"watercube\"\n[eval]\nviews = [\"view_5\", \"view_5\"]\n",

@@ -587,6 +587,11 @@ impl PhysicalScalar {
         self as usize
     }
 
+    /// Its name in the config and the metrics ([`neurofluid_dlf::PHYSICS_NAMES`]).
+    pub fn name(self) -> &'static str {
+        neurofluid_dlf::PHYSICS_NAMES[self.index()]
+    }
+
     /// The values it is kept within.
     pub fn bounds(self) -> (f64, f64) {
         match self {
@@ -613,6 +618,102 @@ pub struct PhysicsFit {
     /// `joint.epochs` = the scalars alone).
     #[serde(default)]
     pub hold_dlf_epochs: u64,
+    /// `[joint.physics.search]`: a grid the fitted scalars start from instead of the rules'
+    /// values: the point whose rollout the warm-up renderer scores best on the training view
+    /// ([`crate::stages::joint::search`]). Unset = no search.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub search: Option<ScalarGrid>,
+}
+
+/// `[joint.physics.search]`: the values tried for each fitted scalar; a fitted scalar without
+/// values keeps the rules' value in every point.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScalarGrid {
+    /// Gravity scales tried.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub gravity_scale: Vec<f64>,
+    /// Viscosities tried.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub viscosity: Vec<f64>,
+    /// Dissipations tried.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub dissipation: Vec<f64>,
+}
+
+impl ScalarGrid {
+    /// The most points a search may try (each costs a rollout and a render of the training view).
+    pub const MAX_POINTS: usize = 400;
+
+    /// The values tried for `scalar`.
+    pub fn values(&self, scalar: PhysicalScalar) -> &[f64] {
+        match scalar {
+            PhysicalScalar::GravityScale => &self.gravity_scale,
+            PhysicalScalar::Viscosity => &self.viscosity,
+            PhysicalScalar::Dissipation => &self.dissipation,
+        }
+    }
+
+    /// Every point of the grid (in the order of [`PhysicalScalar::ALL`]), the first scalar's
+    /// values outermost; a scalar without values keeps its value in `start`.
+    pub fn points(&self, start: [f64; 3]) -> Vec<[f64; 3]> {
+        let mut points = vec![start];
+        for scalar in PhysicalScalar::ALL {
+            let values = self.values(scalar);
+            if values.is_empty() {
+                continue;
+            }
+            points = points
+                .iter()
+                .flat_map(|p| {
+                    values.iter().map(move |&v| {
+                        let mut q = *p;
+                        q[scalar.index()] = v;
+                        q
+                    })
+                })
+                .collect();
+        }
+        points
+    }
+
+    /// What is wrong with the grid for the scalars `fit`, as (field, message).
+    pub fn problem(&self, fit: &[PhysicalScalar]) -> Option<(String, String)> {
+        if PhysicalScalar::ALL
+            .iter()
+            .all(|s| self.values(*s).is_empty())
+        {
+            return Some((
+                "gravity_scale".into(),
+                "expected values for at least one fitted scalar (or no search table)".into(),
+            ));
+        }
+        let mut count = 1usize;
+        for scalar in PhysicalScalar::ALL {
+            let values = self.values(scalar);
+            let field = scalar.name();
+            if values.is_empty() {
+                continue;
+            }
+            if !fit.contains(&scalar) {
+                return Some((
+                    field.into(),
+                    format!("{field:?} is searched but not fitted (add it to joint.physics.fit)"),
+                ));
+            }
+            let (lo, hi) = scalar.bounds();
+            if let Some(v) = values.iter().find(|v| !(lo..=hi).contains(*v)) {
+                return Some((field.into(), format!("{v} is outside [{lo}, {hi}]")));
+            }
+            count = count.saturating_mul(values.len());
+        }
+        (count > Self::MAX_POINTS).then(|| {
+            (
+                "gravity_scale".into(),
+                format!("{count} points; at most {}", Self::MAX_POINTS),
+            )
+        })
+    }
 }
 
 impl PhysicsFit {

@@ -121,21 +121,51 @@ pub fn psnr_on_frames(
     rays: usize,
     seed: u64,
 ) -> anyhow::Result<Option<f64>> {
+    let last = particles.len().min(data.transitions() as usize + 1);
+    let frames: Vec<usize> = (1..last).step_by(PSNR_TRUE_EVERY).collect();
+    if frames.is_empty() {
+        return Ok(None);
+    }
+    let (_, fine) = image_mse(
+        physnerf,
+        data,
+        particles,
+        &frames,
+        rays,
+        seed,
+        "joint-diagnostics",
+    )?;
+    Ok(Some(psnr_from_mse(fine)))
+}
+
+/// The mean coarse + fine and fine MSE of `physnerf` rendering the training view from
+/// `particles[t]` at each training frame t of `frames`, at `rays` pixels a frame drawn in order
+/// from `seed`'s `stream` (the same pixels at every call).
+pub(super) fn image_mse(
+    physnerf: &PhysNerf,
+    data: &JointData,
+    particles: &[Vec<[f32; 3]>],
+    frames: &[usize],
+    rays: usize,
+    seed: u64,
+    stream: &str,
+) -> anyhow::Result<(f64, f64)> {
     let physnerf = physnerf.valid();
     let device = physnerf.device();
-    let mut rng = Rng::stream(seed, "joint-diagnostics");
-    let (mut mse, mut frames) = (0.0, 0);
-    let last = particles.len().min(data.transitions() as usize + 1);
-    for t in (1..last).step_by(PSNR_TRUE_EVERY) {
+    let mut rng = Rng::stream(seed, stream);
+    let (mut total, mut fine) = (0.0, 0.0);
+    for &t in frames {
         let target = data.target(t);
         let (w, h) = (target.camera.width, target.camera.height);
         let pixels = rng.sample_pixels(rays, w, h, None)?;
         let (rays, colours) = target.batch(&pixels, &device);
         let out = physnerf.render_rays(&points_tensor(&particles[t], &device), &rays, None)?;
-        mse += scalar(&physnerf.loss(&out, colours).fine);
-        frames += 1;
+        let loss = physnerf.loss(&out, colours);
+        total += scalar(&loss.total);
+        fine += scalar(&loss.fine);
     }
-    Ok((frames > 0).then(|| psnr_from_mse(mse / frames as f64)))
+    let n = frames.len().max(1) as f64;
+    Ok((total / n, fine / n))
 }
 
 /// With `warmup.held_out`, that view at the warm-up's frame and the frame's particles (what

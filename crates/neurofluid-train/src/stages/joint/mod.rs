@@ -44,6 +44,7 @@ mod diagnostics;
 mod input_noise;
 mod loss;
 pub mod physics;
+pub mod search;
 pub mod terms;
 mod windows;
 
@@ -205,6 +206,44 @@ impl JointTrainer {
             physnerf: self.physnerf,
             dlf,
         }
+    }
+
+    /// With `[joint.physics.search]`, the fitted scalars set to the grid's point of least image
+    /// loss ([`search`]), every point logged; nothing without it.
+    pub fn search_physics(&mut self, log: &mut MetricsLog) -> anyhow::Result<()> {
+        let Some(p) = &self.physics else {
+            return Ok(());
+        };
+        let Some(grid) = &p.fit.search else {
+            return Ok(());
+        };
+        let dlf = self.stepping_dlf();
+        let tried = search::search(
+            &self.physnerf,
+            &dlf,
+            &self.data,
+            grid,
+            self.cfg.rays,
+            self.seed,
+        )?;
+        for (k, t) in tried.iter().enumerate() {
+            log.append(&search::row(k, t))?;
+        }
+        let best = search::best(&tried)
+            .context("joint.physics.search: no point of the grid gave a finite image loss")?;
+        tracing::info!(
+            gravity_scale = best.point[0],
+            viscosity = best.point[1],
+            dissipation = best.point[2],
+            loss = best.loss,
+            points = tried.len(),
+            "the search's start for the physical scalars"
+        );
+        let rules = neurofluid_dlf::physics::rules_with(dlf.config.rules, best.point);
+        if let Some(p) = &mut self.physics {
+            p.module = Physics::of_rules(&rules, &dlf.device());
+        }
+        Ok(())
     }
 
     /// DLF as it steps now: its weights, its rules holding the physical scalars fitted so far.
@@ -569,6 +608,9 @@ pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::
     data.held_out = held_out_view(run)?;
     let dlf = run.load_dlf(&run.exp.dlf.weights)?;
     let mut trainer = JointTrainer::new(cfg, physnerf, dlf, data, run.exp.seed)?;
+    if run.latest_checkpoint(STAGE).is_err() {
+        trainer.search_physics(log)?;
+    }
     super::drive::drive(run, log, &mut trainer, STAGE, cfg.cadence(), stop)?;
     Ok(trainer.into_models())
 }

@@ -112,6 +112,7 @@ mod tests {
             fit: vec![PhysicalScalar::Viscosity],
             optim: Default::default(),
             hold_dlf_epochs: 0,
+            search: None,
         };
         let back = p.into_rules(StepRules::default());
         assert!((back.gravity_scale - 1.7).abs() < 1e-6);
