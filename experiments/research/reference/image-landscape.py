@@ -4,17 +4,20 @@ image loss puts the gravity scale and the bodies'-frame dissipation, against whe
 does, on scalar-scan.sh's grid.
 
     python3 experiments/research/reference/image-landscape.py [--grids] [--figure docs/image-landscapes.png]
+    python3 experiments/research/reference/image-landscape.py --u12
 
 Reads runs/land/<scene>-s<seed>[...]/ (image-landscape.sh: I, the mean image loss over the 49
 transitions at each point) and runs/ref/<scene>-scan-body/ (FRAME=body scalar-scan.sh: CD over
 t < 50 at each point), D and R_S as quick-table.py reads them. --grids also prints each
 landscape as a gravity × dissipation table; --figure draws, per scene, the truth's landscape
 beside the image loss's (the mean over the seeds run, one view and two), each best starred
-(needs matplotlib).
+(needs matplotlib). --u12 prints candidate U12's runs (search-runs.sh: the scalars the
+search held) per scene and seed against D, R_S and P_B, with the issue's targets' quantities.
 """
 
 import csv
 import importlib.util
+import json
 import os
 import re
 import statistics
@@ -112,7 +115,7 @@ def figure(path, lands):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    means = seed_means(lands)
+    means = seed_means(complete_grids(lands))
     scenes = [s for s in quick_table.BED["scenes"] if any(k[0] == s for k in means)]
     fig, axes = plt.subplots(len(scenes), 3, figsize=(13, 3.6 * len(scenes)), squeeze=False)
     for row, scene in zip(axes, scenes):
@@ -153,6 +156,27 @@ def figure(path, lands):
     print(f"wrote {path}")
 
 
+def complete_grids(lands):
+    """The landscapes with every point of the grid."""
+    return {k: v for k, v in lands.items() if len(v) == 25}
+
+
+def print_seed_means(lands):
+    """P7's decision: per scene and rig, the point of least I averaged over the seeds whose grid
+    is complete, its CD and g_P."""
+    complete = complete_grids(lands)
+    print("Seed means (the seeds with all 25 points): scene, views, seeds: I*, CD(I*), g_P")
+    for (scene, view), (image, n) in seed_means(complete).items():
+        truth = quick_table.scan_points(scene, "-body")
+        d_cd = quick_table.rollout_scores(f"runs/ref/{scene}-D.log")["cd"][0]
+        i_star = min(image, key=image.get)
+        best = min(v["cd"][0] for v in truth.values())
+        cd = truth[i_star]["cd"][0]
+        print(f"- {scene}, {1 + bool(view)} view(s), {n} seed(s): g {i_star[0]}, d {i_star[1]}; "
+              f"CD {cd:.2f}; g_P {share(d_cd, cd, best):.2f}")
+    print()
+
+
 def share(d, cd, best):
     return (d - cd) / (d - best) if best is not None and d != best else None
 
@@ -161,12 +185,67 @@ def fmt(v):
     return "–" if v is None else f"{v:.2f}"
 
 
+def windows(run):
+    """d and d′ per window (t < 50, t ≥ 50) of NeuroFluid and of the DLF under the run's rules,
+    the held scalars and the energy per particle over t < 50 (the run's, the truth's), from
+    eval/report.json; None before it is written."""
+    path = os.path.join(run, "eval", "report.json")
+    if not os.path.exists(path):
+        return None
+    r = json.load(open(path))
+
+    def mean(model, reverse, lo, hi):
+        return statistics.mean((f["reverse"] if reverse else f)[model] for f in r["frames"] if lo <= f["t"] <= hi)
+
+    out = {m: [(mean(m, False, lo, hi), mean(m, True, lo, hi)) for lo, hi in ((1, 49), (50, 59))]
+           for m in ("neurofluid", "dlf")}
+    out["held"] = {p["name"]: p["value"] for p in r.get("fitted_physics") or []}
+    energy = {e["model"]: e["grounding_per_particle"] for e in r["energy"]}
+    out["energy"] = (energy["NeuroFluid"], energy["truth"])
+    return out
+
+
+def u12_table():
+    print("| scene | seed | held (g, d) | d \\| d′ t < 50 | CD t < 50 | D's | R_S | P_B | g_S | CD t ≥ 50 (D's) | "
+          "g_S t ≥ 50 | d′ t < 50 \\| t ≥ 50 (D's) | J/kg t < 50 (bound) |")
+    print("|---|---:|---|---|---:|---:|---:|---:|---:|---|---:|---|---|")
+    shares = {}
+    for scene in quick_table.BED["scenes"]:
+        r_s, _ = quick_table.mean_over_seeds(scene, "S1")
+        p_b = quick_table.scalar_scan(scene, "-body")
+        for seed in quick_table.SEEDS:
+            w = windows(f"runs/one/U12-{scene}-s{seed}")
+            if not w:
+                continue
+            (d0, dp0), (d1, dp1) = w["neurofluid"]
+            (e0, ep0), (e1, ep1) = w["dlf"]
+            cd0, cd1, dcd0, dcd1 = (d0 + dp0) / 2, (d1 + dp1) / 2, (e0 + ep0) / 2, (e1 + ep1) / 2
+            held = w["held"]
+            energy, truth = w["energy"]
+            print(f"| {scene} | {seed} | {held.get('gravity_scale', 0):.2f}, {held.get('dissipation', 0):.2f} | "
+                  f"{d0:.2f} \\| {dp0:.2f} | {cd0:.2f} | {dcd0:.2f} | {fmt(r_s and r_s['cd'][0])} | "
+                  f"{fmt(p_b and p_b['cd'][0])} | {fmt(share(dcd0, cd0, r_s and r_s['cd'][0]))} | "
+                  f"{cd1:.2f} ({dcd1:.2f}) | {fmt(share(dcd1, cd1, r_s and r_s['cd'][1]))} | "
+                  f"{dp0:.2f} \\| {dp1:.2f} ({ep0:.2f} \\| {ep1:.2f}) | "
+                  f"{energy:.3f} ({2 * truth + 0.1:.3f}) |")
+            if r_s:
+                shares.setdefault(scene, []).append(
+                    (share(dcd0, cd0, r_s["cd"][0]), share(dcd1, cd1, r_s["cd"][1])))
+    print("\nMeans over the seeds run, g_S t < 50 | t ≥ 50: " + "; ".join(
+        f"{scene} {statistics.mean(a for a, _ in v):.2f} | {statistics.mean(b for _, b in v):.2f} ({len(v)})"
+        for scene, v in shares.items()))
+
+
 def main():
+    if "--u12" in sys.argv:
+        u12_table()
+        return
     grids = "--grids" in sys.argv
     lands = landscapes()
     if "--figure" in sys.argv:
         figure(sys.argv[sys.argv.index("--figure") + 1], lands)
         return
+    print_seed_means(lands)
     print("| scene | seed | views | points | I* (image loss's best) | CD(I*) | P_B's point | CD(P_B) | "
           "rank of P_B's point on I | Spearman(I, CD) | D | R_S | g_P | g_S | PSNR on the truth / "
           "the best rollout's (its point) | t ≥ 50: CD(I*) (D's) |")
