@@ -343,13 +343,10 @@ fn diagnostics_reach_the_metrics_and_match_an_independent_rollout() {
     let true_pos: Vec<Vec<[f32; 3]>> = truth.iter().map(|f| f.pos.clone()).collect();
     let on_truth = psnr(&true_pos);
     assert_eq!(Some(on_truth), rows[1].get("psnr_true"));
-    let (lo, hi) = (
-        walls.points.iter().fold(f32::MAX, |m, p| m.min(p[0])),
-        walls.points.iter().fold(f32::MIN, |m, p| m.max(p[0])),
-    );
+    let length = data.interior.max[0] - data.interior.min[0];
     let moved: Vec<Vec<[f32; 3]>> = true_pos
         .iter()
-        .map(|f| f.iter().map(|p| [p[0] + (hi - lo), p[1], p[2]]).collect())
+        .map(|f| f.iter().map(|p| [p[0] + length, p[1], p[2]]).collect())
         .collect();
     let away = psnr(&moved);
     assert!(

@@ -17,7 +17,6 @@ search held) per scene and seed against D, R_S and P_B, with the issue's targets
 
 import csv
 import importlib.util
-import json
 import os
 import re
 import statistics
@@ -27,6 +26,8 @@ _spec = importlib.util.spec_from_file_location(
     "quick_table", os.path.join(os.path.dirname(__file__), "quick-table.py"))
 quick_table = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(quick_table)
+# g's one formula: scripts/bed-table.py's
+gap_share = quick_table.bed_table.gap_share
 
 TRANSITIONS = 49
 
@@ -173,36 +174,12 @@ def print_seed_means(lands):
         best = min(v["cd"][0] for v in truth.values())
         cd = truth[i_star]["cd"][0]
         print(f"- {scene}, {1 + bool(view)} view(s), {n} seed(s): g {i_star[0]}, d {i_star[1]}; "
-              f"CD {cd:.2f}; g_P {share(d_cd, cd, best):.2f}")
+              f"CD {cd:.2f}; g_P {gap_share(d_cd, cd, best):.2f}")
     print()
-
-
-def share(d, cd, best):
-    return (d - cd) / (d - best) if best is not None and d != best else None
 
 
 def fmt(v):
     return "–" if v is None else f"{v:.2f}"
-
-
-def windows(run):
-    """d and d′ per window (t < 50, t ≥ 50) of NeuroFluid and of the DLF under the run's rules,
-    the held scalars and the energy per particle over t < 50 (the run's, the truth's), from
-    eval/report.json; None before it is written."""
-    path = os.path.join(run, "eval", "report.json")
-    if not os.path.exists(path):
-        return None
-    r = json.load(open(path))
-
-    def mean(model, reverse, lo, hi):
-        return statistics.mean((f["reverse"] if reverse else f)[model] for f in r["frames"] if lo <= f["t"] <= hi)
-
-    out = {m: [(mean(m, False, lo, hi), mean(m, True, lo, hi)) for lo, hi in ((1, 49), (50, 59))]
-           for m in ("neurofluid", "dlf")}
-    out["held"] = {p["name"]: p["value"] for p in r.get("fitted_physics") or []}
-    energy = {e["model"]: e["grounding_per_particle"] for e in r["energy"]}
-    out["energy"] = (energy["NeuroFluid"], energy["truth"])
-    return out
 
 
 def u12_table():
@@ -214,23 +191,23 @@ def u12_table():
         r_s, _ = quick_table.mean_over_seeds(scene, "S1")
         p_b = quick_table.scalar_scan(scene, "-body")
         for seed in quick_table.SEEDS:
-            w = windows(f"runs/one/U12-{scene}-s{seed}")
+            w = quick_table.report_scores(f"runs/one/U12-{scene}-s{seed}")
             if not w:
                 continue
-            (d0, dp0), (d1, dp1) = w["neurofluid"]
-            (e0, ep0), (e1, ep1) = w["dlf"]
+            (d0, dp0), (d1, dp1) = w["windows"]["neurofluid"]
+            (e0, ep0), (e1, ep1) = w["windows"]["dlf"]
             cd0, cd1, dcd0, dcd1 = (d0 + dp0) / 2, (d1 + dp1) / 2, (e0 + ep0) / 2, (e1 + ep1) / 2
-            held = w["held"]
-            energy, truth = w["energy"]
+            held = w["fitted"]
+            energy, truth = w["energy"], w["truth_energy"]
             print(f"| {scene} | {seed} | {held.get('gravity_scale', 0):.2f}, {held.get('dissipation', 0):.2f} | "
                   f"{d0:.2f} \\| {dp0:.2f} | {cd0:.2f} | {dcd0:.2f} | {fmt(r_s and r_s['cd'][0])} | "
-                  f"{fmt(p_b and p_b['cd'][0])} | {fmt(share(dcd0, cd0, r_s and r_s['cd'][0]))} | "
-                  f"{cd1:.2f} ({dcd1:.2f}) | {fmt(share(dcd1, cd1, r_s and r_s['cd'][1]))} | "
+                  f"{fmt(p_b and p_b['cd'][0])} | {fmt(gap_share(dcd0, cd0, r_s and r_s['cd'][0]))} | "
+                  f"{cd1:.2f} ({dcd1:.2f}) | {fmt(gap_share(dcd1, cd1, r_s and r_s['cd'][1]))} | "
                   f"{dp0:.2f} \\| {dp1:.2f} ({ep0:.2f} \\| {ep1:.2f}) | "
                   f"{energy:.3f} ({2 * truth + 0.1:.3f}) |")
             if r_s:
                 shares.setdefault(scene, []).append(
-                    (share(dcd0, cd0, r_s["cd"][0]), share(dcd1, cd1, r_s["cd"][1])))
+                    (gap_share(dcd0, cd0, r_s["cd"][0]), gap_share(dcd1, cd1, r_s["cd"][1])))
     print("\nMeans over the seeds run, g_S t < 50 | t ≥ 50: " + "; ".join(
         f"{scene} {statistics.mean(a for a, _ in v):.2f} | {statistics.mean(b for _, b in v):.2f} ({len(v)})"
         for scene, v in shares.items()))
@@ -268,7 +245,7 @@ def main():
         print(f"| {scene} | {seed} | {1 + bool(view)}{view and ' (' + view[1:] + ')'} | {len(common)} | "
               f"g {i_star[0]}, d {i_star[1]} | {cd_star:.2f} | g {p_b[0]}, d {p_b[1]} | {cd_pb:.2f} | "
               f"{rank_pb or '–'} | {spearman(ims, cds):.2f} | {d_cd:.2f} | {fmt(r_s and r_s['cd'][0])} | "
-              f"{fmt(share(d_cd, cd_star, cd_pb))} | {fmt(share(d_cd, cd_star, r_s and r_s['cd'][0]))} | "
+              f"{fmt(gap_share(d_cd, cd_star, cd_pb))} | {fmt(gap_share(d_cd, cd_star, r_s and r_s['cd'][0]))} | "
               f"{psnr_column(image)} | {truth[i_star]['cd'][1]:.2f} ({d['cd'][1]:.2f}) |")
         if grids:
             gs = sorted({g for g, _ in common}, key=float)

@@ -57,7 +57,8 @@ BED = {
 
 def report_scores(run):
     """CD per window, the energy per particle over t < 50 (the run's, the truth's), D's CD
-    (the DLF under the run's rules) and the fitted scalars, from a run's eval/report.json."""
+    (the DLF under the run's rules), the fitted scalars, and d and d′ per window of NeuroFluid
+    and of D ("windows"), from a run's eval/report.json."""
     path = os.path.join(run, "eval", "report.json")
     if not os.path.exists(path):
         return None
@@ -67,6 +68,10 @@ def report_scores(run):
         v = [(f[model] + f["reverse"][model]) / 2 for f in r["frames"] if lo <= f["t"] <= hi]
         return statistics.mean(v)
 
+    def d_pair(model, lo, hi):
+        frames = [f for f in r["frames"] if lo <= f["t"] <= hi]
+        return statistics.mean(f[model] for f in frames), statistics.mean(f["reverse"][model] for f in frames)
+
     energy = {e["model"]: e["grounding_per_particle"] for e in r["energy"]}
     return {
         "cd": (cd("neurofluid", 1, 49), cd("neurofluid", 50, 59)),
@@ -74,6 +79,7 @@ def report_scores(run):
         "energy": energy["NeuroFluid"],
         "truth_energy": energy["truth"],
         "fitted": {p["name"]: p["value"] for p in r.get("fitted_physics", [])} if r.get("fitted_physics") else {},
+        "windows": {m: (d_pair(m, 1, 49), d_pair(m, 50, 59)) for m in ("neurofluid", "dlf")},
     }
 
 

@@ -608,7 +608,8 @@ pub fn run_until(run: &Run, log: &mut MetricsLog, stop: Option<u64>) -> anyhow::
     data.held_out = held_out_view(run)?;
     let dlf = run.load_dlf(&run.exp.dlf.weights)?;
     let mut trainer = JointTrainer::new(cfg, physnerf, dlf, data, run.exp.seed)?;
-    if run.latest_checkpoint(STAGE).is_err() {
+    // a fresh stage searches; a resumed one holds the scalars of its checkpoint
+    if checkpoint::latest(&run.stage_dir(STAGE)).is_none() {
         trainer.search_physics(log)?;
     }
     super::drive::drive(run, log, &mut trainer, STAGE, cfg.cadence(), stop)?;
