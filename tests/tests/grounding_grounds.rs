@@ -5,13 +5,13 @@
 //! the same rules, and move the scale from the paper's 1.0 toward the truth's (about 3.6, where
 //! the DLF's free fall would be 19.6 m/s²) without passing it. Its report also rolls the
 //! published DLF out as the paper steps it (no walls), beside the DLF under the run's rules,
-//! and, given a reference file, g: the share of the way from DLF to the reference. A search of
-//! the image loss over a grid of the gravity scale (`[joint.physics.search]`) starts the fit at
-//! the point nearest the truth's.
+//! and, given a reference file, g: the share of the way from DLF to the reference. A search over
+//! a grid of the gravity scale (`[joint.physics.search]`), by the image loss or the silhouette,
+//! starts the fit at the point nearest the truth's.
 
 use neurofluid_outputs::metrics_log::read_jsonl;
 use neurofluid_outputs::report::Rollout;
-use neurofluid_tests::{seeded_turn, tiny_experiment};
+use neurofluid_tests::{copy_dir, seeded_turn, tiny_experiment};
 use neurofluid_train::stage::Stage;
 use neurofluid_train::stages::{Run, Start, eval, joint, warmup};
 
@@ -123,39 +123,49 @@ fn grounding_fits_a_faster_fall_and_lowers_d() {
 /// `[joint.physics.search]` on the same case: of the gravity scales 1, 2 and 3.5, the warm-up
 /// renderer's image loss picks 3.5, the one nearest the truth's (about 3.6); every point is
 /// logged, the start is the least logged loss, and with the scalars' rate 0 the grounded DLF
-/// steps at it.
+/// steps at it. The silhouette objective (on a copy of the same warm-up) picks 3.5 too.
 #[test]
 fn the_search_starts_the_fit_at_the_truths_gravity() {
     let _turn = seeded_turn();
     let tmp = tempfile::tempdir().unwrap();
-    let e = faster_fall(
-        tmp.path(),
-        "search",
-        &[
-            "joint.epochs=1",
-            "joint.physics.optim.lr=0",
-            "joint.physics.search.gravity_scale=[1.0, 2.0, 3.5]",
-        ],
-    );
-    let run = Run::prepare(e, Start::Resume, &Stage::ALL).unwrap();
-    let mut log = run.open_log().unwrap();
-    warmup::run(&run, &mut log).unwrap();
-    let grounded = joint::run(&run, &mut log).unwrap();
-    let rows = read_jsonl(&run.dir.join("metrics.jsonl")).unwrap();
-    let tried: Vec<(f64, f64)> = rows
-        .iter()
-        .filter(|r| r.stage == joint::search::STAGE)
-        .map(|r| (r.get("physics/gravity_scale").unwrap(), r.loss))
-        .collect();
-    eprintln!("tried (gravity scale, image loss): {tried:?}");
-    assert_eq!(
-        tried.iter().map(|t| t.0).collect::<Vec<_>>(),
-        [1.0, 2.0, 3.5]
-    );
-    assert!(
-        tried[2].1 < tried[1].1.min(tried[0].1),
-        "the image loss is not least at the truth's gravity: {tried:?}"
-    );
-    let scale = grounded.dlf.config.rules.gravity_scale;
-    assert!((scale - 3.5).abs() < 1e-6, "the fit held {scale}, not 3.5");
+    let mut warm = None;
+    for objective in ["image", "silhouette"] {
+        let e = faster_fall(
+            tmp.path(),
+            &format!("search-{objective}"),
+            &[
+                "joint.epochs=1",
+                "joint.physics.optim.lr=0",
+                "joint.physics.search.gravity_scale=[1.0, 2.0, 3.5]",
+                &format!("joint.physics.search.objective=\"{objective}\""),
+            ],
+        );
+        let run = Run::prepare(e, Start::Resume, &Stage::ALL).unwrap();
+        let mut log = run.open_log().unwrap();
+        match &warm {
+            None => {
+                warmup::run(&run, &mut log).unwrap();
+                warm = Some(run.dir.join("warmup"));
+            }
+            Some(from) => copy_dir(from, &run.dir.join("warmup")),
+        }
+        let grounded = joint::run(&run, &mut log).unwrap();
+        let rows = read_jsonl(&run.dir.join("metrics.jsonl")).unwrap();
+        let tried: Vec<(f64, f64)> = rows
+            .iter()
+            .filter(|r| r.stage == joint::search::STAGE)
+            .map(|r| (r.get("physics/gravity_scale").unwrap(), r.loss))
+            .collect();
+        eprintln!("{objective}: tried (gravity scale, loss): {tried:?}");
+        assert_eq!(
+            tried.iter().map(|t| t.0).collect::<Vec<_>>(),
+            [1.0, 2.0, 3.5]
+        );
+        assert!(
+            tried[2].1 < tried[1].1.min(tried[0].1),
+            "the {objective} objective is not least at the truth's gravity: {tried:?}"
+        );
+        let scale = grounded.dlf.config.rules.gravity_scale;
+        assert!((scale - 3.5).abs() < 1e-6, "the fit held {scale}, not 3.5");
+    }
 }

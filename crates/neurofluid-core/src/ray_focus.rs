@@ -60,6 +60,21 @@ pub fn mark_particles(mask: &mut [bool], camera: &Camera, points: &[[f32; 3]], r
     }
 }
 
+/// The intersection over union of two masks of the same pixels (1 when both are empty).
+pub fn mask_iou(a: &[bool], b: &[bool]) -> f64 {
+    debug_assert_eq!(a.len(), b.len());
+    let (mut inter, mut union) = (0usize, 0usize);
+    for (&x, &y) in a.iter().zip(b) {
+        inter += usize::from(x && y);
+        union += usize::from(x || y);
+    }
+    if union == 0 {
+        1.0
+    } else {
+        inter as f64 / union as f64
+    }
+}
+
 /// `count` distinct pixels of a `width`×`height` image: `round(fraction · count)` of them (at
 /// most as many as there are) from the pixels `mask` marks, the rest uniformly from all the
 /// others. With `fraction = 0` exactly [`Rng::sample_pixels`] over the whole image.
@@ -149,6 +164,17 @@ mod tests {
         let mut other = vec![false; 41 * 41];
         mark_particles(&mut other, &cam, &[[0.0, 0.0, 5.0], [50.0, 0.0, 0.0]], 0.1);
         assert!(other.iter().all(|m| !m));
+    }
+
+    /// Against a count of the pixels by kind: 2 in both, 3 in one only.
+    #[test]
+    fn the_iou_counts_shared_pixels_over_covered_ones() {
+        let a = [true, true, true, false, true, false, false];
+        let b = [true, false, true, true, false, false, false];
+        assert_eq!(mask_iou(&a, &b), 2.0 / 5.0);
+        assert_eq!(mask_iou(&a, &a), 1.0);
+        assert_eq!(mask_iou(&[false; 3], &[false; 3]), 1.0);
+        assert_eq!(mask_iou(&[true, false], &[false, true]), 0.0);
     }
 
     #[test]

@@ -4,7 +4,7 @@ image loss puts the gravity scale and the bodies'-frame dissipation, against whe
 does, on scalar-scan.sh's grid.
 
     python3 experiments/research/reference/image-landscape.py [--grids] [--figure docs/image-landscapes.png]
-    python3 experiments/research/reference/image-landscape.py --u12
+    python3 experiments/research/reference/image-landscape.py --u12 | --u13 | --silhouette
 
 Reads runs/land/<scene>-s<seed>[...]/ (image-landscape.sh: I, the mean image loss over the 49
 transitions at each point) and runs/ref/<scene>-scan-body/ (FRAME=body scalar-scan.sh: CD over
@@ -12,7 +12,10 @@ t < 50 at each point), D and R_S as quick-table.py reads them. --grids also prin
 landscape as a gravity × dissipation table; --figure draws, per scene, the truth's landscape
 beside the image loss's (the mean over the seeds run, one view and two), each best starred
 (needs matplotlib). --u12 prints candidate U12's runs (search-runs.sh: the scalars the
-search held) per scene and seed against D, R_S and P_B, with the issue's targets' quantities.
+search held) per scene and seed against D, R_S and P_B, with the issue's targets' quantities;
+--u13 the same for candidate U13 (the search scored by the silhouette). --silhouette prints probe
+P8: the silhouette's landscape S (the joint-search rows of U13's runs) against the truth's, beside
+the image loss's best (P7, the mean over its seeds).
 """
 
 import csv
@@ -182,7 +185,54 @@ def fmt(v):
     return "–" if v is None else f"{v:.2f}"
 
 
-def u12_table():
+def search_rows(run):
+    """{(gravity, dissipation) as the scan's file names: score} from a run's joint-search rows."""
+    path = os.path.join(run, "metrics.csv")
+    if not os.path.exists(path):
+        return {}
+    name = lambda v: str(float(v)) if float(v) != 0 else "0"
+    return {(str(float(r["physics_gravity_scale"])), name(r["physics_dissipation"])): float(r["loss"])
+            for r in csv.DictReader(open(path)) if r["stage"] == "joint-search"}
+
+
+def silhouette_table():
+    """P8: per scene with a U13 run, S*, CD(S*), g_P, Spearman(S, CD), and P7's I* beside."""
+    image_means = seed_means(complete_grids(landscapes()))
+    print("| scene | seed | points | S* (the silhouette's best) | CD(S*) | P_B's point | CD(P_B) | "
+          "Spearman(S, CD) | D | g_P | g_S | I* (P7, seed mean) | CD(I*) | g_P of I* |")
+    print("|---|---:|---:|---|---:|---|---:|---:|---:|---:|---:|---|---:|---:|")
+    shares = []
+    for scene in quick_table.BED["scenes"]:
+        truth = quick_table.scan_points(scene, "-body")
+        for seed in quick_table.SEEDS:
+            sil = search_rows(f"runs/one/U13-{scene}-s{seed}")
+            common = [p for p in sil if p in truth]
+            if not common:
+                continue
+            cds = [truth[p]["cd"][0] for p in common]
+            s_star = min(common, key=lambda p: sil[p])
+            p_b = min(truth, key=lambda p: truth[p]["cd"][0])
+            d_cd = quick_table.rollout_scores(f"runs/ref/{scene}-D.log")["cd"][0]
+            r_s, _ = quick_table.mean_over_seeds(scene, "S1")
+            cd_star, cd_pb = truth[s_star]["cd"][0], truth[p_b]["cd"][0]
+            g_p = gap_share(d_cd, cd_star, cd_pb)
+            image = image_means.get((scene, ""))
+            i_cells = "– | – | –"
+            if image:
+                i_star = min(image[0], key=image[0].get)
+                i_cd = truth[i_star]["cd"][0]
+                i_cells = f"g {i_star[0]}, d {i_star[1]} | {i_cd:.2f} | {fmt(gap_share(d_cd, i_cd, cd_pb))}"
+            print(f"| {scene} | {seed} | {len(common)} | g {s_star[0]}, d {s_star[1]} | {cd_star:.2f} | "
+                  f"g {p_b[0]}, d {p_b[1]} | {cd_pb:.2f} | {spearman([sil[p] for p in common], cds):.2f} | "
+                  f"{d_cd:.2f} | {fmt(g_p)} | {fmt(gap_share(d_cd, cd_star, r_s and r_s['cd'][0]))} | {i_cells} |")
+            if len(common) == 25 and image:
+                shares.append(g_p)
+    if shares:
+        print(f"\nMean g_P of S* over the scenes with a complete grid and a P7 landscape: "
+              f"{statistics.mean(shares):.2f} ({len(shares)})")
+
+
+def u12_table(cand="U12"):
     print("| scene | seed | held (g, d) | d \\| d′ t < 50 | CD t < 50 | D's | R_S | P_B | g_S | CD t ≥ 50 (D's) | "
           "g_S t ≥ 50 | d′ t < 50 \\| t ≥ 50 (D's) | J/kg t < 50 (bound) |")
     print("|---|---:|---|---|---:|---:|---:|---:|---:|---|---:|---|---|")
@@ -191,7 +241,7 @@ def u12_table():
         r_s, _ = quick_table.mean_over_seeds(scene, "S1")
         p_b = quick_table.scalar_scan(scene, "-body")
         for seed in quick_table.SEEDS:
-            w = quick_table.report_scores(f"runs/one/U12-{scene}-s{seed}")
+            w = quick_table.report_scores(f"runs/one/{cand}-{scene}-s{seed}")
             if not w:
                 continue
             (d0, dp0), (d1, dp1) = w["windows"]["neurofluid"]
@@ -208,14 +258,19 @@ def u12_table():
             if r_s:
                 shares.setdefault(scene, []).append(
                     (gap_share(dcd0, cd0, r_s["cd"][0]), gap_share(dcd1, cd1, r_s["cd"][1])))
+    mean = lambda xs: fmt(statistics.mean(xs) if None not in xs else None)
     print("\nMeans over the seeds run, g_S t < 50 | t ≥ 50: " + "; ".join(
-        f"{scene} {statistics.mean(a for a, _ in v):.2f} | {statistics.mean(b for _, b in v):.2f} ({len(v)})"
+        f"{scene} {mean([a for a, _ in v])} | {mean([b for _, b in v])} ({len(v)})"
         for scene, v in shares.items()))
 
 
 def main():
-    if "--u12" in sys.argv:
-        u12_table()
+    for cand in ("U12", "U13"):
+        if f"--{cand.lower()}" in sys.argv:
+            u12_table(cand)
+            return
+    if "--silhouette" in sys.argv:
+        silhouette_table()
         return
     grids = "--grids" in sys.argv
     lands = landscapes()

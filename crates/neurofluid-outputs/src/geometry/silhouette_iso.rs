@@ -12,6 +12,7 @@
 //! does not depend on one voxel.
 
 use neurofluid_core::camera::Camera;
+use neurofluid_core::ray_focus::mask_iou;
 use rayon::prelude::*;
 
 use crate::geometry::volume_fill::DensityGrid;
@@ -118,17 +119,8 @@ fn ray_maxima(grid: &DensityGrid, camera: &Camera) -> Vec<f32> {
 
 /// Intersection over union of `{maxima > iso}` with `mask`.
 fn iou(maxima: &[f32], mask: &[bool], iso: f64) -> f64 {
-    let (mut inter, mut union) = (0usize, 0usize);
-    for (&m, &inside) in maxima.iter().zip(mask) {
-        let hit = f64::from(m) > iso;
-        inter += usize::from(hit && inside);
-        union += usize::from(hit || inside);
-    }
-    if union == 0 {
-        1.0
-    } else {
-        inter as f64 / union as f64
-    }
+    let hits: Vec<bool> = maxima.iter().map(|&m| f64::from(m) > iso).collect();
+    mask_iou(&hits, mask)
 }
 
 /// The iso whose silhouettes best match the views' coverage (module docs).

@@ -41,7 +41,8 @@ pub use preset::Preset;
 pub use sections::{
     BuiltinScene, DiagnosticsSection, DlfSection, EvalSection, InitialParticles, InitialSection,
     JointSection, NerfSection, NerfTImages, NovelViews, PhysicalScalar, PhysicsFit, PlyEncoding,
-    RefitSection, ScalarGrid, SceneScale, SceneSection, SurfaceThreshold, WarmupSection,
+    RefitSection, ScalarGrid, SceneScale, SceneSection, SearchObjective, SurfaceThreshold,
+    WarmupSection,
 };
 pub use settings::Settings;
 

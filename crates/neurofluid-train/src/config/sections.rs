@@ -619,10 +619,29 @@ pub struct PhysicsFit {
     #[serde(default)]
     pub hold_dlf_epochs: u64,
     /// `[joint.physics.search]`: a grid the fitted scalars start from instead of the rules'
-    /// values: the point whose rollout the warm-up renderer scores best on the training view
+    /// values: the point whose rollout best matches the training view by the grid's objective
     /// ([`crate::stages::joint::search`]). Unset = no search.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub search: Option<ScalarGrid>,
+}
+
+/// What `[joint.physics.search]` scores each point of its grid by.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SearchObjective {
+    /// The warm-up renderer's image loss on the training view (coarse + fine MSE).
+    #[default]
+    Image,
+    /// The training view's silhouette: the Jaccard distance between the pixels where its images
+    /// show fluid (alpha, or colour off the white background) and those the rollout's particles
+    /// cover. No renderer, no random pixels.
+    Silhouette,
+}
+
+impl SearchObjective {
+    fn is_image(&self) -> bool {
+        *self == Self::Image
+    }
 }
 
 /// `[joint.physics.search]`: the values tried for each fitted scalar; a fitted scalar without
@@ -630,6 +649,9 @@ pub struct PhysicsFit {
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ScalarGrid {
+    /// What each point is scored by (`"image"` or `"silhouette"`).
+    #[serde(default, skip_serializing_if = "SearchObjective::is_image")]
+    pub objective: SearchObjective,
     /// Gravity scales tried.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub gravity_scale: Vec<f64>,

@@ -208,7 +208,7 @@ impl JointTrainer {
         }
     }
 
-    /// With `[joint.physics.search]`, the fitted scalars set to the grid's point of least image
+    /// With `[joint.physics.search]`, the fitted scalars set to the grid's point of least
     /// loss ([`search`]), every point logged; nothing without it.
     pub fn search_physics(&mut self, log: &mut MetricsLog) -> anyhow::Result<()> {
         let Some(p) = &self.physics else {
@@ -230,7 +230,7 @@ impl JointTrainer {
             log.append(&search::row(k, t))?;
         }
         let best = search::best(&tried)
-            .context("joint.physics.search: no point of the grid gave a finite image loss")?;
+            .context("joint.physics.search: no point of the grid gave a finite score")?;
         tracing::info!(
             gravity_scale = best.point[0],
             viscosity = best.point[1],

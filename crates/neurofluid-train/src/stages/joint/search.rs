@@ -1,12 +1,14 @@
 //! `[joint.physics.search]`: before the fit, the fitted scalars are set to the point of a grid
-//! whose rollout the warm-up renderer scores best on the training view. At each point DLF (as the
-//! stage starts it, the rules' other values) is rolled out from the first training frame over
-//! every training frame, and the point's loss is the mean coarse + fine MSE of the training
-//! view's images rendered from that rollout at `joint.rays` pixels a frame, drawn from the
-//! seed's search stream (the same pixels at every point). A coarse search of the image loss finds
-//! the basin that Adam from the rules' values may not reach
-//! (docs/notebook/2026-12-06-image-landscape.md).
+//! whose rollout best matches the training view. At each point DLF (as the stage starts it, the
+//! rules' other values) is rolled out from the first training frame over every training frame and
+//! scored by the grid's objective: the warm-up renderer's image loss (the mean coarse + fine MSE
+//! of the training view's images rendered from that rollout at `joint.rays` pixels a frame, drawn
+//! from the seed's search stream, the same pixels at every point), or the silhouette (the mean
+//! Jaccard distance between the pixels where the training view shows fluid and those the
+//! rollout's particles cover). A coarse search finds the basin that Adam from the rules' values
+//! may not reach (docs/notebook/2026-12-06-image-landscape.md).
 
+use neurofluid_core::ray_focus::{image_foreground, mark_particles, mask_iou};
 use neurofluid_dlf::DlfNet;
 use neurofluid_outputs::metrics_log::MetricsRow;
 use neurofluid_physnerf::PhysNerf;
@@ -14,22 +16,22 @@ use neurofluid_physnerf::PhysNerf;
 use super::data::{JointData, training_rollout};
 use super::diagnostics::image_mse;
 use super::physics::COLUMNS;
-use crate::config::ScalarGrid;
+use crate::config::{ScalarGrid, SearchObjective};
 
 /// The metrics rows' stage: one row per point tried, its step the point's index.
 pub const STAGE: &str = "joint-search";
 
-/// A point of the grid and its image loss.
+/// A point of the grid and its score.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Tried {
     /// Gravity scale, viscosity, dissipation.
     pub point: [f64; 3],
-    /// The mean coarse + fine MSE over the training frames.
+    /// The objective's value (lower is better).
     pub loss: f64,
 }
 
-/// Every point of `grid` (the scalars not searched at `dlf`'s rules' values) with its image loss
-/// under `physnerf`.
+/// Every point of `grid` (the scalars not searched at `dlf`'s rules' values) with its score
+/// (`physnerf` renders only for the image objective).
 pub fn search(
     physnerf: &PhysNerf,
     dlf: &DlfNet,
@@ -40,17 +42,44 @@ pub fn search(
 ) -> anyhow::Result<Vec<Tried>> {
     let start = neurofluid_dlf::physics::values_of(&dlf.config.rules);
     let frames: Vec<usize> = (1..=data.transitions() as usize).collect();
+    let fluid: Vec<Vec<bool>> = match grid.objective {
+        SearchObjective::Image => Vec::new(),
+        SearchObjective::Silhouette => frames
+            .iter()
+            .map(|&t| image_foreground(&data.target(t).image))
+            .collect(),
+    };
     grid.points(start)
         .into_iter()
         .map(|point| {
             let mut config = dlf.config;
             config.rules = neurofluid_dlf::physics::rules_with(config.rules, point);
             let rollout = training_rollout(&dlf.clone().with_config(config), data);
-            let (total, _) = image_mse(physnerf, data, &rollout.pos, &frames, rays, seed, STAGE)?;
-            tracing::debug!(?point, loss = total, "searched");
-            Ok(Tried { point, loss: total })
+            let loss = match grid.objective {
+                SearchObjective::Image => {
+                    image_mse(physnerf, data, &rollout.pos, &frames, rays, seed, STAGE)?.0
+                }
+                SearchObjective::Silhouette => {
+                    let covered = frames.iter().map(|&t| {
+                        let camera = &data.target(t).camera;
+                        let mut mask = vec![false; camera.num_pixels()];
+                        mark_particles(&mut mask, camera, &rollout.pos[t], data.radius);
+                        mask
+                    });
+                    silhouette_distance(covered, &fluid)
+                }
+            };
+            tracing::debug!(?point, loss, "searched");
+            Ok(Tried { point, loss })
         })
         .collect()
+}
+
+/// The mean over frames of the Jaccard distance 1 − IoU between each frame's `covered` pixels and
+/// its `fluid` pixels.
+fn silhouette_distance(covered: impl Iterator<Item = Vec<bool>>, fluid: &[Vec<bool>]) -> f64 {
+    let total: f64 = covered.zip(fluid).map(|(c, f)| 1.0 - mask_iou(&c, f)).sum();
+    total / fluid.len().max(1) as f64
 }
 
 /// The point of least finite loss (the first of equals); `None` when no loss is finite.
@@ -86,6 +115,7 @@ mod tests {
             gravity_scale: vec![1.0, 2.0],
             viscosity: vec![],
             dissipation: vec![0.0, 0.1, 0.2],
+            ..ScalarGrid::default()
         };
         let mut want = Vec::new();
         for g in [1.0, 2.0] {
@@ -104,6 +134,14 @@ mod tests {
         let (field, msg) = wide.problem(&fit).unwrap();
         assert_eq!(field, "gravity_scale");
         assert!(msg.contains("420 points"), "{msg}");
+    }
+
+    /// The mean of the frames' 1 − IoU: a frame matched exactly (0) and one half covered (½).
+    #[test]
+    fn the_silhouette_distance_is_the_frames_mean_jaccard_distance() {
+        let fluid = vec![vec![true, true, false], vec![true, true, false]];
+        let covered = vec![vec![true, true, false], vec![true, false, false]];
+        assert_eq!(silhouette_distance(covered.into_iter(), &fluid), 0.25);
     }
 
     #[test]
