@@ -4,18 +4,20 @@ image loss puts the gravity scale and the bodies'-frame dissipation, against whe
 does, on scalar-scan.sh's grid.
 
     python3 experiments/research/reference/image-landscape.py [--grids] [--figure docs/image-landscapes.png]
-    python3 experiments/research/reference/image-landscape.py --u12 | --u13 | --silhouette
+    python3 experiments/research/reference/image-landscape.py --u12 | --u13 | --silhouette | --headline
 
 Reads runs/land/<scene>-s<seed>[...]/ (image-landscape.sh: I, the mean image loss over the 49
 transitions at each point) and runs/ref/<scene>-scan-body/ (FRAME=body scalar-scan.sh: CD over
 t < 50 at each point), D and R_S as quick-table.py reads them. --grids also prints each
 landscape as a gravity × dissipation table; --figure draws, per scene, the truth's landscape
-beside the image loss's (the mean over the seeds run, one view and two), each best starred
-(needs matplotlib). --u12 prints candidate U12's runs (search-runs.sh: the scalars the
-search held) per scene and seed against D, R_S and P_B, with the issue's targets' quantities;
+beside the image loss's (the mean over the seeds run, one view) and the silhouette's (U13's
+search at seed 10), each best starred (needs matplotlib). --u12 prints candidate U12's runs
+(search-runs.sh: the scalars the search held) per scene and seed against D, R_S and P_B, with the issue's targets' quantities;
 --u13 the same for candidate U13 (the search scored by the silhouette). --silhouette prints probe
 P8: the silhouette's landscape S (the joint-search rows of U13's runs) against the truth's, beside
-the image loss's best (P7, the mean over its seeds).
+the image loss's best (P7, the mean over its seeds). --headline prints the report-only scenes'
+table: D, R_S, D_A (the shipped material rules, no image), A (the bed configs as they ship, seed
+10), U12 (the mean over its seeds) and U13, CD per window with g_S, and the energy per particle.
 """
 
 import csv
@@ -120,16 +122,23 @@ def figure(path, lands):
     import matplotlib.pyplot as plt
 
     means = seed_means(complete_grids(lands))
-    scenes = [s for s in quick_table.BED["scenes"] if any(k[0] == s for k in means)]
+    silhouettes = {scene: sil for scene in quick_table.BED["scenes"]
+                   if len(sil := search_rows(f"runs/one/U13-{scene}-s10")) == 25}
+    scenes = [s for s in quick_table.BED["scenes"] if any(k[0] == s for k in means) or s in silhouettes]
     fig, axes = plt.subplots(len(scenes), 3, figsize=(13, 3.6 * len(scenes)), squeeze=False)
     for row, scene in zip(axes, scenes):
         truth = {p: v["cd"][0] for p, v in quick_table.scan_points(scene, "-body").items()}
-        panels = [(truth, "(d + d′)/2 over t < 50 (the truth's)", "{:.1f}")]
-        for view, label in (("", "one view"), ("-view_3", "two views")):
-            if (scene, view) in means:
-                image, n = means[scene, view]
-                panels.append(({p: 1000 * v for p, v in image.items()},
-                               f"image loss × 1000, {label} ({n} seed{'s' * (n != 1)})", "{:.2f}"))
+        role = "chooses" if scene in quick_table.specs.CHOOSE else "reports only"
+        panels = [(truth, f"(d + d′)/2 over t < 50, the truth's ({role})", "{:.1f}")]
+        if (scene, "") in means:
+            image, n = means[scene, ""]
+            panels.append(({p: 1000 * v for p, v in image.items()},
+                           f"image loss × 1000, one view ({n} seed{'s' * (n != 1)})", "{:.2f}"))
+        else:
+            panels.append(None)
+        if scene in silhouettes:
+            panels.append(({p: 100 * v for p, v in silhouettes[scene].items()},
+                           "silhouette: 1 − IoU × 100, one view", "{:.1f}"))
         for ax, panel in zip(row, panels + [None] * (3 - len(panels))):
             if not panel or not panel[0]:
                 ax.set_axis_off()
@@ -153,8 +162,8 @@ def figure(path, lands):
             ax.set_xlabel("dissipation (bodies' frame)", fontsize=8)
             ax.set_ylabel("gravity scale", fontsize=8)
             ax.set_title(f"{scene}: {title}", fontsize=9)
-    fig.suptitle("Where the truth and the training view's image loss put the scalars (the pretrained DLF, "
-                 "the warm-up renderer; ★ each landscape's best)", fontsize=11)
+    fig.suptitle("Where the truth, the training view's image loss and its silhouette put the scalars "
+                 "(the pretrained DLF; ★ each landscape's best)", fontsize=11)
     fig.tight_layout(rect=(0, 0, 1, 0.98))
     fig.savefig(path, dpi=80)
     print(f"wrote {path}")
@@ -264,7 +273,39 @@ def u12_table(cand="U12"):
         for scene, v in shares.items()))
 
 
+def headline():
+    """The report-only scenes: CD t < 50 | t ≥ 50 (g_S over t < 50) and J/kg per particle over
+    t < 50 of D, R_S, D_A, A, U12 and U13, with the issue's bound."""
+    print("| scene | D | R_S | D_A (shipped rules, no image) | A (shipped config, seed 10) | "
+          "U12 (image-loss search, seeds 10–12) | U13 (silhouette search) | J/kg: D_A / A / U12 / U13 (bound) |")
+    print("|---|---|---|---|---|---|---|---|")
+    for scene in quick_table.specs.REPORT_ONLY:
+        d = quick_table.rollout_scores(f"runs/ref/{scene}-D.log")
+        da = quick_table.rollout_scores(f"runs/ref/{scene}-DA.log")
+        r_s, _ = quick_table.mean_over_seeds(scene, "S1")
+        a = quick_table.report_scores(f"runs/one/A-{scene}-s10")
+        u12 = [w for s in quick_table.SEEDS if (w := quick_table.report_scores(f"runs/one/U12-{scene}-s{s}"))]
+        u13 = quick_table.report_scores(f"runs/one/U13-{scene}-s10")
+        r0 = r_s and r_s["cd"][0]
+
+        def cell(cd, energy=None):
+            if cd is None:
+                return "–"
+            return f"{cd[0]:.2f} \\| {cd[1]:.2f} ({fmt(gap_share(d['cd'][0], cd[0], r0))})"
+
+        u12_cd = (statistics.mean(w["cd"][0] for w in u12), statistics.mean(w["cd"][1] for w in u12)) if u12 else None
+        energies = [da and da["energy"], a and a["energy"],
+                    statistics.mean(w["energy"] for w in u12) if u12 else None, u13 and u13["energy"]]
+        print(f"| {scene} | {d['cd'][0]:.2f} \\| {d['cd'][1]:.2f} | {fmt(r0)} | {cell(da and da['cd'])} | "
+              f"{cell(a and a['cd'])} | {cell(u12_cd)} | {cell(u13 and u13['cd'])} | "
+              f"{' / '.join(f'{e:.3f}' if e is not None else '–' for e in energies)} "
+              f"({2 * d['truth_energy'] + 0.1:.3f}) |")
+
+
 def main():
+    if "--headline" in sys.argv:
+        headline()
+        return
     for cand in ("U12", "U13"):
         if f"--{cand.lower()}" in sys.argv:
             u12_table(cand)
