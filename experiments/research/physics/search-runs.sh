@@ -7,25 +7,33 @@
 # renderer's training does not enter d or d′ with both held), evaluated without renders and
 # without the refit. On a copy of P7's warm-up (image-landscape.sh) at the seed where there is one.
 # OBJECTIVE=silhouette scores the search by the training view's silhouette instead of the image
-# loss: candidate U13 (P8/U13 in the same notebook), on a copy of P7's or U12's warm-up.
+# loss: candidate U13 (P8/U13 in the same notebook), on a copy of P7's, U12's or U13's warm-up;
+# OBJECTIVE=silhouette_motion adds the mismatch of the silhouette's change between frames: U14.
 # A built-in quick scene (watercube, honeycone) runs its quick config (experiments/quick-<scene>.toml)
 # with the same changes, its warm-up made by the run.
 #   [OBJECTIVE=silhouette] bash experiments/research/physics/search-runs.sh SCENE SEED
-# Writes runs/one/U12-<scene>-s<seed>/ (U13-… with the silhouette; quick-table.py reads them).
+# Writes runs/one/U12-<scene>-s<seed>/ (U13-…, U14-… by the objective; quick-table.py reads them).
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
 scene=$1 seed=$2
 bin=${NF_BIN:-target/release/neurofluid-train}
 objective=${OBJECTIVE:-image}
-case $objective in image) cand=U12 ;; silhouette) cand=U13 ;; *) echo "OBJECTIVE: image or silhouette" >&2; exit 2 ;; esac
+case $objective in
+  image) cand=U12 ;; silhouette) cand=U13 ;; silhouette_motion) cand=U14 ;;
+  *) echo "OBJECTIVE: image, silhouette or silhouette_motion" >&2; exit 2 ;;
+esac
 out=runs/one/$cand-$scene-s$seed
 [[ -f $out/eval/report.json ]] && exit 0
 mkdir -p runs/one
 if [[ ! -d $out/warmup ]]; then
   if [[ -f runs/land/$scene-s$seed/A.done ]]; then
     mkdir -p "$out" && cp -r "runs/land/$scene-s$seed/A/warmup" "$out/"
-  elif [[ $cand != U12 && -f runs/one/U12-$scene-s$seed/eval/report.json ]]; then
-    mkdir -p "$out" && cp -r "runs/one/U12-$scene-s$seed/warmup" "$out/"
+  else
+    for from in U12 U13; do
+      if [[ $cand != "$from" && -f runs/one/$from-$scene-s$seed/eval/report.json ]]; then
+        mkdir -p "$out" && cp -r "runs/one/$from-$scene-s$seed/warmup" "$out/" && break
+      fi
+    done
   fi
 fi
 if [[ -f experiments/bed/$scene.toml ]]; then
