@@ -4,7 +4,7 @@ image loss puts the gravity scale and the bodies'-frame dissipation, against whe
 does, on scalar-scan.sh's grid.
 
     python3 experiments/research/reference/image-landscape.py [--grids] [--figure docs/image-landscapes.png]
-    python3 experiments/research/reference/image-landscape.py --u12 | --u13 | --silhouette | --headline
+    python3 experiments/research/reference/image-landscape.py --u12 | --u13 | --u14 | --silhouette [U14] | --headline
 
 Reads runs/land/<scene>-s<seed>[...]/ (image-landscape.sh: I, the mean image loss over the 49
 transitions at each point) and runs/ref/<scene>-scan-body/ (FRAME=body scalar-scan.sh: CD over
@@ -13,8 +13,8 @@ landscape as a gravity × dissipation table; --figure draws, per scene, the trut
 beside the image loss's (the mean over the seeds run, one view) and the silhouette's (U13's
 search at seed 10), each best starred (needs matplotlib). --u12 prints candidate U12's runs
 (search-runs.sh: the scalars the search held) per scene and seed against D, R_S and P_B, with the issue's targets' quantities;
---u13 the same for candidate U13 (the search scored by the silhouette). --silhouette prints probe
-P8: the silhouette's landscape S (the joint-search rows of U13's runs) against the truth's, beside
+--u13 / --u14 the same for candidates U13 (the search scored by the silhouette) and U14 (and by
+its change between frames). --silhouette [U14] prints probe P8 (U14's screen): the silhouette's landscape S (the joint-search rows of U13's runs) against the truth's, beside
 the image loss's best (P7, the mean over its seeds). --headline prints the report-only scenes'
 table: D, R_S, D_A (the shipped material rules, no image), A (the bed configs as they ship, seed
 10), U12 (the mean over its seeds) and U13, CD per window with g_S, and the energy per particle.
@@ -204,8 +204,9 @@ def search_rows(run):
             for r in csv.DictReader(open(path)) if r["stage"] == "joint-search"}
 
 
-def silhouette_table():
-    """P8: per scene with a U13 run, S*, CD(S*), g_P, Spearman(S, CD), and P7's I* beside."""
+def silhouette_table(cand="U13"):
+    """P8 (U14: its screen): per scene with a run of `cand`, S*, CD(S*), g_P, Spearman(S, CD),
+    and P7's I* beside."""
     image_means = seed_means(complete_grids(landscapes()))
     print("| scene | seed | points | S* (the silhouette's best) | CD(S*) | P_B's point | CD(P_B) | "
           "Spearman(S, CD) | D | g_P | g_S | I* (P7, seed mean) | CD(I*) | g_P of I* |")
@@ -214,7 +215,7 @@ def silhouette_table():
     for scene in quick_table.BED["scenes"]:
         truth = quick_table.scan_points(scene, "-body")
         for seed in quick_table.SEEDS:
-            sil = search_rows(f"runs/one/U13-{scene}-s{seed}")
+            sil = search_rows(f"runs/one/{cand}-{scene}-s{seed}")
             common = [p for p in sil if p in truth]
             if not common:
                 continue
@@ -306,12 +307,13 @@ def main():
     if "--headline" in sys.argv:
         headline()
         return
-    for cand in ("U12", "U13"):
+    for cand in ("U12", "U13", "U14"):
         if f"--{cand.lower()}" in sys.argv:
             u12_table(cand)
             return
     if "--silhouette" in sys.argv:
-        silhouette_table()
+        k = sys.argv.index("--silhouette")
+        silhouette_table(sys.argv[k + 1] if len(sys.argv) > k + 1 else "U13")
         return
     grids = "--grids" in sys.argv
     lands = landscapes()
