@@ -636,10 +636,6 @@ pub enum SearchObjective {
     /// show fluid (alpha, or colour off the white background) and those the rollout's particles
     /// cover. No renderer, no random pixels.
     Silhouette,
-    /// The silhouette's distance plus the mismatch of its change from frame to frame: the mean
-    /// over transitions of |J(P_t, P_t−1) − J(M_t, M_t−1)| (J the Jaccard distance, P the
-    /// rollout's pixels, M the images').
-    SilhouetteMotion,
 }
 
 impl SearchObjective {
@@ -653,7 +649,7 @@ impl SearchObjective {
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ScalarGrid {
-    /// What each point is scored by (`"image"`, `"silhouette"` or `"silhouette_motion"`).
+    /// What each point is scored by (`"image"` or `"silhouette"`).
     #[serde(default, skip_serializing_if = "SearchObjective::is_image")]
     pub objective: SearchObjective,
     /// Gravity scales tried.

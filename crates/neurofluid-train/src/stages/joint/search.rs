@@ -42,11 +42,11 @@ pub fn search(
 ) -> anyhow::Result<Vec<Tried>> {
     let start = neurofluid_dlf::physics::values_of(&dlf.config.rules);
     let frames: Vec<usize> = (1..=data.transitions() as usize).collect();
-    // the training view's fluid pixels at frames 0 … T (frame 0: where every rollout starts)
     let fluid: Vec<Vec<bool>> = match grid.objective {
         SearchObjective::Image => Vec::new(),
-        SearchObjective::Silhouette | SearchObjective::SilhouetteMotion => (0..=frames.len())
-            .map(|t| image_foreground(&data.target(t).image))
+        SearchObjective::Silhouette => frames
+            .iter()
+            .map(|&t| image_foreground(&data.target(t).image))
             .collect(),
     };
     grid.points(start)
@@ -59,21 +59,14 @@ pub fn search(
                 SearchObjective::Image => {
                     image_mse(physnerf, data, &rollout.pos, &frames, rays, seed, STAGE)?.0
                 }
-                objective => {
-                    let covered: Vec<Vec<bool>> = (0..=frames.len())
-                        .map(|t| {
-                            let camera = &data.target(t).camera;
-                            let mut mask = vec![false; camera.num_pixels()];
-                            mark_particles(&mut mask, camera, &rollout.pos[t], data.radius);
-                            mask
-                        })
-                        .collect();
-                    let distance = silhouette_distance(&covered[1..], &fluid[1..]);
-                    if objective == SearchObjective::SilhouetteMotion {
-                        distance + motion_mismatch(&covered, &fluid)
-                    } else {
-                        distance
-                    }
+                SearchObjective::Silhouette => {
+                    let covered = frames.iter().map(|&t| {
+                        let camera = &data.target(t).camera;
+                        let mut mask = vec![false; camera.num_pixels()];
+                        mark_particles(&mut mask, camera, &rollout.pos[t], data.radius);
+                        mask
+                    });
+                    silhouette_distance(covered, &fluid)
                 }
             };
             tracing::debug!(?point, loss, "searched");
@@ -84,24 +77,9 @@ pub fn search(
 
 /// The mean over frames of the Jaccard distance 1 − IoU between each frame's `covered` pixels and
 /// its `fluid` pixels.
-fn silhouette_distance(covered: &[Vec<bool>], fluid: &[Vec<bool>]) -> f64 {
-    let total: f64 = covered
-        .iter()
-        .zip(fluid)
-        .map(|(c, f)| 1.0 - mask_iou(c, f))
-        .sum();
+fn silhouette_distance(covered: impl Iterator<Item = Vec<bool>>, fluid: &[Vec<bool>]) -> f64 {
+    let total: f64 = covered.zip(fluid).map(|(c, f)| 1.0 - mask_iou(&c, f)).sum();
     total / fluid.len().max(1) as f64
-}
-
-/// The mean over transitions of how far the rollout's silhouette changes from one frame to the
-/// next (its Jaccard distance) from how far the images' changes: |J(P_t, P_t−1) − J(M_t, M_t−1)|.
-/// A still pool's images do not change; a rollout that stirs it does.
-fn motion_mismatch(covered: &[Vec<bool>], fluid: &[Vec<bool>]) -> f64 {
-    let change = |m: &[Vec<bool>], t: usize| 1.0 - mask_iou(&m[t], &m[t - 1]);
-    let total: f64 = (1..fluid.len())
-        .map(|t| (change(covered, t) - change(fluid, t)).abs())
-        .sum();
-    total / (fluid.len().max(2) - 1) as f64
 }
 
 /// The point of least finite loss (the first of equals); `None` when no loss is finite.
@@ -163,22 +141,7 @@ mod tests {
     fn the_silhouette_distance_is_the_frames_mean_jaccard_distance() {
         let fluid = vec![vec![true, true, false], vec![true, true, false]];
         let covered = vec![vec![true, true, false], vec![true, false, false]];
-        assert_eq!(silhouette_distance(&covered, &fluid), 0.25);
-    }
-
-    /// Still images against a rollout that changes by half its pixels and back: the mean change
-    /// mismatch is ½; a rollout as still as the images scores 0 whatever its overlap.
-    #[test]
-    fn the_motion_mismatch_compares_the_frame_to_frame_changes() {
-        let still = vec![vec![true, true, false, false]; 3];
-        let stirred = vec![
-            vec![true, true, false, false],
-            vec![true, false, false, false],
-            vec![true, true, false, false],
-        ];
-        assert_eq!(motion_mismatch(&stirred, &still), 0.5);
-        let elsewhere = vec![vec![false, false, true, true]; 3];
-        assert_eq!(motion_mismatch(&elsewhere, &still), 0.0);
+        assert_eq!(silhouette_distance(covered.into_iter(), &fluid), 0.25);
     }
 
     #[test]
