@@ -7,8 +7,11 @@
 # renderer's training does not enter d or d′ with both held), evaluated without renders and
 # without the refit. On a copy of P7's warm-up (image-landscape.sh) at the seed where there is one.
 # OBJECTIVE=silhouette scores the search by the training view's silhouette instead of the image
-# loss: candidate U13 (P8/U13 in the same notebook), on a copy of P7's, U12's or U13's warm-up;
-# OBJECTIVE=silhouette_motion adds the mismatch of the silhouette's change between frames: U14.
+# loss: candidate U13 (P8/U13 in the same notebook), on a copy of P7's, U12's or U13's warm-up.
+# (U14, OBJECTIVE=silhouette_motion, ran at 3367c4d's code; the objective was retired.)
+# GROUND=1 (probe P10, with the silhouette): after the search, with the scalars held, DLF grounded
+# over the config's epochs under the water config's particle terms (the anchor 0.1, the energy
+# prior 0.005) on every scene: U15.
 # A built-in quick scene (watercube, honeycone) runs its quick config (experiments/quick-<scene>.toml)
 # with the same changes, its warm-up made by the run.
 #   [OBJECTIVE=silhouette] bash experiments/research/physics/search-runs.sh SCENE SEED
@@ -19,9 +22,17 @@ scene=$1 seed=$2
 bin=${NF_BIN:-target/release/neurofluid-train}
 objective=${OBJECTIVE:-image}
 case $objective in
-  image) cand=U12 ;; silhouette) cand=U13 ;; silhouette_motion) cand=U14 ;;
-  *) echo "OBJECTIVE: image, silhouette or silhouette_motion" >&2; exit 2 ;;
+  image) cand=U12 ;; silhouette) cand=U13 ;;
+  *) echo "OBJECTIVE: image or silhouette" >&2; exit 2 ;;
 esac
+held=(--set joint.terms.anchor.weight=0 --set joint.terms.energy.weight=0 --set joint.epochs=1
+  --set joint.physics.hold_dlf_epochs=1)
+if [[ ${GROUND:-} == 1 ]]; then
+  [[ $cand == U13 ]] || { echo "GROUND=1 goes with OBJECTIVE=silhouette" >&2; exit 2; }
+  cand=U15
+  held=(--set joint.terms.anchor.weight=0.1 --set joint.terms.energy.weight=0.005
+    --set joint.physics.hold_dlf_epochs=0)
+fi
 out=runs/one/$cand-$scene-s$seed
 [[ -f $out/eval/report.json ]] && exit 0
 mkdir -p runs/one
@@ -29,7 +40,7 @@ if [[ ! -d $out/warmup ]]; then
   if [[ -f runs/land/$scene-s$seed/A.done ]]; then
     mkdir -p "$out" && cp -r "runs/land/$scene-s$seed/A/warmup" "$out/"
   else
-    for from in U12 U13; do
+    for from in U12 U13 U14; do
       if [[ $cand != "$from" && -f runs/one/$from-$scene-s$seed/eval/report.json ]]; then
         mkdir -p "$out" && cp -r "runs/one/$from-$scene-s$seed/warmup" "$out/" && break
       fi
@@ -46,8 +57,7 @@ fi
   --set refit.enabled=false --set eval.render=false --set eval.write_ply=false \
   --set dlf.gravity_scale=1.0 --set 'dlf.energy_cap="none"' --set 'dlf.dissipation_frame="body"' \
   --set dlf.dissipation=0 --set dlf.viscosity=0 \
-  --set joint.terms.anchor.weight=0 --set joint.terms.energy.weight=0 --set joint.epochs=1 \
-  --set 'joint.physics.fit=["gravity_scale", "dissipation"]' --set joint.physics.hold_dlf_epochs=1 \
+  "${held[@]}" --set 'joint.physics.fit=["gravity_scale", "dissipation"]' \
   --set 'joint.physics.optim={ lr = 0.0 }' \
   --set "joint.physics.search={ objective = \"$objective\", gravity_scale = [1.0, 1.25, 1.5, 1.75, 2.0], dissipation = [0.0, 0.02, 0.05, 0.15, 0.4] }" \
   >> "$out.log" 2>&1
