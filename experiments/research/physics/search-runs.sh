@@ -14,8 +14,9 @@
 # prior 0.005) on every scene: U15.
 # A built-in quick scene (watercube, honeycone) runs its quick config (experiments/quick-<scene>.toml)
 # with the same changes, its warm-up made by the run.
-#   [OBJECTIVE=silhouette] bash experiments/research/physics/search-runs.sh SCENE SEED
-# Writes runs/one/U12-<scene>-s<seed>/ (U13-…, U14-… by the objective; quick-table.py reads them).
+#   [OBJECTIVE=silhouette [GROUND=1]] bash experiments/research/physics/search-runs.sh SCENE SEED
+# Writes runs/one/U12-<scene>-s<seed>/ (U13-… with the silhouette, U15-… grounded; quick-table.py
+# and image-landscape.py read them).
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
 scene=$1 seed=$2

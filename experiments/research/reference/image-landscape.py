@@ -12,11 +12,12 @@ t < 50 at each point), D and R_S as quick-table.py reads them. --grids also prin
 landscape as a gravity × dissipation table; --figure draws, per scene, the truth's landscape
 beside the image loss's (the mean over the seeds run, one view) and the silhouette's (U13's
 search at seed 10), each best starred (needs matplotlib). --u12 prints candidate U12's runs
-(search-runs.sh: the scalars the search held) per scene and seed against D, R_S and P_B, with the issue's targets' quantities;
---u13 / --u14 the same for candidates U13 (the search scored by the silhouette) and U14 (and by
-its change between frames). --silhouette [U14] prints probe P8 (U14's screen): the silhouette's landscape S (the joint-search rows of U13's runs) against the truth's, beside
-the image loss's best (P7, the mean over its seeds). --headline prints the report-only scenes'
-table: D, R_S, D_A (the shipped material rules, no image), A (the bed configs as they ship, seed
+(search-runs.sh: the scalars the search held) per scene and seed against D, R_S and P_B, with
+the issue's targets' quantities; --u13 / --u14 the same for candidates U13 (the search scored by
+the silhouette) and U14 (and by its change between frames; retired). --silhouette [CAND] prints
+probe P8 (CAND U14: U14's screen): the search's landscape S (the joint-search rows of CAND's
+runs, U13's by default) against the truth's, beside the image loss's best (P7, the mean over its
+seeds). --headline prints the report-only scenes' table: D, R_S, D_A (the shipped material rules, no image), A (the bed configs as they ship, seed
 10), U12 (the mean over its seeds) and U13, CD per window with g_S, and the energy per particle.
 """
 
@@ -213,25 +214,30 @@ def silhouette_table(cand="U13"):
     print("|---|---:|---:|---|---:|---|---:|---:|---:|---:|---:|---|---:|---:|")
     shares = []
     for scene in quick_table.BED["scenes"]:
+        runs = [(seed, sil) for seed in quick_table.SEEDS
+                if (sil := search_rows(f"runs/one/{cand}-{scene}-s{seed}"))]
+        if not runs:
+            continue
+        # what depends on the scene alone: the truth's landscape, D, R_S, P7's best
         truth = quick_table.scan_points(scene, "-body")
-        for seed in quick_table.SEEDS:
-            sil = search_rows(f"runs/one/{cand}-{scene}-s{seed}")
+        p_b = min(truth, key=lambda p: truth[p]["cd"][0])
+        cd_pb = truth[p_b]["cd"][0]
+        d_cd = quick_table.rollout_scores(f"runs/ref/{scene}-D.log")["cd"][0]
+        r_s, _ = quick_table.mean_over_seeds(scene, "S1")
+        image = image_means.get((scene, ""))
+        i_cells = "– | – | –"
+        if image:
+            i_star = min(image[0], key=image[0].get)
+            i_cd = truth[i_star]["cd"][0]
+            i_cells = f"g {i_star[0]}, d {i_star[1]} | {i_cd:.2f} | {fmt(gap_share(d_cd, i_cd, cd_pb))}"
+        for seed, sil in runs:
             common = [p for p in sil if p in truth]
             if not common:
                 continue
             cds = [truth[p]["cd"][0] for p in common]
             s_star = min(common, key=lambda p: sil[p])
-            p_b = min(truth, key=lambda p: truth[p]["cd"][0])
-            d_cd = quick_table.rollout_scores(f"runs/ref/{scene}-D.log")["cd"][0]
-            r_s, _ = quick_table.mean_over_seeds(scene, "S1")
-            cd_star, cd_pb = truth[s_star]["cd"][0], truth[p_b]["cd"][0]
+            cd_star = truth[s_star]["cd"][0]
             g_p = gap_share(d_cd, cd_star, cd_pb)
-            image = image_means.get((scene, ""))
-            i_cells = "– | – | –"
-            if image:
-                i_star = min(image[0], key=image[0].get)
-                i_cd = truth[i_star]["cd"][0]
-                i_cells = f"g {i_star[0]}, d {i_star[1]} | {i_cd:.2f} | {fmt(gap_share(d_cd, i_cd, cd_pb))}"
             print(f"| {scene} | {seed} | {len(common)} | g {s_star[0]}, d {s_star[1]} | {cd_star:.2f} | "
                   f"g {p_b[0]}, d {p_b[1]} | {cd_pb:.2f} | {spearman([sil[p] for p in common], cds):.2f} | "
                   f"{d_cd:.2f} | {fmt(g_p)} | {fmt(gap_share(d_cd, cd_star, r_s and r_s['cd'][0]))} | {i_cells} |")
@@ -289,7 +295,7 @@ def headline():
         u13 = quick_table.report_scores(f"runs/one/U13-{scene}-s10")
         r0 = r_s and r_s["cd"][0]
 
-        def cell(cd, energy=None):
+        def cell(cd):
             if cd is None:
                 return "–"
             return f"{cd[0]:.2f} \\| {cd[1]:.2f} ({fmt(gap_share(d['cd'][0], cd[0], r0))})"
