@@ -11,7 +11,8 @@
 # (U14, OBJECTIVE=silhouette_motion, ran at 3367c4d's code; the objective was retired.)
 # GROUND=1 (probe P10, with the silhouette): after the search, with the scalars held, DLF grounded
 # over the config's epochs under the water config's particle terms (the anchor 0.1, the energy
-# prior 0.005) on every scene: U15.
+# prior 0.005) on every scene: U15. ANCHOR=W (probe P11) grounds under the anchor's weight W
+# instead (runs/one/U15-anchorW-…).
 # A built-in quick scene (watercube, honeycone) runs its quick config (experiments/quick-<scene>.toml)
 # with the same changes, its warm-up made by the run.
 #   [OBJECTIVE=silhouette [GROUND=1]] bash experiments/research/physics/search-runs.sh SCENE SEED
@@ -30,8 +31,9 @@ held=(--set joint.terms.anchor.weight=0 --set joint.terms.energy.weight=0 --set 
   --set joint.physics.hold_dlf_epochs=1)
 if [[ ${GROUND:-} == 1 ]]; then
   [[ $cand == U13 ]] || { echo "GROUND=1 goes with OBJECTIVE=silhouette" >&2; exit 2; }
-  cand=U15
-  held=(--set joint.terms.anchor.weight=0.1 --set joint.terms.energy.weight=0.005
+  cand=U15 anchor=${ANCHOR:-0.1}
+  [[ $anchor == 0.1 ]] || cand=U15-anchor$anchor
+  held=(--set joint.terms.anchor.weight=$anchor --set joint.terms.energy.weight=0.005
     --set joint.physics.hold_dlf_epochs=0)
 fi
 out=runs/one/$cand-$scene-s$seed
@@ -41,7 +43,7 @@ if [[ ! -d $out/warmup ]]; then
   if [[ -f runs/land/$scene-s$seed/A.done ]]; then
     mkdir -p "$out" && cp -r "runs/land/$scene-s$seed/A/warmup" "$out/"
   else
-    for from in U12 U13 U14; do
+    for from in U12 U13 U14 U15; do
       if [[ $cand != "$from" && -f runs/one/$from-$scene-s$seed/eval/report.json ]]; then
         mkdir -p "$out" && cp -r "runs/one/$from-$scene-s$seed/warmup" "$out/" && break
       fi
