@@ -7,7 +7,8 @@
 //! published DLF out as the paper steps it (no walls), beside the DLF under the run's rules,
 //! and, given a reference file, g: the share of the way from DLF to the reference. A search over
 //! a grid of the gravity scale (`[joint.physics.search]`), by the image loss or the silhouette,
-//! starts the fit at the point nearest the truth's.
+//! over one view or two, starts the fit at the point nearest the truth's, and scores the true
+//! particles beside that point.
 
 use neurofluid_outputs::metrics_log::read_jsonl;
 use neurofluid_outputs::report::Rollout;
@@ -129,11 +130,19 @@ fn the_search_starts_the_fit_at_the_truths_gravity() {
     let _turn = seeded_turn();
     let tmp = tempfile::tempdir().unwrap();
     let mut warm = None;
-    for objective in ["image", "silhouette"] {
+    let mut one_view = Vec::new();
+    // (objective, extra views): the rig of one view by each objective, then two by the silhouette
+    for (objective, extra) in [
+        ("image", ""),
+        ("silhouette", ""),
+        ("silhouette", "\"view_2\""),
+    ] {
         let e = faster_fall(
             tmp.path(),
-            &format!("search-{objective}"),
+            &format!("search-{objective}-{}", extra.len()),
             &[
+                "scene.generate.warmup_every_frame=true",
+                &format!("joint.extra_views=[{extra}]"),
                 "joint.epochs=1",
                 "joint.physics.optim.lr=0",
                 "joint.physics.search.gravity_scale=[1.0, 2.0, 3.5]",
@@ -156,7 +165,12 @@ fn the_search_starts_the_fit_at_the_truths_gravity() {
             .filter(|r| r.stage == joint::search::STAGE)
             .map(|r| (r.get("physics/gravity_scale").unwrap(), r.loss))
             .collect();
-        eprintln!("{objective}: tried (gravity scale, loss): {tried:?}");
+        let truth: Vec<f64> = rows
+            .iter()
+            .filter(|r| r.stage == joint::search::TRUTH_STAGE)
+            .map(|r| r.loss)
+            .collect();
+        eprintln!("{objective} [{extra}]: tried (gravity scale, loss): {tried:?}, truth {truth:?}");
         assert_eq!(
             tried.iter().map(|t| t.0).collect::<Vec<_>>(),
             [1.0, 2.0, 3.5]
@@ -165,7 +179,22 @@ fn the_search_starts_the_fit_at_the_truths_gravity() {
             tried[2].1 < tried[1].1.min(tried[0].1),
             "the {objective} objective is not least at the truth's gravity: {tried:?}"
         );
+        // the true particles score beside the grid's best, far from its worst
+        assert_eq!(truth.len(), 1, "one truth row");
+        let worst = tried[0].1.max(tried[1].1);
+        assert!(
+            (truth[0] - tried[2].1).abs() < 0.25 * (worst - tried[2].1),
+            "the {objective} objective scores the truth ({truth:?}) away from the best point ({tried:?})"
+        );
         let scale = grounded.dlf.config.rules.gravity_scale;
         assert!((scale - 3.5).abs() < 1e-6, "the fit held {scale}, not 3.5");
+        match (objective, extra) {
+            ("silhouette", "") => one_view = tried,
+            ("silhouette", _) => assert!(
+                tried.iter().zip(&one_view).all(|(a, b)| a.1 != b.1),
+                "the second view left the silhouette's scores as one view's: {tried:?}"
+            ),
+            _ => {}
+        }
     }
 }

@@ -619,8 +619,9 @@ pub struct PhysicsFit {
     #[serde(default)]
     pub hold_dlf_epochs: u64,
     /// `[joint.physics.search]`: a grid the fitted scalars start from instead of the rules'
-    /// values: the point whose rollout best matches the training view by the grid's objective
-    /// ([`crate::stages::joint::search`]). Unset = no search.
+    /// values: the point whose rollout best matches the joint stage's views (the training view,
+    /// then `joint.extra_views`) by the grid's objective ([`crate::stages::joint::search`]).
+    /// Unset = no search.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub search: Option<ScalarGrid>,
 }
@@ -629,11 +630,11 @@ pub struct PhysicsFit {
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum SearchObjective {
-    /// The warm-up renderer's image loss on the training view (coarse + fine MSE).
+    /// The warm-up renderer's image loss on each view (coarse + fine MSE).
     #[default]
     Image,
-    /// The training view's silhouette: the Jaccard distance between the pixels where its images
-    /// show fluid (alpha, or colour off the white background) and those the rollout's particles
+    /// Each view's silhouette: the Jaccard distance between the pixels where its images show
+    /// fluid (alpha, or colour off the white background) and those the rollout's particles
     /// cover. No renderer, no random pixels.
     Silhouette,
 }

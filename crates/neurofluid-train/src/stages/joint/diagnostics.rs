@@ -128,7 +128,7 @@ pub fn psnr_on_frames(
     }
     let (_, fine) = image_mse(
         physnerf,
-        data,
+        &data.views[0],
         particles,
         &frames,
         rays,
@@ -138,12 +138,12 @@ pub fn psnr_on_frames(
     Ok(Some(psnr_from_mse(fine)))
 }
 
-/// The mean coarse + fine and fine MSE of `physnerf` rendering the training view from
-/// `particles[t]` at each training frame t of `frames`, at `rays` pixels a frame drawn in order
-/// from `seed`'s `stream` (the same pixels at every call).
+/// The mean coarse + fine and fine MSE of `physnerf` rendering `view` (one view's images at every
+/// training frame) from `particles[t]` at each training frame t of `frames`, at `rays` pixels a
+/// frame drawn in order from `seed`'s `stream` (the same pixels at every call).
 pub(super) fn image_mse(
     physnerf: &PhysNerf,
-    data: &JointData,
+    view: &[ViewFrame],
     particles: &[Vec<[f32; 3]>],
     frames: &[usize],
     rays: usize,
@@ -155,7 +155,7 @@ pub(super) fn image_mse(
     let mut rng = Rng::stream(seed, stream);
     let (mut total, mut fine) = (0.0, 0.0);
     for &t in frames {
-        let target = data.target(t);
+        let target = &view[t];
         let (w, h) = (target.camera.width, target.camera.height);
         let pixels = rng.sample_pixels(rays, w, h, None)?;
         let (rays, colours) = target.batch(&pixels, &device);

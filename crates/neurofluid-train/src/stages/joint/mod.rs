@@ -231,13 +231,21 @@ impl JointTrainer {
         }
         let best = search::best(&tried)
             .context("joint.physics.search: no point of the grid gave a finite score")?;
+        let truth =
+            search::truth_score(&self.physnerf, &self.data, grid, self.cfg.rays, self.seed)?;
+        if let Some(loss) = truth {
+            log.append(&search::truth_row(loss))?;
+        }
         tracing::info!(
             gravity_scale = best.point[0],
             viscosity = best.point[1],
             dissipation = best.point[2],
             loss = best.loss,
+            truth = truth
+                .map(|t| format!("{t:.5}"))
+                .unwrap_or_else(|| "no true particles".into()),
             points = tried.len(),
-            "the search's start for the physical scalars"
+            "the search's start for the physical scalars (truth: the true particles' score)"
         );
         let rules = neurofluid_dlf::physics::rules_with(dlf.config.rules, best.point);
         if let Some(p) = &mut self.physics {

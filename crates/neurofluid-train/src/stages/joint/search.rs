@@ -1,11 +1,13 @@
 //! `[joint.physics.search]`: before the fit, the fitted scalars are set to the point of a grid
-//! whose rollout best matches the training view. At each point DLF (as the stage starts it, the
+//! whose rollout best matches the joint stage's views (the training view, then
+//! `joint.extra_views`; the mean over them). At each point DLF (as the stage starts it, the
 //! rules' other values) is rolled out from the first training frame over every training frame and
 //! scored by the grid's objective: the warm-up renderer's image loss (the mean coarse + fine MSE
-//! of the training view's images rendered from that rollout at `joint.rays` pixels a frame, drawn
-//! from the seed's search stream, the same pixels at every point), or the silhouette (the mean
-//! Jaccard distance between the pixels where the training view shows fluid and those the
-//! rollout's particles cover). A coarse search finds the basin that Adam from the rules' values
+//! of a view's images rendered from that rollout at `joint.rays` pixels a frame, drawn from the
+//! seed's search stream, the same pixels at every point), or the silhouette (the mean Jaccard
+//! distance between the pixels where a view shows fluid and those the rollout's particles
+//! cover). Where the scene has the true particles, the same objective scores them too
+//! ([`truth_score`]): how near the best point comes to the images' own particles. A coarse search finds the basin that Adam from the rules' values
 //! may not reach (docs/notebook/2026-12-06-image-landscape.md).
 
 use neurofluid_core::ray_focus::{image_foreground, mark_particles, mask_iou};
@@ -41,38 +43,107 @@ pub fn search(
     seed: u64,
 ) -> anyhow::Result<Vec<Tried>> {
     let start = neurofluid_dlf::physics::values_of(&dlf.config.rules);
-    let frames: Vec<usize> = (1..=data.transitions() as usize).collect();
-    let fluid: Vec<Vec<bool>> = match grid.objective {
-        SearchObjective::Image => Vec::new(),
-        SearchObjective::Silhouette => frames
-            .iter()
-            .map(|&t| image_foreground(&data.target(t).image))
-            .collect(),
-    };
+    let objective = Objective::new(physnerf, data, grid.objective, rays, seed);
     grid.points(start)
         .into_iter()
         .map(|point| {
             let mut config = dlf.config;
             config.rules = neurofluid_dlf::physics::rules_with(config.rules, point);
             let rollout = training_rollout(&dlf.clone().with_config(config), data);
-            let loss = match grid.objective {
-                SearchObjective::Image => {
-                    image_mse(physnerf, data, &rollout.pos, &frames, rays, seed, STAGE)?.0
-                }
-                SearchObjective::Silhouette => {
-                    let covered = frames.iter().map(|&t| {
-                        let camera = &data.target(t).camera;
-                        let mut mask = vec![false; camera.num_pixels()];
-                        mark_particles(&mut mask, camera, &rollout.pos[t], data.radius);
-                        mask
-                    });
-                    silhouette_distance(covered, &fluid)
-                }
-            };
+            let loss = objective.score(&rollout.pos)?;
             tracing::debug!(?point, loss, "searched");
             Ok(Tried { point, loss })
         })
         .collect()
+}
+
+/// The grid's objective on the true particles of the training frames, where the scene has them:
+/// how near the images' own particles come by the same score, beside the grid's best.
+pub fn truth_score(
+    physnerf: &PhysNerf,
+    data: &JointData,
+    grid: &ScalarGrid,
+    rays: usize,
+    seed: u64,
+) -> anyhow::Result<Option<f64>> {
+    let Some(truth) = &data.truth else {
+        return Ok(None);
+    };
+    Objective::new(physnerf, data, grid.objective, rays, seed)
+        .score(truth)
+        .map(Some)
+}
+
+/// A search's objective: the mean over the joint stage's views (`data.views`: the training view,
+/// then `joint.extra_views`) and over every training frame after the first.
+struct Objective<'a> {
+    physnerf: &'a PhysNerf,
+    data: &'a JointData,
+    kind: SearchObjective,
+    frames: Vec<usize>,
+    /// Per view, per frame of `frames`: where its image shows fluid (the silhouette's only).
+    fluid: Vec<Vec<Vec<bool>>>,
+    rays: usize,
+    seed: u64,
+}
+
+impl<'a> Objective<'a> {
+    fn new(
+        physnerf: &'a PhysNerf,
+        data: &'a JointData,
+        kind: SearchObjective,
+        rays: usize,
+        seed: u64,
+    ) -> Self {
+        let frames: Vec<usize> = (1..=data.transitions() as usize).collect();
+        let fluid = match kind {
+            SearchObjective::Image => Vec::new(),
+            SearchObjective::Silhouette => data
+                .views
+                .iter()
+                .map(|view| {
+                    frames
+                        .iter()
+                        .map(|&t| image_foreground(&view[t].image))
+                        .collect()
+                })
+                .collect(),
+        };
+        Self {
+            physnerf,
+            data,
+            kind,
+            frames,
+            fluid,
+            rays,
+            seed,
+        }
+    }
+
+    /// The objective on `particles[t]` (t counted from the first training frame).
+    fn score(&self, particles: &[Vec<[f32; 3]>]) -> anyhow::Result<f64> {
+        let views = &self.data.views;
+        let mut total = 0.0;
+        for (v, view) in views.iter().enumerate() {
+            total += match self.kind {
+                SearchObjective::Image => {
+                    let frames = &self.frames;
+                    let (seed, rays) = (self.seed, self.rays);
+                    image_mse(self.physnerf, view, particles, frames, rays, seed, STAGE)?.0
+                }
+                SearchObjective::Silhouette => {
+                    let covered = self.frames.iter().map(|&t| {
+                        let camera = &view[t].camera;
+                        let mut mask = vec![false; camera.num_pixels()];
+                        mark_particles(&mut mask, camera, &particles[t], self.data.radius);
+                        mask
+                    });
+                    silhouette_distance(covered, &self.fluid[v])
+                }
+            };
+        }
+        Ok(total / views.len().max(1) as f64)
+    }
 }
 
 /// The mean over frames of the Jaccard distance 1 − IoU between each frame's `covered` pixels and
@@ -91,6 +162,14 @@ pub fn best(tried: &[Tried]) -> Option<Tried> {
             Some(b) if b.loss <= t.loss => Some(b),
             _ => Some(*t),
         })
+}
+
+/// The metrics rows' stage of the truth's score ([`truth_score`]): one row, step 0.
+pub const TRUTH_STAGE: &str = "joint-search-truth";
+
+/// The metrics row of the truth's score.
+pub fn truth_row(loss: f64) -> MetricsRow {
+    MetricsRow::new(TRUTH_STAGE, 0, loss, 0.0)
 }
 
 /// The metrics row of the `k`-th point tried.
