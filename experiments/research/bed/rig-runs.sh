@@ -11,21 +11,7 @@ cd "$(dirname "$0")/../../.."
 scene=$1 seed=$2 rig=$3
 a=${4:-runs/bed71/$scene-s$seed-A} out=${5:-runs/rig71}
 bin=${NEUROFLUID_TRAIN:-target/release/neurofluid-train}
-views=$(python3 - "data/bed/$scene" "$rig" <<'PY'
-import json, math, sys
-scene, rig = sys.argv[1], int(sys.argv[2])
-m = json.load(open(f"{scene}/scene.json"))
-train = m["train"]["views"][0]
-def centre(v):
-    t = json.load(open(f"{scene}/{v}/transforms_train.json"))["frames"][0]["transform_matrix"]
-    return [t[i][3] for i in range(3)]
-others = [v for v in m["warmup"]["views"] if v != train]
-others.sort(key=lambda v: -math.dist(centre(v), centre(train)))
-if rig not in (2, 4) or len(others) < rig - 1:
-    sys.exit(f"RIG: 2 or 4 with {len(others)} other warm-up views, not {rig}")
-print("[" + ", ".join(f'"{v}"' for v in others[: rig - 1]) + "]")
-PY
-)
+views=$(python3 experiments/research/bed/rig-views.py "data/bed/$scene" "$rig")
 b=$out/$scene-s$seed-rig$rig
 mkdir -p "$b"
 [[ -f $a/eval/report.json ]] || { echo "$a: run A first (screen.sh)" >&2; exit 2; }

@@ -13,6 +13,8 @@
 # over the config's epochs under the water config's particle terms (the anchor 0.1, the energy
 # prior 0.005) on every scene: U15. ANCHOR=W (probe P11) grounds under the anchor's weight W
 # instead (runs/one/U15-anchorW-…).
+# RIG=2|4 (probe P12, with the silhouette): the joint stage's rig of 2 or 4 views
+# (experiments/research/bed/rig-views.py), which the search scores too: runs/one/U13-rig<RIG>-….
 # A built-in quick scene (watercube, honeycone) runs its quick config (experiments/quick-<scene>.toml)
 # with the same changes, its warm-up made by the run.
 #   [OBJECTIVE=silhouette [GROUND=1]] bash experiments/research/physics/search-runs.sh SCENE SEED
@@ -35,6 +37,13 @@ if [[ ${GROUND:-} == 1 ]]; then
   [[ $anchor == 0.1 ]] || cand=U15-anchor$anchor
   held=(--set joint.terms.anchor.weight=$anchor --set joint.terms.energy.weight=0.005
     --set joint.physics.hold_dlf_epochs=0)
+fi
+rig=()
+if [[ -n ${RIG:-} ]]; then
+  [[ $cand == U13 ]] || { echo "RIG goes with OBJECTIVE=silhouette alone" >&2; exit 2; }
+  cand=U13-rig$RIG
+  rig=(--set "joint.extra_views=$(python3 experiments/research/bed/rig-views.py \
+    "${BED_DATA:-data/bed-particles}/$scene" "$RIG")")
 fi
 out=runs/one/$cand-$scene-s$seed
 [[ -f $out/eval/report.json ]] && exit 0
@@ -60,7 +69,7 @@ fi
   --set refit.enabled=false --set eval.render=false --set eval.write_ply=false \
   --set dlf.gravity_scale=1.0 --set 'dlf.energy_cap="none"' --set 'dlf.dissipation_frame="body"' \
   --set dlf.dissipation=0 --set dlf.viscosity=0 \
-  "${held[@]}" --set 'joint.physics.fit=["gravity_scale", "dissipation"]' \
+  "${held[@]}" "${rig[@]}" --set 'joint.physics.fit=["gravity_scale", "dissipation"]' \
   --set 'joint.physics.optim={ lr = 0.0 }' \
   --set "joint.physics.search={ objective = \"$objective\", gravity_scale = [1.0, 1.25, 1.5, 1.75, 2.0], dissipation = [0.0, 0.02, 0.05, 0.15, 0.4] }" \
   >> "$out.log" 2>&1
