@@ -4,7 +4,7 @@ image loss puts the gravity scale and the bodies'-frame dissipation, against whe
 does, on scalar-scan.sh's grid.
 
     python3 experiments/research/reference/image-landscape.py [--grids] [--figure docs/image-landscapes.png]
-    python3 experiments/research/reference/image-landscape.py --u12 | --u13 | --u14 | --silhouette [U14] | --headline
+    python3 experiments/research/reference/image-landscape.py --u12 | --u13 | --u14 | --u15 | --cand RUN | --silhouette [U14] | --headline
 
 Reads runs/land/<scene>-s<seed>[...]/ (image-landscape.sh: I, the mean image loss over the 49
 transitions at each point) and runs/ref/<scene>-scan-body/ (FRAME=body scalar-scan.sh: CD over
@@ -13,8 +13,10 @@ landscape as a gravity × dissipation table; --figure draws, per scene, the trut
 beside the image loss's (the mean over the seeds run, one view) and the silhouette's (U13's
 search at seed 10), each best starred (needs matplotlib). --u12 prints candidate U12's runs
 (search-runs.sh: the scalars the search held) per scene and seed against D, R_S and P_B, with
-the issue's targets' quantities; --u13 / --u14 the same for candidates U13 (the search scored by
-the silhouette) and U14 (and by its change between frames; retired). --silhouette [CAND] prints
+the issue's targets' quantities; --u13 / --u14 / --u15 the same for candidates U13 (the search
+scored by the silhouette), U14 (and by its change between frames; retired) and U15 (U13, then DLF
+grounded); --cand RUN for any runs/one/RUN-<scene>-s<seed> (P11: U15-anchor0, P12: U13-rig2,
+U13-rig4); each row ends with the search's best score beside the true particles' (where logged). --silhouette [CAND] prints
 probe P8 (CAND U14: U14's screen): the search's landscape S (the joint-search rows of CAND's
 runs, U13's by default) against the truth's, beside the image loss's best (P7, the mean over its
 seeds). --headline prints the report-only scenes' table: D, R_S, D_A (the shipped material rules, no image), A (the bed configs as they ship, seed
@@ -205,6 +207,20 @@ def search_rows(run):
             for r in csv.DictReader(open(path)) if r["stage"] == "joint-search"}
 
 
+def search_scores(run):
+    """The search's best score and the true particles' (its joint-search-truth row; None in runs
+    made before the search scored the truth), as 'best / truth'."""
+    path = os.path.join(run, "metrics.csv")
+    if not os.path.exists(path):
+        return "–"
+    rows = list(csv.DictReader(open(path)))
+    tried = [float(r["loss"]) for r in rows if r["stage"] == "joint-search"]
+    truth = [float(r["loss"]) for r in rows if r["stage"] == "joint-search-truth"]
+    if not tried:
+        return "–"
+    return f"{min(tried):.4f} / " + (f"{truth[0]:.4f}" if truth else "–")
+
+
 def silhouette_table(cand="U13"):
     """P8 (U14: its screen): per scene with a run of `cand`, S*, CD(S*), g_P, Spearman(S, CD),
     and P7's I* beside."""
@@ -250,8 +266,8 @@ def silhouette_table(cand="U13"):
 
 def u12_table(cand="U12"):
     print("| scene | seed | held (g, d) | d \\| d′ t < 50 | CD t < 50 | D's | R_S | P_B | g_S | CD t ≥ 50 (D's) | "
-          "g_S t ≥ 50 | d′ t < 50 \\| t ≥ 50 (D's) | J/kg t < 50 (bound) |")
-    print("|---|---:|---|---|---:|---:|---:|---:|---:|---|---:|---|---|")
+          "g_S t ≥ 50 | d′ t < 50 \\| t ≥ 50 (D's) | J/kg t < 50 (bound) | search: best / truth |")
+    print("|---|---:|---|---|---:|---:|---:|---:|---:|---|---:|---|---|---|")
     shares = {}
     for scene in quick_table.BED["scenes"]:
         r_s, _ = quick_table.mean_over_seeds(scene, "S1")
@@ -270,7 +286,8 @@ def u12_table(cand="U12"):
                   f"{fmt(p_b and p_b['cd'][0])} | {fmt(gap_share(dcd0, cd0, r_s and r_s['cd'][0]))} | "
                   f"{cd1:.2f} ({dcd1:.2f}) | {fmt(gap_share(dcd1, cd1, r_s and r_s['cd'][1]))} | "
                   f"{dp0:.2f} \\| {dp1:.2f} ({ep0:.2f} \\| {ep1:.2f}) | "
-                  f"{energy:.3f} ({2 * truth + 0.1:.3f}) |")
+                  f"{energy:.3f} ({2 * truth + 0.1:.3f}) | "
+                  f"{search_scores(f'runs/one/{cand}-{scene}-s{seed}')} |")
             if r_s:
                 shares.setdefault(scene, []).append(
                     (gap_share(dcd0, cd0, r_s["cd"][0]), gap_share(dcd1, cd1, r_s["cd"][1])))
@@ -313,10 +330,13 @@ def main():
     if "--headline" in sys.argv:
         headline()
         return
-    for cand in ("U12", "U13", "U14"):
+    for cand in ("U12", "U13", "U14", "U15"):
         if f"--{cand.lower()}" in sys.argv:
             u12_table(cand)
             return
+    if "--cand" in sys.argv:
+        u12_table(sys.argv[sys.argv.index("--cand") + 1])
+        return
     if "--silhouette" in sys.argv:
         k = sys.argv.index("--silhouette")
         silhouette_table(sys.argv[k + 1] if len(sys.argv) > k + 1 else "U13")

@@ -241,7 +241,7 @@ def main():
     print("| scene | run | seeds | CD t < 50 | g t < 50 | CD t ≥ 50 | g t ≥ 50 | D's CD | J/kg (bound) | fitted (seed 10) |")
     print("|---|---|---:|---|---:|---|---:|---|---|---|")
     for scene in setting["scenes"]:
-        for step in ("U0", "U0N", "U0NB", "U1", "U2", "U4", "U4N", "U5", "U5a", "U5b", "U6", "U7", "U8", "U9", "U10", "U11", "U13", "A"):
+        for step in ("U0", "U0N", "U0NB", "U1", "U2", "U4", "U4N", "U5", "U5a", "U5b", "U6", "U7", "U8", "U9", "U10", "U11", "U13", "U15", "A"):
             m, n = mean_over_seeds(scene, step)
             if not m:
                 continue
