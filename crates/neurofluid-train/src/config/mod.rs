@@ -535,6 +535,8 @@ mod tests {
                 "joint.terms.energy.weight=0.005",
                 "physnerf.positions=\"relative\"",
                 "refit.enabled=true",
+                "joint.physics.fit=[\"gravity_scale\"]",
+                "joint.physics.search.gravity_scale=[1.0, 2.0]",
                 "preset=\"paper\"",
             ])
             .unwrap();
@@ -563,6 +565,7 @@ mod tests {
         assert_eq!((j.boundary_weight, j.foreground_rays), (1.0, 0.0));
         assert_eq!(j.terms, r.terms, "no particle terms");
         assert!(j.extra_views.is_empty());
+        assert_eq!(j.physics, None, "no physical scalar fitted or searched");
         // the budgets are the file's
         assert_eq!(
             (paper.warmup.iters, paper.joint.epochs, paper.joint.rays),

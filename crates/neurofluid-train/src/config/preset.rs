@@ -7,7 +7,8 @@
 //! lowest-index neighbour rule, ReLU density, world positions and the paper's encoding
 //! frequencies, the warm-up's and the joint stage's optimisers and schedules, one-step
 //! truncated BPTT with DLF stepping every transition, uniform rays, one view, no particle terms
-//! (`[joint.terms]`), the boundary weight 1, the grounded DLF evaluated as trained and the novel views
+//! (`[joint.terms]`), no physical scalars fitted or searched (`[joint.physics]`), the boundary
+//! weight 1, the grounded DLF evaluated as trained and the novel views
 //! rendered by the jointly trained PhysNeRF (no refit). Budgets
 //! (iterations, epochs, rays, samples, network widths) stay the file's: they are the scale of
 //! the experiment, not its rules. Each value the preset changes is logged.
@@ -66,6 +67,7 @@ pub fn apply(exp: &mut Experiment) -> Vec<Change> {
     j.input_noise = paper.input_noise;
     j.terms = paper.terms;
     j.extra_views = paper.extra_views;
+    j.physics = paper.physics;
     exp.diagnostics.weight_interpolation = DiagnosticsSection::default().weight_interpolation;
     exp.refit = RefitSection::default();
     Settings::all(exp).changes_since(&before)
