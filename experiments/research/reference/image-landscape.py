@@ -20,7 +20,8 @@ U13-rig4); each row ends with the search's best score beside the true particles'
 probe P8 (CAND U14: U14's screen): the search's landscape S (the joint-search rows of CAND's
 runs, U13's by default) against the truth's, beside the image loss's best (P7, the mean over its
 seeds). --headline prints the report-only scenes' table: D, R_S, D_A (the shipped material rules, no image), A (the bed configs as they ship, seed
-10), U12 (the mean over its seeds) and U13, CD per window with g_S, and the energy per particle.
+10), U12 (the mean over its seeds), U13 and U15 (the mean over its seeds), CD per window with g_S,
+and the energy per particle.
 """
 
 import csv
@@ -299,17 +300,28 @@ def u12_table(cand="U12"):
 
 def headline():
     """The report-only scenes: CD t < 50 | t ≥ 50 (g_S over t < 50) and J/kg per particle over
-    t < 50 of D, R_S, D_A, A, U12 and U13, with the issue's bound."""
+    t < 50 of D, R_S, D_A, A, U12, U13 and U15 (means over the seeds run), with the issue's
+    bound."""
     print("| scene | D | R_S | D_A (shipped rules, no image) | A (shipped config, seed 10) | "
-          "U12 (image-loss search, seeds 10–12) | U13 (silhouette search) | J/kg: D_A / A / U12 / U13 (bound) |")
-    print("|---|---|---|---|---|---|---|---|")
+          "U12 (image-loss search, seeds 10–12) | U13 (silhouette search) | U15 (U13, then grounded; seeds) | "
+          "J/kg: D_A / A / U12 / U13 / U15 (bound) |")
+    print("|---|---|---|---|---|---|---|---|---|")
+
+    def seed_mean(cand, scene):
+        runs = [w for s in quick_table.SEEDS if (w := quick_table.report_scores(f"runs/one/{cand}-{scene}-s{s}"))]
+        if not runs:
+            return None, None, 0
+        cd = tuple(statistics.mean(w["cd"][k] for w in runs) for k in (0, 1))
+        return cd, statistics.mean(w["energy"] for w in runs), len(runs)
+
     for scene in quick_table.specs.REPORT_ONLY:
         d = quick_table.rollout_scores(f"runs/ref/{scene}-D.log")
         da = quick_table.rollout_scores(f"runs/ref/{scene}-DA.log")
         r_s, _ = quick_table.mean_over_seeds(scene, "S1")
         a = quick_table.report_scores(f"runs/one/A-{scene}-s10")
-        u12 = [w for s in quick_table.SEEDS if (w := quick_table.report_scores(f"runs/one/U12-{scene}-s{s}"))]
+        u12_cd, u12_e, _ = seed_mean("U12", scene)
         u13 = quick_table.report_scores(f"runs/one/U13-{scene}-s10")
+        u15_cd, u15_e, u15_n = seed_mean("U15", scene)
         r0 = r_s and r_s["cd"][0]
 
         def cell(cd):
@@ -317,11 +329,10 @@ def headline():
                 return "–"
             return f"{cd[0]:.2f} \\| {cd[1]:.2f} ({fmt(gap_share(d['cd'][0], cd[0], r0))})"
 
-        u12_cd = (statistics.mean(w["cd"][0] for w in u12), statistics.mean(w["cd"][1] for w in u12)) if u12 else None
-        energies = [da and da["energy"], a and a["energy"],
-                    statistics.mean(w["energy"] for w in u12) if u12 else None, u13 and u13["energy"]]
+        energies = [da and da["energy"], a and a["energy"], u12_e, u13 and u13["energy"], u15_e]
         print(f"| {scene} | {d['cd'][0]:.2f} \\| {d['cd'][1]:.2f} | {fmt(r0)} | {cell(da and da['cd'])} | "
               f"{cell(a and a['cd'])} | {cell(u12_cd)} | {cell(u13 and u13['cd'])} | "
+              f"{cell(u15_cd)}{f' ({u15_n})' if u15_n else ''} | "
               f"{' / '.join(f'{e:.3f}' if e is not None else '–' for e in energies)} "
               f"({2 * d['truth_energy'] + 0.1:.3f}) |")
 
