@@ -1,9 +1,10 @@
 #!/usr/bin/env python3
 """Writes experiments/bed/<scene>.toml for every test-bed scene: the settings of
-experiments/quick-watercube.toml (water scenes) or experiments/quick-honeycone.toml (honey
-scenes), with `[scene] path = "data/bed/<scene>"` instead of the built-in scene, and the settings
-chosen on the bed alone (BED_ONLY: chosen on its validation views, which the built-in scenes do not
-have).
+experiments/quick-watercube.toml (one config for every fluid since issue 71: the quick configs
+differ only in `[scene]`), with `[scene] path = "data/bed/<scene>"` instead of the built-in
+scene, and the settings chosen on the bed alone (BED_ONLY: chosen on its validation views, which
+the built-in scenes do not have; WATER_REPLACE: the bed's one rule left by material, 8
+transitions unrolled on water scenes).
 
     python3 scripts/testbed/write_configs.py
 
@@ -106,7 +107,7 @@ def main():
     for name in ORDER:
         spec = SCENES[name]
         honey = spec["render"]["material"] == "honey"
-        source = "quick-honeycone.toml" if honey else "quick-watercube.toml"
+        source = "quick-watercube.toml"
         with open(os.path.join(ROOT, "experiments", source)) as f:
             text = f.read()
         path = os.path.join(ROOT, "experiments", "bed", f"{name}.toml")
