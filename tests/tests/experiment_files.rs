@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use neurofluid_outputs::reference::ReferenceFile;
 use neurofluid_tests::workspace_root;
-use neurofluid_train::config::Experiment;
+use neurofluid_train::config::{Experiment, SearchObjective};
 use neurofluid_train::sweep::Sweep;
 
 fn toml_files(dir: &Path, out: &mut Vec<PathBuf>) {
@@ -60,7 +60,8 @@ fn every_experiment_and_sweep_file_loads() {
 
 /// The quick configs are copies of the main job's that differ only in the scene (the sweeps in
 /// `experiments/research/grounding/constant-lr-*.toml` rely on it), and the from-images one only in where
-/// the initial particles come from: a setting changed in one copy and not the others fails here.
+/// the initial particles come from: one config for every fluid (issue 71), with no material
+/// switch; a setting changed in one copy and not the others fails here.
 #[test]
 fn quick_configs_differ_from_the_main_job_only_in_the_scene() {
     use neurofluid_train::config::Settings;
@@ -70,22 +71,26 @@ fn quick_configs_differ_from_the_main_job_only_in_the_scene() {
         Experiment::load(&path).unwrap_or_else(|e| panic!("{name}: {e}"))
     };
     let load = |name: &str| Settings::all(&experiment(name));
-    // each copy runs the scene its name says, and the material's terms are what rule 6
-    // chose: water anchored, held to the energy prior and falling at g (the pre-step's gravity
-    // scaled), honey none of them but under the energy cap
+    // each copy runs the scene its name says, at the paper's gravity and without the energy
+    // cap, the physical scalars chosen by the images' silhouette, then DLF grounded under the
+    // anchor and the energy prior, whatever the fluid
     for scene in ["watercube", "watersphere", "waterbunny", "honeycone"] {
         let e = experiment(&format!("quick-{scene}"));
         assert_eq!(e.scene.builtin.map(|b| b.name()), Some(scene));
-        let water = scene != "honeycone";
-        let terms = &e.joint.terms;
-        assert_eq!(terms.anchor.is_some(), water, "quick-{scene}: anchor");
-        assert_eq!(terms.energy.is_some(), water, "quick-{scene}: energy");
-        let capped = e.dlf.rules.energy_cap != neurofluid_dlf::EnergyCap::None;
-        assert_eq!(capped, !water, "quick-{scene}: energy cap");
-        let fall = if water { 1.7 } else { 1.0 };
+        assert_eq!(e.dlf.rules.energy_cap, neurofluid_dlf::EnergyCap::None);
         assert_eq!(
-            e.dlf.rules.gravity_scale, fall,
+            e.dlf.rules.gravity_scale, 1.0,
             "quick-{scene}: gravity scale"
+        );
+        let search = e.joint.physics.as_ref().and_then(|p| p.search.as_ref());
+        assert!(
+            search.is_some_and(|s| s.objective == SearchObjective::Silhouette),
+            "quick-{scene}: the images choose the physical scalars"
+        );
+        let terms = &e.joint.terms;
+        assert!(
+            terms.anchor.is_some() && terms.energy.is_some(),
+            "quick-{scene}"
         );
     }
     let main = load("quick-watercube");
@@ -95,21 +100,8 @@ fn quick_configs_differ_from_the_main_job_only_in_the_scene() {
         "scene.builtin",
         "scene.generate.warmup_every_frame",
     ];
-    // and the material: honey's DLF steps are not anchored to the pretrained (water) DLF's, nor
-    // held to the energy prior, but capped, and fall with the published DLF's gravity
-    // (experiments/bed/README.md, rule 6)
-    let honey_keys = [
-        &scene_keys[..],
-        &[
-            "joint.terms.anchor.weight",
-            "joint.terms.energy.weight",
-            "dlf.energy_cap",
-            "dlf.gravity_scale",
-        ],
-    ]
-    .concat();
     for (name, allowed) in [
-        ("quick-honeycone", &honey_keys[..]),
+        ("quick-honeycone", &scene_keys[..]),
         ("quick-waterbunny", &scene_keys[..]),
         ("quick-watersphere", &scene_keys[..]),
         (

@@ -246,26 +246,3 @@ fn updates_before_counts_what_updates_after_says() {
     let (p, d) = updates_before(&cfg, 49, 294, u64::MAX);
     assert!(p >= d && p > 0);
 }
-
-/// Issue 71: one configuration for every fluid. The quick configs differ only in their name and
-/// `[scene]` table: no material switch; the physics each scene needs is the images' to choose
-/// (`[joint.physics.search]`).
-#[test]
-fn the_quick_configs_differ_only_in_their_scene() {
-    let base = example("quick-watercube.toml");
-    assert!(
-        base.joint.physics.as_ref().is_some_and(|p| p.search.is_some()),
-        "the images choose the physical scalars"
-    );
-    for name in [
-        "quick-honeycone.toml",
-        "quick-waterbunny.toml",
-        "quick-watersphere.toml",
-        "quick-watercube-from-images.toml",
-    ] {
-        let mut e = example(name);
-        e.name = base.name.clone();
-        e.scene = base.scene.clone();
-        assert_eq!(e, base, "{name} differs from quick-watercube.toml beyond [scene]");
-    }
-}
