@@ -27,7 +27,7 @@ use super::{ParticleTerm, TermContext, TermSettings, Transition, weight_problem}
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct AnchorSettings {
-    /// w, per particle radius² of mean squared distance (the water configs: 0.1).
+    /// w, per particle radius² of mean squared distance (the quick configs: 0.1).
     pub weight: f64,
 }
 

@@ -32,7 +32,7 @@ use super::{ParticleTerm, TermContext, TermSettings, Transition, weight_problem}
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct EnergySettings {
-    /// w, per unit of gain (lifting every particle by one radius; the water configs: 0.005).
+    /// w, per unit of gain (lifting every particle by one radius; the quick configs: 0.005).
     pub weight: f64,
 }
 
