@@ -14,7 +14,8 @@
 # prior 0.005) on every scene: U15. ANCHOR=W (probe P11) grounds under the anchor's weight W
 # instead (runs/one/U15-anchorW-…).
 # RIG=2|4 (probe P12, with the silhouette): the joint stage's rig of 2 or 4 views
-# (experiments/research/bed/rig-views.py), which the search scores too: runs/one/U13-rig<RIG>-….
+# (experiments/research/bed/rig-views.py), which the search scores too: runs/one/U13-rig<RIG>-…
+# (with GROUND=1: U15-rig<RIG>-…, the one config on that rig).
 # A built-in quick scene (watercube, honeycone) runs its quick config (experiments/quick-<scene>.toml)
 # with the same changes, its warm-up made by the run.
 #   [OBJECTIVE=silhouette [GROUND=1]] bash experiments/research/physics/search-runs.sh SCENE SEED
@@ -40,8 +41,8 @@ if [[ ${GROUND:-} == 1 ]]; then
 fi
 rig=()
 if [[ -n ${RIG:-} ]]; then
-  [[ $cand == U13 ]] || { echo "RIG goes with OBJECTIVE=silhouette alone" >&2; exit 2; }
-  cand=U13-rig$RIG
+  [[ $cand == U13 || $cand == U15 ]] || { echo "RIG goes with OBJECTIVE=silhouette" >&2; exit 2; }
+  cand=$cand-rig$RIG
   rig=(--set "joint.extra_views=$(python3 experiments/research/bed/rig-views.py \
     "${BED_DATA:-data/bed-particles}/$scene" "$RIG")")
 fi
