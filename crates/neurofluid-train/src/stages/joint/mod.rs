@@ -218,7 +218,7 @@ impl JointTrainer {
             return Ok(());
         };
         let dlf = self.stepping_dlf();
-        let tried = search::search(
+        let (tried, truth) = search::search(
             &self.physnerf,
             &dlf,
             &self.data,
@@ -231,8 +231,6 @@ impl JointTrainer {
         }
         let best = search::best(&tried)
             .context("joint.physics.search: no point of the grid gave a finite score")?;
-        let truth =
-            search::truth_score(&self.physnerf, &self.data, grid, self.cfg.rays, self.seed)?;
         if let Some(loss) = truth {
             log.append(&search::truth_row(loss))?;
         }

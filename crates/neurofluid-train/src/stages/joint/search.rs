@@ -6,9 +6,9 @@
 //! of a view's images rendered from that rollout at `joint.rays` pixels a frame, drawn from the
 //! seed's search stream, the same pixels at every point), or the silhouette (the mean Jaccard
 //! distance between the pixels where a view shows fluid and those the rollout's particles
-//! cover). Where the scene has the true particles, the same objective scores them too
-//! ([`truth_score`]): how near the best point comes to the images' own particles. A coarse search finds the basin that Adam from the rules' values
-//! may not reach (docs/notebook/2026-12-06-image-landscape.md).
+//! cover). Where the scene has the true particles, the same objective scores them too: how near
+//! the best point comes to the images' own particles. A coarse search finds the basin that Adam
+//! from the rules' values may not reach (docs/notebook/2026-12-06-image-landscape.md).
 
 use neurofluid_core::ray_focus::{image_foreground, mark_particles, mask_iou};
 use neurofluid_dlf::DlfNet;
@@ -32,8 +32,10 @@ pub struct Tried {
     pub loss: f64,
 }
 
-/// Every point of `grid` (the scalars not searched at `dlf`'s rules' values) with its score
-/// (`physnerf` renders only for the image objective).
+/// Every point of `grid` (the scalars not searched at `dlf`'s rules' values) with its score, and
+/// the same objective on the true particles of the training frames where the scene has them (how
+/// near the images' own particles come by that score, beside the grid's best). `physnerf`
+/// renders only for the image objective.
 pub fn search(
     physnerf: &PhysNerf,
     dlf: &DlfNet,
@@ -41,10 +43,11 @@ pub fn search(
     grid: &ScalarGrid,
     rays: usize,
     seed: u64,
-) -> anyhow::Result<Vec<Tried>> {
+) -> anyhow::Result<(Vec<Tried>, Option<f64>)> {
     let start = neurofluid_dlf::physics::values_of(&dlf.config.rules);
     let objective = Objective::new(physnerf, data, grid.objective, rays, seed);
-    grid.points(start)
+    let tried = grid
+        .points(start)
         .into_iter()
         .map(|point| {
             let mut config = dlf.config;
@@ -54,24 +57,13 @@ pub fn search(
             tracing::debug!(?point, loss, "searched");
             Ok(Tried { point, loss })
         })
-        .collect()
-}
-
-/// The grid's objective on the true particles of the training frames, where the scene has them:
-/// how near the images' own particles come by the same score, beside the grid's best.
-pub fn truth_score(
-    physnerf: &PhysNerf,
-    data: &JointData,
-    grid: &ScalarGrid,
-    rays: usize,
-    seed: u64,
-) -> anyhow::Result<Option<f64>> {
-    let Some(truth) = &data.truth else {
-        return Ok(None);
-    };
-    Objective::new(physnerf, data, grid.objective, rays, seed)
-        .score(truth)
-        .map(Some)
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let truth = data
+        .truth
+        .as_ref()
+        .map(|truth| objective.score(truth))
+        .transpose()?;
+    Ok((tried, truth))
 }
 
 /// A search's objective: the mean over the joint stage's views (`data.views`: the training view,
@@ -164,7 +156,7 @@ pub fn best(tried: &[Tried]) -> Option<Tried> {
         })
 }
 
-/// The metrics rows' stage of the truth's score ([`truth_score`]): one row, step 0.
+/// The metrics rows' stage of the truth's score ([`search`]'s second value): one row, step 0.
 pub const TRUTH_STAGE: &str = "joint-search-truth";
 
 /// The metrics row of the truth's score.
